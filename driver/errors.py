@@ -1,0 +1,116 @@
+"""One exception hierarchy for the whole project.
+
+Every error a user can cause (bad bytes, a missing servo, a malformed file) is a
+:class:`SwerveError`; the ``swerve`` command prints its message and exits non-zero
+instead of showing a traceback. Errors carry their facts as fields::
+
+    SwerveError
+    ├── ConfigError (ValueError)
+    └── DxlError
+        ├── TransportError (IOError)
+        ├── DxlTimeoutError (TimeoutError)      ids, instruction, timeout_s
+        ├── CorruptPacketError (ValueError)
+        │   └── ChecksumError                    expected, actual, frame
+        ├── ServoError                           id, error_number, alert, hardware_error
+        ├── RegisterError (KeyError)
+        └── OutOfRangeError (ValueError)         register, value, low, high
+"""
+from __future__ import annotations
+
+
+class SwerveError(Exception):
+    """Base of every error the project raises on purpose."""
+
+
+class ConfigError(SwerveError, ValueError):
+    """A configuration, data or trajectory file (or argument) is malformed."""
+
+
+class DxlError(SwerveError):
+    """Base of Dynamixel communication and servo errors."""
+
+
+class TransportError(DxlError, IOError):
+    """The serial port could not be opened, written or read."""
+
+
+class DxlTimeoutError(DxlError, TimeoutError):
+    """No (complete) reply arrived before the deadline.
+
+    Attributes: ``ids`` the servo IDs that did not answer, ``instruction`` the
+    instruction code sent, ``timeout_s`` the deadline used.
+    """
+
+    def __init__(self, ids, instruction: int, timeout_s: float, detail: str = ""):
+        self.ids = tuple(ids)
+        self.instruction = int(instruction)
+        self.timeout_s = float(timeout_s)
+        from driver.packets import instruction_name  # local: avoid an import cycle
+
+        msg = (f"no reply from servo ID {', '.join(map(str, self.ids)) or '-'} to "
+               f"{instruction_name(self.instruction)} within {self.timeout_s * 1e3:.1f} ms")
+        super().__init__(msg + (f" ({detail})" if detail else ""))
+
+
+class CorruptPacketError(DxlError, ValueError):
+    """Bytes that should have been a packet were not one (bad header, length, ID...)."""
+
+
+class ChecksumError(CorruptPacketError):
+    """A frame's CRC-16 did not match: ``expected`` (computed) vs ``actual`` (received)."""
+
+    def __init__(self, expected: int, actual: int, frame: bytes = b""):
+        self.expected = expected
+        self.actual = actual
+        self.frame = bytes(frame)
+        super().__init__(f"CRC mismatch: computed 0x{expected:04X}, received 0x{actual:04X}"
+                         + (f" in frame {self.frame.hex(' ')}" if frame else ""))
+
+
+class ServoError(DxlError):
+    """A servo answered with a non-zero error byte.
+
+    Attributes: ``id``; ``error_number`` (:class:`driver.packets.ErrorNumber`, 0 if only the
+    alert bit is set); ``alert`` (a hardware fault is latched); ``hardware_error`` (the
+    decoded Hardware Error Status bits, when they were read, else ``None``).
+    """
+
+    def __init__(self, id: int, error_byte: int, instruction: int | None = None,
+                 hardware_error=None, context: str = ""):
+        from driver.packets import ErrorNumber, StatusError, instruction_name
+
+        st = StatusError.from_byte(error_byte)
+        self.id = int(id)
+        self.error_byte = int(error_byte)
+        self.error_number = st.number
+        self.alert = st.alert
+        self.instruction = instruction
+        self.hardware_error = hardware_error
+        parts = []
+        if st.number != ErrorNumber.NONE:
+            parts.append(st.number.description)
+        if st.alert:
+            hw = f": {hardware_error}" if hardware_error is not None else ""
+            parts.append(f"hardware alert{hw} (reboot the servo to clear it)")
+        what = f" to {instruction_name(instruction)}" if instruction is not None else ""
+        super().__init__(f"servo ID {self.id} answered{what} with error: {'; '.join(parts)}"
+                         + (f" [{context}]" if context else ""))
+
+
+class RegisterError(DxlError, KeyError):
+    """An unknown register name or address for this model."""
+
+    def __str__(self) -> str:  # KeyError quotes its message otherwise
+        return str(self.args[0]) if self.args else "unknown register"
+
+
+class OutOfRangeError(DxlError, ValueError):
+    """A value (SI or raw) does not fit the register's range; nothing is clamped."""
+
+    def __init__(self, register: str, value, low, high, unit: str = ""):
+        self.register = register
+        self.value = value
+        self.low = low
+        self.high = high
+        u = f" {unit}" if unit else ""
+        super().__init__(f"{register} = {value}{u} is outside [{low}, {high}]{u}")
