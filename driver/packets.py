@@ -1,0 +1,494 @@
+"""Dynamixel Protocol 2.0 codec: CRC-16, byte stuffing, instruction and status packets.
+
+Pure code, no I/O; the driver and the emulator share it. Facts: ROBOTIS e-Manual,
+"Protocol 2.0" (https://emanual.robotis.com/docs/en/dxl/protocol2/), summarised in
+``shared/reference/dynamixel-protocol2.md`` §1–2.
+
+Frame: ``FF FF FD 00 | ID | LEN_L LEN_H | INST | PARAM… | CRC_L CRC_H`` where LEN counts
+INST + params (+ ERR for a status) + 2 CRC bytes *after* stuffing, and the CRC-16
+(poly 0x8005, init 0, MSB-first) covers everything before it, also after stuffing.
+"""
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Iterable, Mapping, Sequence
+
+from driver.errors import ChecksumError, CorruptPacketError
+
+HEADER = b"\xff\xff\xfd\x00"
+BROADCAST_ID = 0xFE
+MAX_ID = 0xFC
+#: Largest LENGTH field accepted by the parser/decoder (bounds memory on garbage input).
+MAX_LENGTH = 4096
+_STUFF_PATTERN = b"\xff\xff\xfd"
+
+
+class Instruction(IntEnum):
+    """Instruction codes (the byte after LENGTH)."""
+
+    PING = 0x01
+    READ = 0x02
+    WRITE = 0x03
+    REG_WRITE = 0x04
+    ACTION = 0x05
+    FACTORY_RESET = 0x06
+    REBOOT = 0x08
+    CLEAR = 0x10
+    CONTROL_TABLE_BACKUP = 0x20
+    STATUS = 0x55
+    SYNC_READ = 0x82
+    SYNC_WRITE = 0x83
+    FAST_SYNC_READ = 0x8A
+    BULK_READ = 0x92
+    BULK_WRITE = 0x93
+    FAST_BULK_READ = 0x9A
+
+
+def instruction_name(code: int | None) -> str:
+    """Human name of an instruction code, e.g. ``"SYNC_READ (0x82)"``."""
+    if code is None:
+        return "?"
+    try:
+        return f"{Instruction(code).name} (0x{code:02X})"
+    except ValueError:
+        return f"unknown instruction 0x{code:02X}"
+
+
+class ErrorNumber(IntEnum):
+    """Error number in bits 0–6 of a status packet's ERR byte."""
+
+    NONE = 0x00
+    RESULT_FAIL = 0x01
+    INSTRUCTION = 0x02
+    CRC = 0x03
+    DATA_RANGE = 0x04
+    DATA_LENGTH = 0x05
+    DATA_LIMIT = 0x06
+    ACCESS = 0x07
+
+    @property
+    def description(self) -> str:
+        """One-line meaning, paraphrasing the e-Manual."""
+        return _ERROR_TEXT.get(self, f"error {int(self)}")
+
+
+_ERROR_TEXT = {
+    ErrorNumber.NONE: "no error",
+    ErrorNumber.RESULT_FAIL: "result fail (instruction could not be processed)",
+    ErrorNumber.INSTRUCTION: "instruction error (undefined instruction, or Action without Reg Write)",
+    ErrorNumber.CRC: "CRC error (the servo received a corrupted packet)",
+    ErrorNumber.DATA_RANGE: "data range error (value outside the item's range)",
+    ErrorNumber.DATA_LENGTH: "data length error (fewer bytes than the item's size)",
+    ErrorNumber.DATA_LIMIT: "data limit error (value outside the configured limit)",
+    ErrorNumber.ACCESS: "access error (read-only/undefined address, or EEPROM write with torque on)",
+}
+
+ALERT_BIT = 0x80
+
+
+@dataclass(frozen=True)
+class StatusError:
+    """Decoded ERR byte: the error number and the hardware alert bit."""
+
+    number: ErrorNumber
+    alert: bool
+
+    @classmethod
+    def from_byte(cls, err: int) -> "StatusError":
+        num = err & 0x7F
+        try:
+            number = ErrorNumber(num)
+        except ValueError:  # undefined numbers keep their value visible
+            number = ErrorNumber.RESULT_FAIL if num else ErrorNumber.NONE
+        return cls(number, bool(err & ALERT_BIT))
+
+    def to_byte(self) -> int:
+        return int(self.number) | (ALERT_BIT if self.alert else 0)
+
+    @property
+    def ok(self) -> bool:
+        return self.number == ErrorNumber.NONE and not self.alert
+
+
+# --- CRC-16 (poly 0x8005, init 0x0000, MSB first, no reflection, no final XOR) -------------
+
+def _make_crc_table() -> tuple[int, ...]:
+    table = []
+    for i in range(256):
+        crc = i << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else (crc << 1)
+        table.append(crc & 0xFFFF)
+    return tuple(table)
+
+
+_CRC_TABLE = _make_crc_table()
+
+
+def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
+    """CRC-16 of ``data`` as Dynamixel Protocol 2.0 defines it; ``crc`` continues a running CRC."""
+    table = _CRC_TABLE
+    for b in data:
+        crc = ((crc << 8) ^ table[((crc >> 8) ^ b) & 0xFF]) & 0xFFFF
+    return crc
+
+
+# --- byte stuffing ---------------------------------------------------------------------------
+
+def stuff(body: bytes) -> bytes:
+    """Insert an ``FD`` after every ``FF FF FD`` in ``body`` (INST … last PARAM)."""
+    if _STUFF_PATTERN not in body:
+        return bytes(body)
+    return bytes(body).replace(_STUFF_PATTERN, _STUFF_PATTERN + b"\xfd")
+
+
+def unstuff(body: bytes) -> bytes:
+    """Remove the ``FD`` inserted after every ``FF FF FD`` (inverse of :func:`stuff`)."""
+    if _STUFF_PATTERN not in body:
+        return bytes(body)
+    return bytes(body).replace(_STUFF_PATTERN + b"\xfd", _STUFF_PATTERN)
+
+
+def _frame(id_: int, body: bytes, *, stuffed: bool = True) -> bytes:
+    """Wrap ``body`` (INST [ERR] params) into a full frame with header, LENGTH and CRC."""
+    if stuffed:
+        body = stuff(body)
+    head = HEADER + bytes((id_,)) + struct.pack("<H", len(body) + 2)
+    frame = head + body
+    return frame + struct.pack("<H", crc16(frame))
+
+
+def split_frame(frame: bytes) -> tuple[int, bytes]:
+    """Check a complete frame's header, LENGTH and CRC; return ``(id, stuffed body)``.
+
+    Raises :class:`ChecksumError` or :class:`CorruptPacketError` naming what is wrong.
+    """
+    frame = bytes(frame)
+    if len(frame) < 10:
+        raise CorruptPacketError(f"frame too short ({len(frame)} bytes): {frame.hex(' ')}")
+    if not frame.startswith(HEADER):
+        raise CorruptPacketError(f"bad header {frame[:4].hex(' ')} (expected ff ff fd 00)")
+    (length,) = struct.unpack_from("<H", frame, 5)
+    if length < 3 or 7 + length != len(frame):
+        raise CorruptPacketError(
+            f"LENGTH field {length} does not match a {len(frame)}-byte frame")
+    (actual,) = struct.unpack_from("<H", frame, len(frame) - 2)
+    expected = crc16(frame[:-2])
+    if actual != expected:
+        raise ChecksumError(expected, actual, frame)
+    return frame[4], frame[7:-2]
+
+
+# --- packets -----------------------------------------------------------------------------------
+
+def _check_id(id_: int, *, allow_broadcast: bool = True) -> None:
+    if not (0 <= id_ <= MAX_ID or (allow_broadcast and id_ == BROADCAST_ID)):
+        raise ValueError(f"invalid Dynamixel ID {id_} (0..252{', 254 broadcast' if allow_broadcast else ''})")
+
+
+@dataclass(frozen=True)
+class InstructionPacket:
+    """An instruction from host to servo(s): ``id`` (0–252 or 0xFE), ``instruction``, raw ``params``."""
+
+    id: int
+    instruction: int
+    params: bytes = b""
+
+    def __post_init__(self) -> None:
+        _check_id(self.id)
+        if not 0 <= self.instruction <= 0xFF or self.instruction == Instruction.STATUS:
+            raise ValueError(f"invalid instruction code {self.instruction!r}")
+        object.__setattr__(self, "params", bytes(self.params))
+
+    def encode(self) -> bytes:
+        """The frame as sent on the wire (stuffed, with CRC)."""
+        return _frame(self.id, bytes((self.instruction,)) + self.params)
+
+    @classmethod
+    def decode(cls, frame: bytes) -> "InstructionPacket":
+        """Parse one complete instruction frame (raises on a bad CRC, length or header)."""
+        id_, body = split_frame(frame)
+        body = unstuff(body)
+        if body[0] == Instruction.STATUS:
+            raise CorruptPacketError("frame is a status packet, not an instruction")
+        if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
+            raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
+        return cls(id_, body[0], body[1:])
+
+    @property
+    def name(self) -> str:
+        return instruction_name(self.instruction)
+
+
+@dataclass(frozen=True)
+class StatusPacket:
+    """A status (reply) from one servo: ``id``, raw ``error`` byte, raw ``params``."""
+
+    id: int
+    error: int = 0
+    params: bytes = b""
+
+    def __post_init__(self) -> None:
+        _check_id(self.id)
+        if not 0 <= self.error <= 0xFF:
+            raise ValueError(f"invalid error byte {self.error!r}")
+        object.__setattr__(self, "params", bytes(self.params))
+
+    @property
+    def status_error(self) -> StatusError:
+        return StatusError.from_byte(self.error)
+
+    @property
+    def error_number(self) -> ErrorNumber:
+        return self.status_error.number
+
+    @property
+    def alert(self) -> bool:
+        return bool(self.error & ALERT_BIT)
+
+    def encode(self) -> bytes:
+        """The frame as sent on the wire (stuffed, with CRC)."""
+        return _frame(self.id, bytes((Instruction.STATUS, self.error)) + self.params)
+
+    @classmethod
+    def decode(cls, frame: bytes) -> "StatusPacket":
+        """Parse one complete (ordinary, stuffed) status frame."""
+        id_, body = split_frame(frame)
+        body = unstuff(body)
+        if body[0] != Instruction.STATUS or len(body) < 2:
+            raise CorruptPacketError(f"not a status packet (instruction byte 0x{body[0]:02X})")
+        return cls(id_, body[1], body[2:])
+
+
+@dataclass(frozen=True)
+class FastStatus:
+    """The single combined reply to Fast Sync Read / Fast Bulk Read.
+
+    ``entries`` holds one :class:`StatusPacket` per servo in the order they were listed.
+    On the wire it is one frame with ID 0xFE and no byte stuffing::
+
+        FF FF FD 00 FE LEN 55 | ERR1 ID1 DATA1 CRC1 | … | ERRn IDn DATAn CRCn
+
+    where each CRCk is the running CRC-16 of the frame up to DATAk, so CRCn is the frame CRC.
+    """
+
+    entries: tuple[StatusPacket, ...]
+
+    def encode(self) -> bytes:
+        """Build the full combined frame."""
+        length = 1 + sum(len(e.params) + 4 for e in self.entries)
+        frame = bytearray(HEADER + bytes((BROADCAST_ID,)) + struct.pack("<H", length)
+                          + bytes((Instruction.STATUS,)))
+        if not self.entries:
+            raise ValueError("a fast status needs at least one entry")
+        for e in self.entries:
+            frame += bytes((e.error, e.id)) + e.params
+            frame += struct.pack("<H", crc16(frame))
+        return bytes(frame)
+
+    def slices(self) -> list[bytes]:
+        """The frame cut into the slices each servo transmits in turn (first one sends the header)."""
+        whole = self.encode()
+        out, pos = [], 8
+        for i, e in enumerate(self.entries):
+            end = pos + 2 + len(e.params) + 2
+            out.append(whole[:end] if i == 0 else whole[pos:end])
+            pos = end
+        return out
+
+    @classmethod
+    def decode(cls, frame: bytes, lengths: Sequence[int]) -> "FastStatus":
+        """Parse a combined frame given each entry's data length (as requested)."""
+        id_, body = split_frame(frame)
+        if id_ != BROADCAST_ID or body[:1] != bytes((Instruction.STATUS,)):
+            raise CorruptPacketError("not a fast sync/bulk read reply (ID must be 0xFE, instruction 0x55)")
+        expect = 1 + sum(n + 4 for n in lengths)
+        if len(body) + 2 != expect:
+            raise CorruptPacketError(
+                f"fast read reply carries {len(body) + 2 - 1} data bytes, expected {expect - 1} "
+                f"for lengths {list(lengths)}")
+        entries, pos = [], 8
+        for n in lengths:
+            err, sid = frame[pos], frame[pos + 1]
+            data = frame[pos + 2:pos + 2 + n]
+            (crc_k,) = struct.unpack_from("<H", frame, pos + 2 + n)
+            want = crc16(frame[:pos + 2 + n])
+            if crc_k != want:
+                raise ChecksumError(want, crc_k, frame)
+            if not 0 <= sid <= MAX_ID:
+                raise CorruptPacketError(f"invalid ID {sid} inside fast read reply")
+            entries.append(StatusPacket(sid, err, data))
+            pos += n + 4
+        return cls(tuple(entries))
+
+
+Packet = InstructionPacket | StatusPacket
+
+
+def decode_frame(frame: bytes) -> Packet:
+    """Decode any complete frame: a status (0x55) or an instruction.
+
+    A Fast Sync/Bulk Read reply (status with ID 0xFE) is returned as a :class:`StatusPacket`
+    with ``id`` 0xFE, ``error`` = first servo's ERR byte and the *raw* (not unstuffed) rest as
+    ``params``; use :meth:`FastStatus.decode` with the requested lengths to split it.
+    """
+    id_, body = split_frame(frame)
+    if body[0] == Instruction.STATUS:
+        if len(body) < 2:
+            raise CorruptPacketError("status packet without an error byte")
+        if id_ == BROADCAST_ID:  # fast read reply: not stuffed
+            return StatusPacket(id_, body[1], body[2:])
+        body = unstuff(body)
+        return StatusPacket(id_, body[1], body[2:])
+    body = unstuff(body)
+    if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
+        raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
+    return InstructionPacket(id_, body[0], body[1:])
+
+
+# --- builders for every instruction -----------------------------------------------------------
+
+def _u16(v: int) -> bytes:
+    return struct.pack("<H", v)
+
+
+def ping(id_: int) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.PING)
+
+
+def read(id_: int, address: int, length: int) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.READ, _u16(address) + _u16(length))
+
+
+def write(id_: int, address: int, data: bytes) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.WRITE, _u16(address) + bytes(data))
+
+
+def reg_write(id_: int, address: int, data: bytes) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.REG_WRITE, _u16(address) + bytes(data))
+
+
+def action(id_: int) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.ACTION)
+
+
+class ResetOption(IntEnum):
+    """Factory Reset parameter."""
+
+    ALL = 0xFF
+    EXCEPT_ID = 0x01
+    EXCEPT_ID_BAUD = 0x02
+
+
+def factory_reset(id_: int, option: int = ResetOption.EXCEPT_ID_BAUD) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.FACTORY_RESET, bytes((int(ResetOption(option)),)))
+
+
+def reboot(id_: int) -> InstructionPacket:
+    return InstructionPacket(id_, Instruction.REBOOT)
+
+
+CLEAR_MULTI_TURN = b"\x01DXL\x22"
+BACKUP_KEY = b"CTRL"
+
+
+def clear(id_: int) -> InstructionPacket:
+    """Clear (multi-turn position) — option 0x01 followed by the fixed key ``44 58 4C 22``."""
+    return InstructionPacket(id_, Instruction.CLEAR, CLEAR_MULTI_TURN)
+
+
+def control_table_backup(id_: int, restore: bool = False) -> InstructionPacket:
+    """Control Table Backup: store (0x01) or restore (0x02), then the fixed key ``CTRL``."""
+    return InstructionPacket(id_, Instruction.CONTROL_TABLE_BACKUP,
+                             bytes((0x02 if restore else 0x01,)) + BACKUP_KEY)
+
+
+def sync_read(address: int, length: int, ids: Iterable[int], fast: bool = False) -> InstructionPacket:
+    ids = bytes(ids)
+    for i in ids:
+        _check_id(i, allow_broadcast=False)
+    inst = Instruction.FAST_SYNC_READ if fast else Instruction.SYNC_READ
+    return InstructionPacket(BROADCAST_ID, inst, _u16(address) + _u16(length) + ids)
+
+
+def sync_write(address: int, length: int, data: Mapping[int, bytes]) -> InstructionPacket:
+    params = bytearray(_u16(address) + _u16(length))
+    for id_, d in data.items():
+        _check_id(id_, allow_broadcast=False)
+        if len(d) != length:
+            raise ValueError(f"sync write data for ID {id_} is {len(d)} bytes, expected {length}")
+        params += bytes((id_,)) + bytes(d)
+    return InstructionPacket(BROADCAST_ID, Instruction.SYNC_WRITE, params)
+
+
+def bulk_read(items: Iterable[tuple[int, int, int]], fast: bool = False) -> InstructionPacket:
+    """``items``: ``(id, address, length)`` per servo; an ID may appear only once."""
+    params, seen = bytearray(), set()
+    for id_, address, length in items:
+        _check_id(id_, allow_broadcast=False)
+        if id_ in seen:
+            raise ValueError(f"ID {id_} appears twice in a bulk read")
+        seen.add(id_)
+        params += bytes((id_,)) + _u16(address) + _u16(length)
+    inst = Instruction.FAST_BULK_READ if fast else Instruction.BULK_READ
+    return InstructionPacket(BROADCAST_ID, inst, params)
+
+
+def bulk_write(items: Iterable[tuple[int, int, bytes]]) -> InstructionPacket:
+    """``items``: ``(id, address, data)`` per servo; an ID may appear only once."""
+    params, seen = bytearray(), set()
+    for id_, address, data in items:
+        _check_id(id_, allow_broadcast=False)
+        if id_ in seen:
+            raise ValueError(f"ID {id_} appears twice in a bulk write")
+        seen.add(id_)
+        params += bytes((id_,)) + _u16(address) + _u16(len(data)) + bytes(data)
+    return InstructionPacket(BROADCAST_ID, Instruction.BULK_WRITE, params)
+
+
+# --- parameter parsers (the servo side) -------------------------------------------------------
+
+def parse_address_length(params: bytes) -> tuple[int, int]:
+    """``(address, length)`` of a Read / Sync Read head; raises on short params."""
+    if len(params) < 4:
+        raise CorruptPacketError(f"expected address and length (4 bytes), got {len(params)}")
+    return struct.unpack_from("<HH", params)
+
+
+def parse_sync_read(params: bytes) -> tuple[int, int, tuple[int, ...]]:
+    address, length = parse_address_length(params)
+    return address, length, tuple(params[4:])
+
+
+def parse_sync_write(params: bytes) -> tuple[int, int, dict[int, bytes]]:
+    address, length = parse_address_length(params)
+    rest, out = params[4:], {}
+    step = 1 + length
+    if length == 0 or len(rest) % step:
+        raise CorruptPacketError(f"sync write block of {len(rest)} bytes is not a multiple of 1+{length}")
+    for i in range(0, len(rest), step):
+        out[rest[i]] = rest[i + 1:i + step]
+    return address, length, out
+
+
+def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
+    if len(params) % 5:
+        raise CorruptPacketError(f"bulk read params of {len(params)} bytes are not a multiple of 5")
+    return [(params[i],) + struct.unpack_from("<HH", params, i + 1) for i in range(0, len(params), 5)]
+
+
+def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
+    out, pos = [], 0
+    while pos < len(params):
+        if pos + 5 > len(params):
+            raise CorruptPacketError("truncated bulk write entry")
+        id_ = params[pos]
+        address, length = struct.unpack_from("<HH", params, pos + 1)
+        data = params[pos + 5:pos + 5 + length]
+        if len(data) != length:
+            raise CorruptPacketError(f"bulk write entry for ID {id_} is truncated")
+        out.append((id_, address, bytes(data)))
+        pos += 5 + length
+    return out
