@@ -1,0 +1,348 @@
+"""X-series control tables, loaded from data files in ``configs/models/`` (one per model).
+
+The driver and the emulator's memory map load the same files. Registers are named by the
+:class:`Reg` enum (typos fail at import, not on the wire); raw <-> SI conversion happens here
+once, and raises :class:`~driver.errors.OutOfRangeError` instead of clamping.
+"""
+from __future__ import annotations
+
+import functools
+import math
+from dataclasses import dataclass, field
+from enum import StrEnum
+from pathlib import Path
+
+import yaml
+
+from driver.errors import ConfigError, OutOfRangeError, RegisterError
+
+CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+MODELS_DIR = CONFIG_DIR / "models"
+
+
+class Reg(StrEnum):
+    """Control-table item names (snake_case of the e-Manual names)."""
+
+    MODEL_NUMBER = "model_number"
+    MODEL_INFORMATION = "model_information"
+    FIRMWARE_VERSION = "firmware_version"
+    ID = "id"
+    BAUD_RATE = "baud_rate"
+    RETURN_DELAY_TIME = "return_delay_time"
+    DRIVE_MODE = "drive_mode"
+    OPERATING_MODE = "operating_mode"
+    SECONDARY_ID = "secondary_id"
+    PROTOCOL_TYPE = "protocol_type"
+    HOMING_OFFSET = "homing_offset"
+    MOVING_THRESHOLD = "moving_threshold"
+    TEMPERATURE_LIMIT = "temperature_limit"
+    MAX_VOLTAGE_LIMIT = "max_voltage_limit"
+    MIN_VOLTAGE_LIMIT = "min_voltage_limit"
+    PWM_LIMIT = "pwm_limit"
+    CURRENT_LIMIT = "current_limit"
+    VELOCITY_LIMIT = "velocity_limit"
+    MAX_POSITION_LIMIT = "max_position_limit"
+    MIN_POSITION_LIMIT = "min_position_limit"
+    EXTERNAL_PORT_MODE_1 = "external_port_mode_1"
+    EXTERNAL_PORT_MODE_2 = "external_port_mode_2"
+    EXTERNAL_PORT_MODE_3 = "external_port_mode_3"
+    STARTUP_CONFIGURATION = "startup_configuration"
+    SHUTDOWN = "shutdown"
+    TORQUE_ENABLE = "torque_enable"
+    LED = "led"
+    STATUS_RETURN_LEVEL = "status_return_level"
+    REGISTERED_INSTRUCTION = "registered_instruction"
+    HARDWARE_ERROR_STATUS = "hardware_error_status"
+    VELOCITY_I_GAIN = "velocity_i_gain"
+    VELOCITY_P_GAIN = "velocity_p_gain"
+    POSITION_D_GAIN = "position_d_gain"
+    POSITION_I_GAIN = "position_i_gain"
+    POSITION_P_GAIN = "position_p_gain"
+    FEEDFORWARD_2ND_GAIN = "feedforward_2nd_gain"
+    FEEDFORWARD_1ST_GAIN = "feedforward_1st_gain"
+    BUS_WATCHDOG = "bus_watchdog"
+    GOAL_PWM = "goal_pwm"
+    GOAL_CURRENT = "goal_current"
+    GOAL_VELOCITY = "goal_velocity"
+    PROFILE_ACCELERATION = "profile_acceleration"
+    PROFILE_VELOCITY = "profile_velocity"
+    GOAL_POSITION = "goal_position"
+    REALTIME_TICK = "realtime_tick"
+    MOVING = "moving"
+    MOVING_STATUS = "moving_status"
+    PRESENT_PWM = "present_pwm"
+    PRESENT_CURRENT = "present_current"
+    PRESENT_VELOCITY = "present_velocity"
+    PRESENT_POSITION = "present_position"
+    VELOCITY_TRAJECTORY = "velocity_trajectory"
+    POSITION_TRAJECTORY = "position_trajectory"
+    PRESENT_INPUT_VOLTAGE = "present_input_voltage"
+    PRESENT_TEMPERATURE = "present_temperature"
+    BACKUP_READY = "backup_ready"
+    EXTERNAL_PORT_DATA_1 = "external_port_data_1"
+    EXTERNAL_PORT_DATA_2 = "external_port_data_2"
+    EXTERNAL_PORT_DATA_3 = "external_port_data_3"
+
+
+class OperatingMode:
+    """Values of Operating Mode (11)."""
+
+    CURRENT = 0
+    VELOCITY = 1
+    POSITION = 3
+    EXTENDED_POSITION = 4
+    CURRENT_BASED_POSITION = 5
+    PWM = 16
+
+
+class HardwareError:
+    """Bits of Hardware Error Status (70) and Shutdown (63)."""
+
+    INPUT_VOLTAGE = 0x01
+    OVERHEATING = 0x04
+    MOTOR_ENCODER = 0x08
+    ELECTRICAL_SHOCK = 0x10
+    OVERLOAD = 0x20
+    NAMES = {0x01: "input voltage", 0x04: "overheating", 0x08: "motor encoder",
+             0x10: "electrical shock", 0x20: "overload"}
+
+    @classmethod
+    def describe(cls, bits: int) -> str:
+        """``"overload, overheating"`` for the set bits; ``"none"`` if zero."""
+        names = [n for b, n in cls.NAMES.items() if bits & b]
+        return ", ".join(names) if names else "none"
+
+
+@dataclass(frozen=True)
+class Register:
+    """One control-table item. Raw values are integers; ``scale`` is SI units per LSB."""
+
+    name: str
+    address: int
+    size: int
+    access: str                 # "R" or "RW"
+    area: str                   # "EEPROM" or "RAM"
+    default: int
+    min: int | None = None      # raw range (None: read-only item)
+    max: int | None = None
+    signed: bool = False
+    unit: str | None = None     # SI unit of to_si(); None = raw integer
+    scale: float | None = None
+    limit: str | None = None    # symmetric limit item (|value| <= limit)
+    limit_min: str | None = None
+    limit_max: str | None = None
+    allowed: tuple[int, ...] | None = None
+    divisor: int | None = None  # firmware gain = raw / divisor
+    extra: dict = field(default_factory=dict, compare=False, hash=False)
+
+    @property
+    def writable(self) -> bool:
+        return self.access == "RW"
+
+    @property
+    def eeprom(self) -> bool:
+        return self.area == "EEPROM"
+
+    # raw <-> bytes
+    def encode(self, raw: int) -> bytes:
+        """Little-endian bytes of a raw value (two's complement where signed)."""
+        try:
+            return int(raw).to_bytes(self.size, "little", signed=self.signed)
+        except OverflowError:
+            lo, hi = self.raw_bounds()
+            raise OutOfRangeError(self.name, raw, lo, hi) from None
+
+    def decode(self, data: bytes) -> int:
+        """Raw value from little-endian bytes (sign-extended where signed)."""
+        if len(data) != self.size:
+            raise ValueError(f"{self.name}: expected {self.size} bytes, got {len(data)}")
+        return int.from_bytes(data, "little", signed=self.signed)
+
+    def raw_bounds(self) -> tuple[int, int]:
+        """The widest raw range: the item's documented range, else what its size holds."""
+        if self.min is not None and self.max is not None:
+            return self.min, self.max
+        bits = 8 * self.size
+        return (-(1 << (bits - 1)), (1 << (bits - 1)) - 1) if self.signed else (0, (1 << bits) - 1)
+
+    def check_raw(self, raw: int) -> int:
+        """Return ``raw`` if inside the item's fixed range, else raise OutOfRangeError."""
+        lo, hi = self.raw_bounds()
+        if not lo <= raw <= hi or (self.allowed is not None and raw not in self.allowed):
+            raise OutOfRangeError(self.name, raw, lo, hi)
+        return raw
+
+    # raw <-> SI
+    def to_si(self, raw: int) -> float:
+        """SI value (``unit``) of a raw value; raw integers pass through as float."""
+        return float(raw) * self.scale if self.scale else float(raw)
+
+    def from_si(self, value: float) -> int:
+        """Raw value nearest to ``value`` (in ``unit``); raises if NaN or out of range."""
+        if value is None or (isinstance(value, float) and math.isnan(value)):
+            raise OutOfRangeError(self.name, value, *self._si_bounds(), unit=self.unit or "")
+        raw = round(value / self.scale) if self.scale else round(value)
+        lo, hi = self.raw_bounds()
+        if not lo <= raw <= hi:
+            raise OutOfRangeError(self.name, value, *self._si_bounds(), unit=self.unit or "")
+        return self.check_raw(int(raw))
+
+    def _si_bounds(self) -> tuple[float, float]:
+        lo, hi = self.raw_bounds()
+        return self.to_si(lo), self.to_si(hi)
+
+
+@dataclass(frozen=True)
+class IndirectBlock:
+    """``count`` Indirect Address items (2 bytes each) and their Indirect Data bytes."""
+
+    address_start: int
+    data_start: int
+    count: int
+    first: int
+
+
+@dataclass(frozen=True)
+class ControlTable:
+    """The control table of one servo model."""
+
+    model: str
+    model_number: int
+    gear_ratio: float
+    registers: dict[str, Register]
+    indirect: tuple[IndirectBlock, ...] = ()
+    pulses_per_rev: int = 4096
+
+    def __getitem__(self, name: str | Reg) -> Register:
+        try:
+            return self.registers[str(name)]
+        except KeyError:
+            raise RegisterError(f"{self.model} has no register named {str(name)!r}") from None
+
+    def __contains__(self, name: object) -> bool:
+        return str(name) in self.registers
+
+    def __iter__(self):
+        return iter(self.registers.values())
+
+    @functools.cached_property
+    def by_address(self) -> dict[int, Register]:
+        return {r.address: r for r in self.registers.values()}
+
+    def at(self, address: int) -> Register:
+        """The register starting at ``address``."""
+        try:
+            return self.by_address[address]
+        except KeyError:
+            raise RegisterError(f"{self.model} has no register at address {address}") from None
+
+    @property
+    def size(self) -> int:
+        """Bytes of memory the table spans (through the last indirect data byte)."""
+        ends = [r.address + r.size for r in self.registers.values()]
+        ends += [b.data_start + b.count for b in self.indirect]
+        return max(ends)
+
+    def span(self, first: str | Reg, last: str | Reg) -> tuple[int, int]:
+        """``(address, length)`` covering registers ``first`` through ``last`` contiguously."""
+        a, b = self[first], self[last]
+        return a.address, b.address + b.size - a.address
+
+
+def _register_from_dict(d: dict, where: str) -> Register:
+    known = {"name", "address", "size", "access", "area", "default", "min", "max", "signed", "unit",
+             "scale", "limit", "limit_min", "limit_max", "allowed", "divisor"}
+    try:
+        name = str(d["name"])
+        if name not in Reg.__members__.values():
+            raise ConfigError(f"{where}: unknown register name {name!r} (not in driver.control_table.Reg)")
+        if d["access"] not in ("R", "RW") or d["area"] not in ("EEPROM", "RAM"):
+            raise ConfigError(f"{where}: {name}: access must be R|RW and area EEPROM|RAM")
+        if int(d["size"]) not in (1, 2, 4):
+            raise ConfigError(f"{where}: {name}: size must be 1, 2 or 4")
+        return Register(
+            name=name, address=int(d["address"]), size=int(d["size"]), access=d["access"],
+            area=d["area"], default=int(d["default"]),
+            min=None if d.get("min") is None else int(d["min"]),
+            max=None if d.get("max") is None else int(d["max"]),
+            signed=bool(d.get("signed", False)), unit=d.get("unit"),
+            scale=None if d.get("scale") is None else float(d["scale"]),
+            limit=d.get("limit"), limit_min=d.get("limit_min"), limit_max=d.get("limit_max"),
+            allowed=tuple(d["allowed"]) if d.get("allowed") else None,
+            divisor=d.get("divisor"),
+            extra={k: v for k, v in d.items() if k not in known})
+    except (KeyError, TypeError, ValueError) as exc:
+        if isinstance(exc, ConfigError):
+            raise
+        raise ConfigError(f"{where}: malformed register entry {d!r}: {exc}") from None
+
+
+def load_table(path: str | Path) -> ControlTable:
+    """Load one model file; raises :class:`ConfigError` naming the file and the problem."""
+    path = Path(path)
+    try:
+        doc = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read control table {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    if not isinstance(doc, dict) or not isinstance(doc.get("registers"), list):
+        raise ConfigError(f"{path}: expected a mapping with a 'registers' list")
+    regs: dict[str, Register] = {}
+    for i, d in enumerate(doc["registers"]):
+        if not isinstance(d, dict):
+            raise ConfigError(f"{path}: register #{i} is not a mapping")
+        r = _register_from_dict(d, str(path))
+        if r.name in regs:
+            raise ConfigError(f"{path}: register {r.name} is listed twice")
+        regs[r.name] = r
+    for r in regs.values():
+        for lim in (r.limit, r.limit_min, r.limit_max):
+            if lim is not None and lim not in regs:
+                raise ConfigError(f"{path}: {r.name} names unknown limit item {lim!r}")
+    try:
+        table = ControlTable(
+            model=str(doc["model"]), model_number=int(doc["model_number"]),
+            gear_ratio=float(doc["gear_ratio"]), registers=regs,
+            indirect=tuple(IndirectBlock(**b) for b in doc.get("indirect", [])),
+            pulses_per_rev=int(doc.get("encoder_pulses_per_rev", 4096)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: missing or malformed model field: {exc}") from None
+    _check_overlaps(table, path)
+    return table
+
+
+def _check_overlaps(table: ControlTable, path: Path) -> None:
+    spans = sorted((r.address, r.address + r.size, r.name) for r in table.registers.values())
+    for (a0, a1, n0), (b0, _, n1) in zip(spans, spans[1:]):
+        if b0 < a1:
+            raise ConfigError(f"{path}: registers {n0} and {n1} overlap")
+
+
+@functools.cache
+def models() -> dict[str, ControlTable]:
+    """Every model in ``configs/models``, keyed by lower-case name (``"xh430-w210"``)."""
+    return {p.stem: load_table(p) for p in sorted(MODELS_DIR.glob("*.yaml"))}
+
+
+def table_for(model: str | int) -> ControlTable:
+    """The control table for a model name (``"XH430-W210"``) or model number (1010)."""
+    tables = models()
+    if isinstance(model, int):
+        for t in tables.values():
+            if t.model_number == model:
+                return t
+        raise ConfigError(f"unknown model number {model}; known: "
+                          + ", ".join(f"{t.model} ({t.model_number})" for t in tables.values()))
+    key = str(model).lower()
+    if key not in tables:
+        raise ConfigError(f"unknown servo model {model!r}; known: {', '.join(sorted(tables))}")
+    return tables[key]
+
+
+def model_name(model_number: int) -> str:
+    """Catalogue name for a model number, or ``"unknown (N)"``."""
+    try:
+        return table_for(int(model_number)).model
+    except ConfigError:
+        return f"unknown ({model_number})"

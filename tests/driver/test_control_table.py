@@ -1,0 +1,77 @@
+"""Control tables as data: loading, lookups, raw/SI conversion, malformed files."""
+import math
+
+import pytest
+
+from driver.control_table import Reg, load_table, models, table_for
+from driver.errors import ConfigError, OutOfRangeError, RegisterError
+
+
+@pytest.mark.parametrize("name,number,gear", [("xh430-w210", 1010, 212.6), ("xh430-w350", 1000, 353.5),
+                                              ("xh540-w150", 1110, 152.3)])
+def test_models_load_with_their_numbers(name, number, gear):
+    t = table_for(name)
+    assert t.model_number == number and t.gear_ratio == gear
+    assert table_for(number) is t
+    assert t[Reg.MODEL_NUMBER].default == number
+    assert t[Reg.GOAL_POSITION].address == 116 and t[Reg.GOAL_POSITION].size == 4
+    assert t[Reg.PRESENT_POSITION].address == 132 and t[Reg.PRESENT_POSITION].signed
+
+
+def test_every_enum_name_used_by_some_model_and_tables_do_not_overlap():
+    names = set().union(*(t.registers.keys() for t in models().values()))
+    assert names == {r.value for r in Reg}
+
+
+def test_model_specific_defaults():
+    assert table_for("xh430-w210")[Reg.VELOCITY_LIMIT].default == 210
+    assert table_for("xh430-w350")[Reg.VELOCITY_LIMIT].default == 130
+    assert table_for("xh540-w150")[Reg.CURRENT_LIMIT].max == 2047
+    assert Reg.EXTERNAL_PORT_DATA_1 in table_for("xh540-w150")
+    assert Reg.EXTERNAL_PORT_DATA_1 not in table_for("xh430-w210")
+
+
+def test_si_conversion_round_trip_and_signs():
+    t = table_for("xh430-w210")
+    pos, vel = t[Reg.GOAL_POSITION], t[Reg.GOAL_VELOCITY]
+    assert pos.to_si(2048) == pytest.approx(math.pi)
+    assert pos.from_si(math.pi) == 2048
+    assert vel.to_si(-1) == pytest.approx(-0.229 * 2 * math.pi / 60)
+    assert vel.from_si(-1.0) == round(-1.0 / (0.229 * 2 * math.pi / 60))
+    assert vel.decode(vel.encode(-5)) == -5
+    assert vel.encode(-1) == b"\xff\xff\xff\xff"
+    assert t[Reg.PRESENT_CURRENT].to_si(100) == pytest.approx(0.269)
+
+
+def test_out_of_range_raises_instead_of_clamping():
+    t = table_for("xh430-w210")
+    with pytest.raises(OutOfRangeError, match="goal_velocity"):
+        t[Reg.GOAL_VELOCITY].from_si(100.0)  # rad/s, far above 1023 units
+    with pytest.raises(OutOfRangeError):
+        t[Reg.GOAL_POSITION].from_si(float("nan"))
+    with pytest.raises(OutOfRangeError):
+        t[Reg.OPERATING_MODE].check_raw(2)  # not an allowed mode
+
+
+def test_unknown_register_is_a_clear_error():
+    with pytest.raises(RegisterError, match="no register named 'goal_velocty'"):
+        table_for("xh430-w210")["goal_velocty"]
+    with pytest.raises(ConfigError, match="unknown servo model"):
+        table_for("xh430-w150")
+
+
+@pytest.mark.parametrize("text,match", [
+    ("registers: 3", "expected a mapping"),
+    ("model: X\nmodel_number: 1\ngear_ratio: 1\nregisters:\n  - {name: bogus, address: 0, size: 1, access: R, area: RAM, default: 0}",
+     "unknown register name 'bogus'"),
+    ("model: X\nmodel_number: 1\ngear_ratio: 1\nregisters:\n  - {name: led, address: 0, size: 3, access: R, area: RAM, default: 0}",
+     "size must be"),
+    ("model: X\nmodel_number: 1\ngear_ratio: 1\nregisters:\n  - {name: led, address: 0, size: 2, access: R, area: RAM, default: 0}\n"
+     "  - {name: id, address: 1, size: 1, access: R, area: RAM, default: 0}", "overlap"),
+    ("{{{", "not valid YAML"),
+])
+def test_malformed_table_files(tmp_path, text, match):
+    p = tmp_path / "bad.yaml"
+    p.write_text(text)
+    with pytest.raises(ConfigError, match=match):
+        load_table(p)
