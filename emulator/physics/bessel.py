@@ -1,0 +1,64 @@
+"""The paper's fixed 2nd-order Bessel low-pass filter (Table 2, ``omega_n = 32.8 rad/s``).
+
+The analogue prototype comes from :func:`scipy.signal.bessel` and is discretised exactly (ZOH,
+:func:`scipy.signal.cont2discrete`) for the physics step. The state is ``[y, dy/dt]``, so filtering
+a position also yields a filtered velocity (what the firmware uses as its velocity estimate).
+"""
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+from scipy import signal
+
+
+def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, float]:
+    """Return ``(a1, a0)`` of ``H(s) = a0 / (s^2 + a1 s + a0)``, the 2nd-order analogue Bessel.
+
+    ``norm`` is SciPy's: ``"mag"`` puts -3 dB at ``cutoff_radps``.
+    """
+    b, a = signal.bessel(2, cutoff_radps, btype="low", analog=True, norm=norm)
+    a = np.asarray(a, float) / a[0]
+    if not np.isclose(b[-1] / a[0], a[2]):
+        raise ValueError("unexpected Bessel prototype: DC gain is not 1")
+    return float(a[1]), float(a[2])
+
+
+@lru_cache(maxsize=32)
+def _discrete(cutoff_radps: float, norm: str, dt_s: float) -> tuple:
+    a1, a0 = bessel_coefficients(cutoff_radps, norm)
+    a = np.array([[0.0, 1.0], [-a0, -a1]])
+    b = np.array([[0.0], [a0]])
+    ad, bd, *_ = signal.cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), dt_s, method="zoh")
+    return tuple(map(tuple, ad)), (bd[0, 0], bd[1, 0])
+
+
+class BesselFilter:
+    """Discrete 2nd-order Bessel low-pass with unity DC gain.
+
+    Parameters
+    ----------
+    cutoff_radps : float
+        Cut-off frequency, rad/s.
+    norm : str
+        Frequency normalisation passed to :func:`scipy.signal.bessel`.
+    """
+
+    def __init__(self, cutoff_radps: float = 32.8, norm: str = "mag"):
+        self.cutoff_radps = float(cutoff_radps)
+        self.norm = norm
+        self.y = 0.0
+        self.dy = 0.0
+
+    def reset(self, value: float = 0.0, rate: float = 0.0) -> None:
+        """Put the filter in steady state on an input at ``value`` moving at ``rate`` per second."""
+        a1, a0 = bessel_coefficients(self.cutoff_radps, self.norm)
+        self.y, self.dy = float(value) - float(rate) * a1 / a0, float(rate)
+
+    def step(self, dt_s: float, u: float) -> float:
+        """Advance ``dt_s`` with input ``u`` held; return the output ``y``."""
+        ((a00, a01), (a10, a11)), (b0, b1) = _discrete(self.cutoff_radps, self.norm, dt_s)
+        y, dy = self.y, self.dy
+        self.y = a00 * y + a01 * dy + b0 * u
+        self.dy = a10 * y + a11 * dy + b1 * u
+        return self.y

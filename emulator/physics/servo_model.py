@@ -1,0 +1,274 @@
+"""One Dynamixel X servo: firmware loops + DC motor + gearbox + sensors behind raw table integers.
+
+:meth:`ServoModel.step` is the only place raw control-table integers meet SI values. The emulator
+calls it once per physics tick with the servo's current RAM/EEPROM items (snake_case names, signed
+where the item is signed) and writes the returned items back into the table.
+"""
+from __future__ import annotations
+
+import math
+from typing import Mapping
+
+import numpy as np
+
+from . import units as u
+from .bessel import BesselFilter
+from .firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
+from .motor import GearedMotor
+from .params import FirmwareParams, MotorParams, SensorParams, ThermalParams
+
+PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
+VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
+PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
+GOAL_KEYS = ("goal_velocity", "goal_position", "goal_pwm", "goal_current")
+OUTPUT_KEYS = ("present_pwm", "present_current", "present_velocity", "present_position",
+               "velocity_trajectory", "position_trajectory", "present_input_voltage",
+               "present_temperature", "moving", "moving_status")
+
+
+class ServoModel:
+    """Physics and firmware of one servo.
+
+    Parameters
+    ----------
+    params : MotorParams
+        Motor-side constants (paper Table 1, drive or steering variant).
+    gear_ratio : float
+        Gear reduction (XH430-W210: 212.6).
+    supply_voltage_v : float
+        Bus supply, V.
+    firmware, sensors, thermal : dataclasses from :mod:`.params`
+        Fixed firmware constants, sensor noise, winding thermal model.
+    rng : numpy.random.Generator, optional
+        Noise source; required only when a noise standard deviation is non-zero.
+    """
+
+    def __init__(self, params: MotorParams, gear_ratio: float, supply_voltage_v: float,
+                 firmware: FirmwareParams = FirmwareParams(), sensors: SensorParams = SensorParams(),
+                 thermal: ThermalParams = ThermalParams(), rng: np.random.Generator | None = None):
+        self.motor = GearedMotor(params, gear_ratio)
+        self.supply_voltage_v = float(supply_voltage_v)
+        self.fw = firmware
+        self.sensors = sensors
+        self.thermal = thermal
+        self.rng = rng if rng is not None else np.random.default_rng()
+        self.profile = ProfileGenerator()
+        self.loop = AntiWindupPI(firmware.gain_time_base_s, firmware.anti_windup_gain)
+        self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
+        self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
+        self.temperature_c = thermal.ambient_c
+        self.duty = 0.0                 # applied duty in the servo's frame, -1..1
+        self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
+        self._prev: dict[str, int] = {}
+        self._hold_position: float | None = None
+        self._started = False
+        self._velocity_units = 0.0
+
+    # ---- body coupling -------------------------------------------------------------------------
+    def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
+        """Set the load on the output shaft: an opposing torque (N·m) and optionally an inertia (kg·m²)."""
+        self.motor.load_torque_nm = float(torque_nm)
+        if inertia_kg_m2 is not None:
+            self.motor.load_inertia_kg_m2 = float(inertia_kg_m2)
+
+    @property
+    def shaft_angle_rad(self) -> float:
+        """True continuous output-shaft angle, rad (physical frame, not Drive Mode reversed)."""
+        return self.motor.output_angle_rad
+
+    @property
+    def shaft_speed_radps(self) -> float:
+        """True output-shaft speed, rad/s (physical frame)."""
+        return self.motor.output_speed_radps
+
+    # ---- sensors -------------------------------------------------------------------------------
+    def _encoder_pulse(self, sign: int) -> int:
+        x = sign * self.motor.output_angle_rad / u.RAD_PER_PULSE
+        if self.sensors.position_noise_std_pulse:
+            x += self.rng.normal(0.0, self.sensors.position_noise_std_pulse)
+        return math.floor(x)
+
+    def _rewrap(self, raw_pulse: int) -> None:
+        self._wrap_pulse = u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
+
+    # ---- one tick ------------------------------------------------------------------------------
+    def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
+        """Advance ``dt_s`` seconds under the control-table items in ``table``; return present items.
+
+        Parameters
+        ----------
+        dt_s : float
+            Physics step, s (e.g. 0.0005 at 2 kHz).
+        table : Mapping[str, int]
+            Raw items: torque_enable, operating_mode, drive_mode, goal_pwm, goal_current,
+            goal_velocity, goal_position, profile_acceleration, profile_velocity, velocity_i_gain,
+            velocity_p_gain, position_d_gain, position_i_gain, position_p_gain,
+            feedforward_1st_gain, feedforward_2nd_gain, pwm_limit, current_limit, velocity_limit,
+            max_position_limit, min_position_limit, moving_threshold, homing_offset, bus_watchdog.
+
+        Returns
+        -------
+        dict[str, int]
+            Raw present_pwm, present_current, present_velocity, present_position,
+            velocity_trajectory, position_trajectory, present_input_voltage,
+            present_temperature, moving, moving_status.
+        """
+        sign = -1 if table["drive_mode"] & 1 else 1
+        mode = table["operating_mode"]
+        torque = bool(table["torque_enable"])
+        raw = self._encoder_pulse(sign)
+        if not self._started:
+            self.velocity_filter.reset(raw)
+            self._started = True
+        switched = (mode != self._prev.get("operating_mode") or torque != bool(self._prev.get("torque_enable"))
+                    or table["drive_mode"] != self._prev.get("drive_mode"))
+        if switched and torque and mode == u.MODE_POSITION:
+            self._rewrap(raw)           # Present Position re-wrapped to one turn (+ Homing Offset)
+        present = raw - self._wrap_pulse + table["homing_offset"]
+        self.velocity_filter.step(dt_s, float(raw))
+        if self.fw.bessel_placement == "velocity_feedback":
+            v_meas = self.velocity_filter.dy / PULSE_PER_S_PER_VEL_UNIT
+        else:                           # ideal estimator: the true speed (README: placement choice)
+            v_meas = sign * self.motor.output_speed_radps / u.RADPS_PER_VEL_UNIT
+        if switched:
+            self.loop.reset()
+            self._hold_position = None
+            if mode in u.POSITION_MODES:
+                self.profile.reset(float(present))
+                self.reference_filter.reset(float(present))
+            else:
+                self.profile.reset(0.0, v_meas if torque else 0.0)
+                self.reference_filter.reset(v_meas if torque else 0.0)
+        voltage = self._control(dt_s, table, mode, present, v_meas, sign, switched) if torque else None
+        if voltage is None:
+            self.loop.reset()
+            self.duty = 0.0
+            self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
+        self.motor.step(dt_s, voltage)
+        self._heat(dt_s)
+        self._prev = {k: table[k] for k in ("operating_mode", "torque_enable", "drive_mode", *GOAL_KEYS)}
+        return self._outputs(table, mode, torque, present, v_meas, sign)
+
+    def _control(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
+                 v_meas: float, sign: int, switched: bool) -> float | None:
+        """Run the firmware for ``mode``; return the armature voltage (physical frame), V."""
+        pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
+        i_lim_units = float(t["current_limit"])
+        tripped = t["bus_watchdog"] == u.WATCHDOG_TRIPPED
+        p = self.motor.params
+        w_m = sign * self.motor.speed_radps        # motor speed in the servo frame
+        i_ref = None
+        if mode == u.MODE_PWM:
+            counts = 0.0 if tripped else max(-pwm_lim, min(pwm_lim, float(t["goal_pwm"])))
+        elif mode == u.MODE_CURRENT:
+            i_ref = 0.0 if tripped else max(-i_lim_units, min(i_lim_units, float(t["goal_current"])))
+        elif mode == u.MODE_VELOCITY:
+            vlim = float(t["velocity_limit"])
+            goal = 0.0 if tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
+            pa = t["profile_acceleration"]
+            a_max = math.inf if pa == 0 or tripped else pa * VEL_UNIT_PER_S_PER_ACC_UNIT
+            self.profile.step_velocity(dt_s, goal, a_max)
+            ref = self.profile.velocity
+            if self.fw.bessel_placement == "reference":
+                ref = self.reference_filter.step(dt_s, ref)
+            g = VelocityGains.from_table(t["velocity_p_gain"], t["velocity_i_gain"])
+            counts = self.loop.update(dt_s, ref - v_meas, g.kp, g.ki, 0.0, pwm_lim)
+        elif mode in u.POSITION_MODES:
+            counts = self._position_loop(dt_s, t, mode, present, v_meas, pwm_lim, tripped, switched)
+            if mode == u.MODE_CURRENT_POSITION:
+                goal_i = float(min(abs(t["goal_current"]), t["current_limit"]))
+                i_ref, counts = max(-goal_i, min(goal_i, counts)), None
+        else:
+            return None
+        if i_ref is not None:           # inner current loop: ideal inverse model + P on the error
+            i_a = i_ref * u.AMP_PER_CURRENT_UNIT
+            v = (p.resistance_ohm * i_a + p.back_emf_v_s_per_rad * w_m
+                 + p.inductance_h / self.fw.current_loop_time_constant_s * (i_a - sign * self.motor.current_a))
+            counts = max(-pwm_lim, min(pwm_lim, v / self.supply_voltage_v * u.PWM_FULL_SCALE))
+        v = counts / u.PWM_FULL_SCALE * self.supply_voltage_v
+        # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
+        margin = p.resistance_ohm * i_lim_units * u.AMP_PER_CURRENT_UNIT
+        emf = p.back_emf_v_s_per_rad * w_m
+        v = max(emf - margin, min(emf + margin, v))
+        v = max(-self.supply_voltage_v, min(self.supply_voltage_v, v))
+        self.duty = v / self.supply_voltage_v
+        return sign * v
+
+    def _position_loop(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
+                       v_meas: float, pwm_lim: float, tripped: bool, switched: bool) -> float:
+        goal = float(t["goal_position"])
+        if mode == u.MODE_POSITION:
+            goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+        new_goal = switched or t["goal_position"] != self._prev.get("goal_position")
+        if tripped:
+            if self._hold_position is None:
+                self._hold_position, new_goal = float(present), True
+            goal = self._hold_position
+        vlim = float(t["velocity_limit"])
+        pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
+        v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
+        a_max = math.inf if pa == 0 or tripped else pa * PULSE_PER_S2_PER_ACC_UNIT
+        if new_goal:                    # a new profile starts whenever the goal changes
+            self.profile.start_position(goal, v_max, a_max)
+        self.profile.step_position(dt_s, goal, v_max, a_max)
+        ref = self.profile.position
+        if self.fw.bessel_placement == "reference":
+            ref = self.reference_filter.step(dt_s, ref)
+        g = PositionGains.from_table(t["position_p_gain"], t["position_i_gain"], t["position_d_gain"],
+                                     t["feedforward_1st_gain"], t["feedforward_2nd_gain"])
+        tick = self.fw.gain_time_base_s
+        v_traj = self.profile.velocity * tick                  # pulse per tick
+        a_traj = self.profile.acceleration * tick * tick       # pulse per tick²
+        v_err = v_traj - v_meas * PULSE_PER_S_PER_VEL_UNIT * tick
+        extra = g.kd * v_err + g.ff1 * v_traj + g.ff2 * a_traj
+        return self.loop.update(dt_s, ref - present, g.kp, g.ki, extra, pwm_lim)
+
+    def _heat(self, dt_s: float) -> None:
+        th = self.thermal
+        power = self.motor.current_a ** 2 * self.motor.params.resistance_ohm
+        steady = th.ambient_c + th.thermal_resistance_k_per_w * power
+        self.temperature_c = steady + (self.temperature_c - steady) * math.exp(-dt_s / th.time_constant_s)
+
+    def _outputs(self, t: Mapping[str, int], mode: int, torque: bool, present: int, v_meas: float,
+                 sign: int) -> dict[str, int]:
+        s = self.sensors
+        current = sign * self.motor.current_a
+        volts = self.supply_voltage_v
+        if s.current_noise_std_a:
+            current += self.rng.normal(0.0, s.current_noise_std_a)
+        if s.voltage_noise_std_v:
+            volts += self.rng.normal(0.0, s.voltage_noise_std_v)
+        vel = round(v_meas)
+        position_mode = mode in u.POSITION_MODES
+        if position_mode:
+            v_traj = self.profile.velocity / PULSE_PER_S_PER_VEL_UNIT
+            p_traj = self.profile.position
+        else:
+            v_traj, p_traj = (self.profile.velocity if mode == u.MODE_VELOCITY else 0.0), float(present)
+        ongoing = torque and self.profile.ongoing
+        status = (_profile_bits(self.profile.profile_type) if torque and position_mode else 0)
+        if ongoing:
+            status |= u.PROFILE_ONGOING
+        if torque and position_mode:
+            err = abs(float(t["goal_position"]) - present) if not ongoing else 0.0
+            if not ongoing and err <= self.fw.in_position_window_pulse:
+                status |= u.IN_POSITION
+            if abs(self.profile.position - present) > self.fw.following_error_pulse:
+                status |= u.FOLLOWING_ERROR
+        return {
+            "present_pwm": round(self.duty * u.PWM_FULL_SCALE) if torque else 0,
+            "present_current": round(current / u.AMP_PER_CURRENT_UNIT),
+            "present_velocity": vel,
+            "present_position": present,
+            "velocity_trajectory": round(v_traj),
+            "position_trajectory": round(p_traj),
+            "present_input_voltage": round(volts / u.VOLT_PER_UNIT),
+            "present_temperature": round(self.temperature_c),
+            "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
+            "moving_status": status,
+        }
+
+
+def _profile_bits(profile_type: int) -> int:
+    """Moving Status bits 5:4 for a profile type (0 none .. 3 trapezoidal)."""
+    return (profile_type & 0x3) << 4
