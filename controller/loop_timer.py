@@ -1,0 +1,90 @@
+"""Periodic loop timing on a monotonic clock: absolute deadlines, counted overruns.
+
+The k-th cycle is due at ``t0 + k * period_s``; the schedule never drifts with the work done
+in a cycle. A cycle whose work runs past its successor's deadline is an *overrun*: the missed
+slots are skipped (so slot index and trajectory time stay aligned with the clock) and counted.
+"""
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class LoopStats:
+    """Measured cycle periods (s) and overrun counts of a :class:`Ticker`."""
+
+    period_s: float
+    periods_s: list[float] = field(default_factory=list)
+    overruns: int = 0
+    missed_slots: int = 0
+    late_s: list[float] = field(default_factory=list)
+
+    def summary(self) -> dict:
+        """``loop_period_p50_ms``, ``..._p99_ms``, ``..._max_ms``, ``overruns``, ``missed_slots``."""
+        p = np.asarray(self.periods_s) * 1e3
+        q = (lambda x: float(np.percentile(p, x))) if p.size else (lambda x: float("nan"))
+        return {
+            "loop_period_target_ms": self.period_s * 1e3,
+            "loop_period_p50_ms": q(50),
+            "loop_period_p99_ms": q(99),
+            "loop_period_max_ms": float(p.max()) if p.size else float("nan"),
+            "loop_cycles": int(p.size) + (1 if p.size else 0),
+            "overruns": self.overruns,
+            "missed_slots": self.missed_slots,
+        }
+
+
+class Ticker:
+    """Wake up every ``period_s`` on absolute deadlines.
+
+    ``wait()`` sleeps until the next due slot and returns its index ``k`` (slot 0 is the
+    call to :meth:`start`). ``clock``/``sleep`` are injectable for tests.
+    """
+
+    def __init__(self, period_s: float, clock=time.monotonic, sleep=time.sleep):
+        if not period_s > 0:
+            raise ValueError(f"period must be positive, got {period_s}")
+        self.period_s = float(period_s)
+        self._clock, self._sleep = clock, sleep
+        self.stats = LoopStats(self.period_s)
+        self._t0 = None
+        self._k = 0
+        self._last_wake = None
+
+    def start(self) -> float:
+        """Start the schedule now; returns ``t0`` (monotonic seconds)."""
+        self._t0 = self._last_wake = self._clock()
+        self._k = 0
+        return self._t0
+
+    @property
+    def slot(self) -> int:
+        return self._k
+
+    def deadline(self, k: int) -> float:
+        return self._t0 + k * self.period_s
+
+    def wait(self) -> int:
+        """Sleep until the next slot; return its index (slots missed by an overrun are skipped)."""
+        if self._t0 is None:
+            raise RuntimeError("Ticker.start() first")
+        now = self._clock()
+        nxt = self._k + 1
+        if now > self.deadline(nxt):  # the work ran past the next deadline: overrun
+            behind = int((now - self._t0) // self.period_s)  # last slot already begun
+            self.stats.overruns += 1
+            self.stats.missed_slots += behind - nxt + 1
+            self.stats.late_s.append(now - self.deadline(nxt))
+            nxt = behind + 1
+        remaining = self.deadline(nxt) - now
+        while remaining > 0:  # sleep may return early on some platforms; never spin
+            self._sleep(remaining)
+            remaining = self.deadline(nxt) - self._clock()
+        wake = self._clock()
+        self.stats.periods_s.append(wake - self._last_wake)
+        self._last_wake = wake
+        self._k = nxt
+        return nxt
