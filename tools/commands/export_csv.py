@@ -1,0 +1,28 @@
+"""``swerve export-csv LOG [--out FILE]``: one CSV row per control cycle."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "export-csv"
+HELP = "export a run log (ROS 2 bag) to CSV, one row per control cycle"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", type=Path, help="run-log bag directory (or its .mcap file)")
+    parser.add_argument("--out", type=Path, default=None,
+                        help="CSV file to write (default: LOG.csv next to the log)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tools.logs import export_csv, read_log
+
+    log = read_log(args.log)
+    if log.recovery_note:
+        print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
+    base = args.log.with_suffix("") if args.log.suffix == ".mcap" else args.log
+    out = args.out or base.with_name(base.name + ".csv")
+    export_csv(log, out)
+    print(f"{out}: {len(log)} cycles")
+    return 0

@@ -1,0 +1,28 @@
+"""``swerve plot LOG --out DIR``: PNG figures like the paper's Figs 11-16."""
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+NAME = "plot"
+HELP = "plot a run log: path, pose, velocities, steering angles, tracking error (PNG)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("log", type=Path, help="run-log bag directory (or its .mcap file)")
+    parser.add_argument("--out", type=Path, required=True, help="directory for the PNG files")
+    parser.add_argument("--sim", type=Path, default=None,
+                        help="a second run log (e.g. from `swerve sim`) overlaid as simulation")
+
+
+def run(args: argparse.Namespace) -> int:
+    from tools.logs import plot_run, read_log
+
+    log = read_log(args.log)
+    if log.recovery_note:
+        print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
+    sim = read_log(args.sim) if args.sim is not None else None
+    for path in plot_run(log, args.out, sim=sim):
+        print(path)
+    return 0

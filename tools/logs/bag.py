@@ -1,0 +1,324 @@
+"""Run logs as ROS 2 bags (MCAP storage): :class:`RunLogWriter`, :func:`read_log`, :func:`repair_log`.
+
+Writing goes through ``rosbags.rosbag2.Writer``; reading streams the MCAP with the ``mcap``
+package, which tolerates a file whose summary and footer were never written (a crash or
+SIGKILL). Topics, types and the crash-recovery rules are described in ``tools/logs/README.md``.
+"""
+from __future__ import annotations
+
+import json
+import math
+import struct
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+
+from driver.errors import ConfigError
+
+from .record import CYCLE_FIELDS, CYCLE_SIZE, LAYOUT_VERSION, CycleRecord, pack, unpack
+
+#: Value of ``metadata["format"]`` that marks a swerve run log.
+FORMAT = "swerve-runlog"
+#: Wheel order of ``configs/robot.yaml``; joints are ``<wheel>_drive`` (IDs 1-4), ``<wheel>_steer`` (5-8).
+DEFAULT_WHEELS = ("front_left", "rear_left", "rear_right", "front_right")
+
+#: topic -> ROS 2 message type.
+TOPICS = {
+    "/swerve/metadata": "std_msgs/msg/String",
+    "/swerve/cycle": "std_msgs/msg/Float64MultiArray",
+    "/joint_states": "sensor_msgs/msg/JointState",
+    "/trajectory": "trajectory_msgs/msg/JointTrajectory",
+    "/odom": "nav_msgs/msg/Odometry",
+    "/reference": "geometry_msgs/msg/PoseStamped",
+    "/true_pose": "geometry_msgs/msg/PoseStamped",
+    "/sim_pose": "geometry_msgs/msg/PoseStamped",
+}
+
+
+def _typestore():
+    from rosbags.typesys import Stores, get_typestore
+
+    return get_typestore(Stores.ROS2_JAZZY)
+
+
+def joint_names(wheels: Sequence[str] = DEFAULT_WHEELS) -> list[str]:
+    """The 8 joint names in servo-ID order: 4 ``*_drive`` then 4 ``*_steer``."""
+    return [f"{w}_drive" for w in wheels] + [f"{w}_steer" for w in wheels]
+
+
+class RunLogWriter:
+    """Write one :class:`CycleRecord` per control cycle into a ROS 2 bag directory.
+
+    Parameters
+    ----------
+    path : bag directory to create (must not exist); holds ``<name>.mcap`` and, once closed,
+        ``metadata.yaml``.
+    metadata : JSON-serialisable run description (trajectory, gains file, time scale, port,
+        config...). Written at open to ``/swerve/metadata`` and at close to the bag's
+        ``custom_data``.
+    wheels : wheel names in robot.yaml order (joint names derive from them).
+    flush_every : cycles between flushes of the pending MCAP chunk to the OS. 1 (default) makes
+        the file readable to the last completed cycle after a crash; N loses at most N-1 cycles.
+
+    Use as a context manager; leaving the ``with`` block (also by Ctrl-C or an exception) closes
+    the bag cleanly, with index and ``metadata.yaml``.
+    """
+
+    def __init__(self, path: str | Path, metadata: dict, *,
+                 wheels: Sequence[str] = DEFAULT_WHEELS, flush_every: int = 1):
+        from rosbags.rosbag2 import StoragePlugin, Writer
+
+        if flush_every < 1:
+            raise ValueError(f"flush_every must be >= 1, got {flush_every}")
+        self.path = Path(path)
+        if self.path.exists():
+            raise ConfigError(f"{self.path} exists already; run logs are never overwritten")
+        self.metadata = dict(metadata)
+        self.metadata.update(format=FORMAT, cycle_layout_version=LAYOUT_VERSION,
+                             cycle_fields=[[n, s] for n, s in CYCLE_FIELDS],
+                             joint_names=joint_names(wheels))
+        try:
+            self._metadata_json = json.dumps(self.metadata, allow_nan=True, default=str)
+        except (TypeError, ValueError) as exc:
+            raise ConfigError(f"run-log metadata is not JSON-serialisable: {exc}") from exc
+        self.flush_every = int(flush_every)
+        self.cycles_written = 0
+        self._joints = joint_names(wheels)
+        self._ts = _typestore()
+        self._bag = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
+        self._conn: dict = {}
+        self._open = False
+
+    # -- context manager -------------------------------------------------------------------
+    def __enter__(self) -> "RunLogWriter":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def open(self) -> None:
+        """Create the bag, register every topic and write the metadata message."""
+        self._bag.open()
+        self._storage = self._bag.storage
+        # rosbags keeps the current MCAP chunk in memory until it reaches 1 MiB; closing it early
+        # is what makes the file crash-readable. Fail loudly if a rosbags release renames these.
+        if not (hasattr(self._storage, "close_chunk") and hasattr(self._storage, "bio")):
+            self._bag.abort()
+            raise RuntimeError("this rosbags version has no McapWriter.close_chunk(); "
+                               "crash-safe logging needs rosbags 0.10-0.11")
+        for topic, msgtype in TOPICS.items():
+            self._conn[topic] = self._bag.add_connection(topic, msgtype, typestore=self._ts)
+        self._open = True
+        T = self._ts.types
+        self._put("/swerve/metadata", 0, T["std_msgs/msg/String"](data=self._metadata_json))
+        self._flush()
+        self._bag.set_custom_data("swerve_metadata", self._metadata_json)
+
+    def close(self) -> None:
+        """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
+        if self._open:
+            self._open = False
+            self._bag.close()
+
+    # -- writing ---------------------------------------------------------------------------
+    def _put(self, topic: str, stamp_ns: int, msg) -> None:
+        self._bag.write(self._conn[topic], stamp_ns, self._ts.serialize_cdr(msg, msg.__msgtype__))
+
+    def _flush(self) -> None:
+        if self._storage.chunk.bio.tell():
+            self._storage.close_chunk()
+        self._storage.bio.flush()
+
+    def write(self, rec: CycleRecord) -> None:
+        """Log one cycle on every topic; flush every ``flush_every`` cycles."""
+        if not self._open:
+            raise RuntimeError("RunLogWriter.write() outside an open log")
+        T = self._ts.types
+        ns = int(rec.stamp_ns)
+        header = T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+            frame_id="odom")
+        nan4 = np.full(4, np.nan)
+
+        flat = pack(rec)
+        layout = T["std_msgs/msg/MultiArrayLayout"](
+            dim=[T["std_msgs/msg/MultiArrayDimension"](label="cycle_record_v1", size=CYCLE_SIZE,
+                                                       stride=CYCLE_SIZE)],
+            data_offset=0)
+        self._put("/swerve/cycle", ns, T["std_msgs/msg/Float64MultiArray"](layout=layout, data=flat))
+
+        self._put("/joint_states", ns, T["sensor_msgs/msg/JointState"](
+            header=header, name=self._joints,
+            position=np.concatenate([nan4, rec.meas_steer_rad]),
+            velocity=np.concatenate([rec.meas_drive_radps, nan4]),
+            effort=np.asarray(rec.meas_current_a, dtype=np.float64)))
+
+        point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
+            positions=np.concatenate([nan4, rec.cmd_steer_rad]),
+            velocities=np.concatenate([rec.cmd_drive_radps, nan4]),
+            accelerations=np.empty(0), effort=np.empty(0),
+            time_from_start=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0))
+        self._put("/trajectory", ns, T["trajectory_msgs/msg/JointTrajectory"](
+            header=header, joint_names=self._joints, points=[point]))
+
+        odom = T["nav_msgs/msg/Odometry"](
+            header=header, child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(rec.est_pose),
+                                                           covariance=np.zeros(36)),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](
+                    linear=T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan),
+                    angular=T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)),
+                covariance=np.zeros(36)))
+        self._put("/odom", ns, odom)
+
+        for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
+                            ("/sim_pose", rec.sim_pose)):
+            if np.isfinite(pose).all():
+                self._put(topic, ns, T["geometry_msgs/msg/PoseStamped"](header=header,
+                                                                        pose=self._pose(pose)))
+        self.cycles_written += 1
+        if self.cycles_written % self.flush_every == 0:
+            self._flush()
+
+    def _pose(self, pose):
+        T = self._ts.types
+        x, y, th = (float(v) for v in pose)
+        return T["geometry_msgs/msg/Pose"](
+            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2),
+                                                          w=math.cos(th / 2)))
+
+
+# -- reading ---------------------------------------------------------------------------------
+@dataclass
+class RunLog:
+    """A run log read back: one array per :class:`CycleRecord` field, ``(n,)`` or ``(n, k)``.
+
+    ``clean`` is False when the writer never closed the bag (crash, SIGKILL); the arrays then
+    hold every cycle that reached the disk.
+    """
+
+    path: Path
+    metadata: dict
+    fields: dict[str, np.ndarray]
+    clean: bool
+    layout: list = field(default_factory=list)
+
+    def __len__(self) -> int:
+        return int(self.fields["t_s"].shape[0])
+
+    def __getattr__(self, name: str):
+        try:
+            return self.__dict__["fields"][name]
+        except KeyError:
+            raise AttributeError(name) from None
+
+    def record(self, i: int) -> CycleRecord:
+        """Cycle ``i`` as a :class:`CycleRecord`."""
+        return CycleRecord(**{k: (v[i].item() if v.ndim == 1 else v[i].copy())
+                              for k, v in self.fields.items()})
+
+    @property
+    def recovery_note(self) -> str:
+        """One line for the CLI; empty for a cleanly closed log."""
+        return "" if self.clean else f"log was not closed cleanly; recovered {len(self)} cycles"
+
+
+def _mcap_file(path: Path) -> Path:
+    if not path.exists():
+        raise ConfigError(f"no such run log: {path}")
+    if path.is_file():
+        return path
+    found = sorted(path.glob("*.mcap"))
+    if len(found) != 1:
+        raise ConfigError(f"not a swerve run log: {path} holds {len(found)} .mcap files, expected 1")
+    return found[0]
+
+
+def _scan(mcap_path: Path):
+    """Stream every record; return (channels, schemas, messages, footer_seen)."""
+    from mcap.exceptions import McapError
+    from mcap.records import Channel, Footer, Message, Schema
+    from mcap.stream_reader import StreamReader
+
+    channels, schemas, messages, footer = {}, {}, [], False
+    with mcap_path.open("rb") as f:
+        try:
+            for rec in StreamReader(f).records:
+                if isinstance(rec, Message):
+                    messages.append(rec)
+                elif isinstance(rec, Channel):
+                    channels[rec.id] = rec
+                elif isinstance(rec, Schema):
+                    schemas[rec.id] = rec
+                elif isinstance(rec, Footer):
+                    footer = True
+        except (McapError, EOFError, struct.error, ValueError) as exc:
+            if not channels:  # nothing usable: not an MCAP, or garbage from the start
+                raise ConfigError(f"not a swerve run log: {mcap_path} is not a readable MCAP "
+                                  f"file ({type(exc).__name__})") from None
+            # else: truncated tail of a log that was never closed; keep what was complete
+    return channels, schemas, messages, footer
+
+
+def read_log(path: str | Path) -> RunLog:
+    """Read a run log (bag directory or its ``.mcap`` file) into a :class:`RunLog`.
+
+    Works on logs that were never closed: the MCAP is streamed record by record and reading
+    stops at the first incomplete record. Raises :class:`ConfigError` for a missing path, a
+    file that is not a swerve run log, or a log without a single complete cycle.
+    """
+    path = Path(path)
+    mcap_path = _mcap_file(path)
+    channels, _, messages, footer = _scan(mcap_path)
+    by_topic = {c.topic: c.id for c in channels.values()}
+    if "/swerve/cycle" not in by_topic or "/swerve/metadata" not in by_topic:
+        raise ConfigError(f"not a swerve run log: {path} has no /swerve/cycle or /swerve/metadata topic")
+    ts = _typestore()
+    meta_id, cycle_id = by_topic["/swerve/metadata"], by_topic["/swerve/cycle"]
+    metadata: dict | None = None
+    rows, stamps = [], []
+    for m in messages:
+        if m.channel_id == cycle_id:
+            rows.append(ts.deserialize_cdr(m.data, TOPICS["/swerve/cycle"]).data)
+            stamps.append(m.log_time)
+        elif m.channel_id == meta_id and metadata is None:
+            metadata = json.loads(ts.deserialize_cdr(m.data, TOPICS["/swerve/metadata"]).data)
+    if metadata is None or metadata.get("format") != FORMAT:
+        raise ConfigError(f"not a swerve run log: {path} carries no swerve metadata")
+    if not rows:
+        raise ConfigError(f"empty run log: {path} holds no complete cycle")
+    layout = [(str(n), int(s)) for n, s in metadata["cycle_fields"]]
+    fields_ = unpack(np.vstack(rows), layout)
+    fields_["stamp_ns"] = np.asarray(stamps, dtype=np.int64)
+    bag_dir = mcap_path.parent
+    clean = footer and (bag_dir / "metadata.yaml").exists()
+    return RunLog(path=path, metadata=metadata, fields=fields_, clean=clean, layout=layout)
+
+
+def repair_log(path: str | Path, out: str | Path | None = None) -> Path:
+    """Copy every complete message of an unclosed log into a new, properly closed bag.
+
+    The copy (default ``<log>-repaired``) has the MCAP summary/index and ``metadata.yaml``
+    that ``ros2 bag`` and rosbags' reader need. Returns its path.
+    """
+    from rosbags.rosbag2 import StoragePlugin, Writer
+
+    path = Path(path)
+    mcap_path = _mcap_file(path)
+    channels, schemas, messages, _ = _scan(mcap_path)
+    out = Path(out) if out is not None else path.with_name(path.name.removesuffix(".mcap") + "-repaired")
+    ts = _typestore()
+    with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as bag:
+        conns = {}
+        for cid, ch in sorted(channels.items()):
+            msgtype = schemas[ch.schema_id].name
+            conns[cid] = bag.add_connection(ch.topic, msgtype, msgdef=schemas[ch.schema_id].data.decode(),
+                                            rihs01=ts.hash_rihs01(msgtype))
+        for m in messages:
+            bag.write(conns[m.channel_id], m.log_time, m.data)
+    return out
