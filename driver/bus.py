@@ -1,0 +1,472 @@
+"""A Dynamixel Protocol 2.0 bus: every instruction, one lock, exceptions instead of codes.
+
+::
+
+    with Bus("/dev/ttyUSB0", 1_000_000) as bus:
+        print(bus.ping(1))                                   # PingResult(id=1, model_number=1010, ...)
+        bus.write(1, Reg.TORQUE_ENABLE, 1)
+        pos = bus.read(1, Reg.PRESENT_POSITION)              # raw, sign-extended
+        rad = bus.read_si(1, Reg.PRESENT_POSITION)           # rad
+        state = bus.sync_read([1, 2], Reg.PRESENT_CURRENT, Reg.PRESENT_POSITION)
+
+Values are raw integers (signed where the item is signed) unless a method says ``_si``.
+Raw values are range-checked against the control table before anything is sent
+(:class:`OutOfRangeError`; nothing is clamped). The model of each ID comes from the
+``models`` argument, else from a Ping (cached), else ``default_model``.
+
+Failures raise :mod:`driver.errors` exceptions: :class:`DxlTimeoutError` (ids,
+instruction, timeout_s), :class:`CorruptPacketError`/:class:`ChecksumError`,
+:class:`ServoError` (id, error_number, alert, hardware_error — Hardware Error Status is
+read once when the alert bit is set), :class:`RegisterError`, :class:`TransportError`.
+Replies from IDs that were not asked are ignored and counted in :attr:`Bus.stray_replies`.
+"""
+from __future__ import annotations
+
+import struct
+import threading
+import time
+from dataclasses import dataclass
+from typing import Iterable, Mapping, Sequence
+
+from driver import packets as pk
+from driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
+from driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
+                           RegisterError, ServoError)
+from driver.packets import BROADCAST_ID, Instruction, InstructionPacket, StatusPacket
+from driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
+
+#: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
+STATUS_OVERHEAD = 11
+#: Broadcast-ping slot budgeted per possible ID, s (what ROBOTIS host libraries allow).
+BROADCAST_PING_SLOT_S = 0.003
+
+RegLike = str | Reg
+
+
+@dataclass(frozen=True)
+class PingResult:
+    """A servo that answered Ping: ``id``, ``model_number``, catalogue ``model`` name, ``firmware``."""
+
+    id: int
+    model_number: int
+    model: str
+    firmware: int
+
+
+def _ping_result(st: StatusPacket) -> PingResult:
+    if len(st.params) != 3:
+        raise CorruptPacketError(f"ping reply from ID {st.id} has {len(st.params)} parameter bytes, expected 3")
+    number, fw = struct.unpack("<HB", st.params)
+    try:
+        model = table_for(number).model
+    except ConfigError:
+        model = f"unknown ({number})"
+    return PingResult(st.id, number, model, fw)
+
+
+class Bus:
+    """One serial bus of Protocol 2.0 servos.
+
+    ``port``: URL for :func:`serial.serial_for_url`; ``baud``: bps. ``models``: known
+    model (name or number) per ID; ``default_model`` for IDs neither given nor pinged
+    (``None``: ping to find out). ``retries``: extra attempts after a timeout or corrupt
+    reply (never for Reboot, Factory Reset, Clear, Backup). ``return_delay_us``: the
+    servos' Return Delay Time (servo default 500 us). ``timeout_margin_s``: slack added to
+    every computed reply timeout (raise it for a software emulator on a loaded machine).
+    """
+
+    def __init__(self, port: str, baud: int = 1_000_000, *,
+                 models: Mapping[int, str | int] | None = None,
+                 default_model: str | int | None = None, retries: int = 0,
+                 return_delay_us: float = 500.0, timeout_margin_s: float = DEFAULT_MARGIN_S,
+                 latency_timer_ms: float | None = None):
+        if retries < 0:
+            raise ValueError("retries must be >= 0")
+        self.port = port
+        self.baud = int(baud)
+        self.retries = int(retries)
+        self.return_delay_us = float(return_delay_us)
+        self.timeout_margin_s = float(timeout_margin_s)
+        self._lock = threading.Lock()
+        self._tables: dict[int, ControlTable] = {i: table_for(m) for i, m in (models or {}).items()}
+        self._default = table_for(default_model) if default_model is not None else None
+        self._transport = Transport(port, baud)
+        self.latency_timer_ms = (self._transport.latency_timer_ms if latency_timer_ms is None
+                                 else float(latency_timer_ms))
+        #: Replies from IDs that were not addressed (ignored), and frames dropped as corrupt.
+        self.stray_replies = 0
+        self.corrupt_frames = 0
+
+    # --- lifecycle ---------------------------------------------------------------------------
+
+    def close(self) -> None:
+        """Close the port (idempotent)."""
+        self._transport.close()
+
+    def __enter__(self) -> "Bus":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Bus({self.port!r}, {self.baud})"
+
+    # --- models ------------------------------------------------------------------------------
+
+    def table(self, id_: int) -> ControlTable:
+        """Control table of servo ``id_`` (given, cached from Ping, default, or pinged now)."""
+        t = self._tables.get(id_) or self._default
+        if t is None:
+            self.ping(id_)
+            t = self._tables[id_]
+        return t
+
+    def register(self, id_: int, reg: RegLike) -> Register:
+        """The :class:`Register` named ``reg`` for servo ``id_`` (RegisterError if unknown)."""
+        return self.table(id_)[reg]
+
+    def _learn(self, res: PingResult) -> None:
+        try:
+            self._tables[res.id] = table_for(res.model_number)
+        except ConfigError:
+            pass
+
+    # --- the transaction core ----------------------------------------------------------------
+
+    def timeout_s(self, nbytes: int, nreplies: int = 1) -> float:
+        """Reply timeout for ``nbytes`` on the wire and ``nreplies`` return delays, s."""
+        return packet_timeout_s(self.baud, nbytes, self.return_delay_us * max(1, nreplies),
+                                self.latency_timer_ms, self.timeout_margin_s)
+
+    def _exchange(self, pkt: InstructionPacket, expect: Sequence[int], reply_bytes: int,
+                  *, window_s: float | None = None, until_all: bool = True,
+                  check: bool = True) -> dict[int, StatusPacket]:
+        """Send ``pkt`` and collect one status per ID in ``expect`` (lock held by caller).
+
+        Returns ``{id: status}``. Raises DxlTimeoutError for IDs that stayed silent (or
+        the corrupt-frame error if one arrived instead), ServoError for an error byte
+        when ``check``. ``until_all=False`` (broadcast ping) listens for the whole window.
+        """
+        frame = pkt.encode()
+        timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
+                                                                      len(expect))
+        self._transport.write(frame)
+        if not expect:
+            return {}
+        wanted = set(expect)
+        got: dict[int, StatusPacket] = {}
+        deadline = time.monotonic() + timeout
+        corrupt: list[CorruptPacketError] = []
+        while not wanted <= got.keys():
+            batch = self._transport.read_packets(deadline)
+            errs = self._transport.parser.take_errors()
+            self.corrupt_frames += len(errs)
+            corrupt += errs
+            if not batch and time.monotonic() >= deadline:
+                break
+            for p in batch:
+                if not isinstance(p, StatusPacket):
+                    continue  # our own echo (loop://, half-duplex adapters) or another host
+                if p.id in wanted and p.id not in got:
+                    got[p.id] = p
+                else:
+                    self.stray_replies += 1
+        missing = [i for i in expect if i not in got]
+        if missing and until_all:
+            if corrupt:
+                err = corrupt[-1]
+                err.args = (f"{err} (reply to {pkt.name} from ID {', '.join(map(str, missing))})",)
+                raise err
+            raise DxlTimeoutError(missing, pkt.instruction, timeout)
+        if check:
+            for i in expect:
+                if i in got and got[i].error:
+                    self._raise_status(got[i], pkt.instruction)
+        return got
+
+    def _raise_status(self, st: StatusPacket, instruction: int) -> None:
+        hw = None
+        if st.alert:
+            try:
+                table = self._tables.get(st.id) or self._default
+                address = table[Reg.HARDWARE_ERROR_STATUS].address if table else 70
+                data = self._read_raw(st.id, address, 1, check=False)
+                hw = HardwareError.describe(data[0])
+            except DxlError:
+                hw = None
+        raise ServoError(st.id, st.error, instruction, hw)
+
+    def _with_retries(self, fn, *args, retry: bool = True, **kw):
+        attempts = 1 + (self.retries if retry else 0)
+        with self._lock:
+            for n in range(attempts):
+                try:
+                    return fn(*args, **kw)
+                except (DxlTimeoutError, CorruptPacketError):
+                    if n == attempts - 1:
+                        raise
+
+    def _read_raw(self, id_: int, address: int, length: int, *, check: bool = True) -> bytes:
+        got = self._exchange(pk.read(id_, address, length), [id_], STATUS_OVERHEAD + length,
+                             check=check)
+        data = got[id_].params
+        if len(data) != length:
+            if got[id_].error and not check:
+                return data.ljust(length, b"\0")
+            raise CorruptPacketError(f"read reply from ID {id_} carries {len(data)} bytes, expected {length}")
+        return data
+
+    def _simple(self, pkt: InstructionPacket, *, check: bool = True, ignore_alert: bool = False) -> None:
+        expect = [] if pkt.id == BROADCAST_ID else [pkt.id]
+        got = self._exchange(pkt, expect, STATUS_OVERHEAD, check=False)
+        if check and expect:
+            st = got[pkt.id]
+            err = st.error & ~pk.ALERT_BIT if ignore_alert else st.error
+            if err:
+                self._raise_status(st, pkt.instruction)
+
+    # --- ping and scan ----------------------------------------------------------------------
+
+    def ping(self, id_: int) -> PingResult:
+        """Ping one servo; learns (caches) its model. Raises DxlTimeoutError if absent."""
+        if not 0 <= id_ <= pk.MAX_ID:
+            raise ValueError(f"invalid servo ID {id_} for ping (0..252)")
+
+        def once():
+            got = self._exchange(pk.ping(id_), [id_], STATUS_OVERHEAD + 3, check=False)
+            return _ping_result(got[id_])
+
+        res = self._with_retries(once)
+        self._learn(res)
+        return res
+
+    def broadcast_ping(self, ids: Iterable[int] | None = None) -> dict[int, PingResult]:
+        """Broadcast Ping; every servo answering within the window, ``{id: PingResult}``.
+
+        ``ids`` only bounds the listening window (3 ms per ID up to the highest) and lets
+        the call return early once all of them have answered.
+        """
+        ids = sorted(set(range(0, pk.MAX_ID + 1) if ids is None else ids))
+        top = (ids[-1] + 1) if ids else pk.MAX_ID + 1
+        window = self.timeout_s(10 + 14 * top, top) + BROADCAST_PING_SLOT_S * top
+        with self._lock:
+            got = self._exchange(pk.ping(BROADCAST_ID), ids, (STATUS_OVERHEAD + 3) * len(ids),
+                                 window_s=window, until_all=False, check=False)
+            # _exchange returns once all listed IDs answered; replies from unlisted IDs are strays
+        out = {}
+        for i, st in sorted(got.items()):
+            try:
+                res = _ping_result(st)
+            except CorruptPacketError:
+                continue
+            self._learn(res)
+            out[i] = res
+        return out
+
+    def scan(self, ids: Iterable[int] = range(0, pk.MAX_ID + 1), *, broadcast: bool = True) -> list[PingResult]:
+        """Find servos among ``ids``: broadcast ping first, then a unicast ping of each ID
+        it did not find (collisions or servos that ignore broadcast). Sorted by ID."""
+        ids = sorted(set(ids))
+        found: dict[int, PingResult] = {}
+        if broadcast and ids:
+            found.update(self.broadcast_ping(ids))
+        for i in ids:
+            if i in found:
+                continue
+            try:
+                found[i] = self.ping(i)
+            except (DxlTimeoutError, CorruptPacketError):
+                pass
+        return [found[i] for i in sorted(found)]
+
+    # --- read / write ------------------------------------------------------------------------
+
+    def read_bytes(self, id_: int, address: int, length: int) -> bytes:
+        """Raw bytes from ``address``; the building block of :meth:`read`."""
+        return self._with_retries(self._read_raw, id_, address, length)
+
+    def read(self, id_: int, reg: RegLike) -> int:
+        """Raw value of ``reg`` on servo ``id_`` (sign-extended where the item is signed)."""
+        r = self.register(id_, reg)
+        return r.decode(self.read_bytes(id_, r.address, r.size))
+
+    def read_si(self, id_: int, reg: RegLike) -> float:
+        """``reg`` in SI units (``Register.unit``: rad, rad/s, A, V, s ...)."""
+        r = self.register(id_, reg)
+        return r.to_si(self.read(id_, reg))
+
+    def hardware_error(self, id_: int) -> int:
+        """Hardware Error Status (70) bits, read even while the alert bit is set."""
+        r = self.register(id_, Reg.HARDWARE_ERROR_STATUS)
+        return r.decode(self._with_retries(self._read_raw, id_, r.address, r.size, check=False))
+
+    def _encode_write(self, id_: int, reg: RegLike, raw: int) -> tuple[Register, bytes]:
+        r = self.register(id_, reg)
+        if not r.writable:
+            raise RegisterError(f"{r.name} is read-only (servo ID {id_})")
+        return r, r.encode(r.check_raw(int(raw)))
+
+    def write_bytes(self, id_: int, address: int, data: bytes) -> None:
+        """Write raw bytes at ``address`` (no range checks); broadcast ID is silent."""
+        self._with_retries(self._simple, pk.write(id_, address, data))
+
+    def write(self, id_: int, reg: RegLike, raw: int) -> None:
+        """Write raw value ``raw`` to ``reg`` (range-checked; OutOfRangeError, never clamped)."""
+        r, data = self._encode_write(id_, reg, raw)
+        self.write_bytes(id_, r.address, data)
+
+    def write_si(self, id_: int, reg: RegLike, value: float) -> None:
+        """Write ``value`` in SI units (``Register.unit``); raises if out of range."""
+        r = self.register(id_, reg)
+        self.write(id_, reg, r.from_si(value))
+
+    def reg_write(self, id_: int, reg: RegLike, raw: int) -> None:
+        """Reg Write: stage ``raw`` for ``reg``, executed by :meth:`action`."""
+        r, data = self._encode_write(id_, reg, raw)
+        self._with_retries(self._simple, pk.reg_write(id_, r.address, data))
+
+    def action(self, id_: int = BROADCAST_ID) -> None:
+        """Action: execute staged Reg Writes (broadcast by default: no reply)."""
+        self._with_retries(self._simple, pk.action(id_), retry=False)
+
+    def reboot(self, id_: int) -> None:
+        """Reboot (clears a latched hardware error; the servo answers, then restarts ~1 s)."""
+        self._with_retries(self._simple, pk.reboot(id_), retry=False, ignore_alert=True)
+
+    def factory_reset(self, id_: int, option: int = pk.ResetOption.EXCEPT_ID_BAUD) -> None:
+        """Factory Reset (``option``: ResetOption; default keeps ID and baud rate)."""
+        self._with_retries(self._simple, pk.factory_reset(id_, option), retry=False)
+        self._tables.pop(id_, None)
+
+    def clear(self, id_: int) -> None:
+        """Clear multi-turn position (only when stopped, else ServoError Result Fail)."""
+        self._with_retries(self._simple, pk.clear(id_), retry=False)
+
+    def backup(self, id_: int, restore: bool = False) -> None:
+        """Control Table Backup: store (default) or restore (torque must be off)."""
+        self._with_retries(self._simple, pk.control_table_backup(id_, restore), retry=False)
+
+    # --- group instructions ------------------------------------------------------------------
+
+    def _group_table(self, ids: Sequence[int]) -> ControlTable:
+        if not ids:
+            raise ValueError("no servo IDs given")
+        if len(set(ids)) != len(ids):
+            raise ValueError(f"duplicate IDs in {list(ids)}")
+        tables = {self.table(i).model for i in ids}
+        t = self.table(ids[0])
+        if len(tables) > 1:
+            raise ConfigError(f"sync read/write over different models {sorted(tables)}: use bulk")
+        return t
+
+    @staticmethod
+    def _decode_span(table: ControlTable, address: int, data: bytes) -> dict[str, int]:
+        end = address + len(data)
+        return {r.name: r.decode(data[r.address - address:r.address - address + r.size])
+                for r in table if address <= r.address and r.address + r.size <= end}
+
+    def sync_read(self, ids: Sequence[int], first: RegLike, last: RegLike | None = None,
+                  fast: bool = False) -> dict[int, dict[str, int]]:
+        """Sync Read (or Fast Sync Read) of ``first``..``last`` from every ID, one request.
+
+        Returns ``{id: {register name: raw}}`` for every register fully inside the span.
+        """
+        ids = list(ids)
+        t = self._group_table(ids)
+        address, length = t.span(first, last if last is not None else first)
+
+        def once():
+            return self._sync_read_once(ids, address, length, fast)
+
+        raw = self._with_retries(once)
+        return {i: self._decode_span(t, address, raw[i]) for i in ids}
+
+    def _sync_read_once(self, ids: list[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
+        pkt = pk.sync_read(address, length, ids, fast=fast)
+        if not fast:
+            got = self._exchange(pkt, ids, (STATUS_OVERHEAD + length) * len(ids))
+            out = {}
+            for i in ids:
+                if len(got[i].params) != length:
+                    raise CorruptPacketError(f"sync read reply from ID {i} carries "
+                                             f"{len(got[i].params)} bytes, expected {length}")
+                out[i] = got[i].params
+            return out
+        return self._fast_exchange(pkt, [(i, length) for i in ids])
+
+    def _fast_exchange(self, pkt: InstructionPacket, items: list[tuple[int, int]]) -> dict[int, bytes]:
+        """Send a fast sync/bulk read and split the single combined reply."""
+        ids = [i for i, _ in items]
+        reply_bytes = 10 + sum(n + 4 for _, n in items)
+        got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False)
+        st = got[BROADCAST_ID]
+        body = bytes((Instruction.STATUS, st.error)) + st.params
+        frame = pk.HEADER + bytes((BROADCAST_ID,)) + struct.pack("<H", len(body) + 2) + body
+        frame += struct.pack("<H", pk.crc16(frame))
+        try:
+            fast = pk.FastStatus.decode(frame, [n for _, n in items])
+        except CorruptPacketError as exc:
+            # a missing servo truncates the combined reply; name the IDs
+            raise CorruptPacketError(f"fast read reply for IDs {ids} is malformed: {exc}") from None
+        out = {}
+        for (i, n), e in zip(items, fast.entries):
+            if e.id != i:
+                raise CorruptPacketError(f"fast read reply lists ID {e.id} where ID {i} was expected")
+            if e.error:
+                self._raise_status(e, pkt.instruction)
+            out[i] = e.params
+        return out
+
+    def sync_write(self, reg: RegLike, values: Mapping[int, int]) -> None:
+        """Sync Write raw ``values`` ``{id: raw}`` to ``reg`` (no reply; range-checked first)."""
+        ids = list(values)
+        self._group_table(ids)
+        data = {}
+        for i, raw in values.items():
+            r, data[i] = self._encode_write(i, reg, raw)
+        self._with_retries(self._simple, pk.sync_write(r.address, r.size, data))
+
+    def bulk_read(self, items: Mapping[int, RegLike | tuple[RegLike, RegLike]],
+                  fast: bool = False) -> dict[int, dict[str, int]]:
+        """Bulk Read (or Fast Bulk Read): ``{id: reg}`` or ``{id: (first, last)}``, one request.
+
+        Returns ``{id: {register name: raw}}``.
+        """
+        spans = []
+        for i, what in items.items():
+            first, last = what if isinstance(what, tuple) else (what, what)
+            t = self.table(i)
+            spans.append((i, t) + t.span(first, last))
+        pkt = pk.bulk_read([(i, a, n) for i, _, a, n in spans], fast=fast)
+
+        def once():
+            if fast:
+                return self._fast_exchange(pkt, [(i, n) for i, _, _, n in spans])
+            ids = [i for i, *_ in spans]
+            got = self._exchange(pkt, ids, sum(STATUS_OVERHEAD + n for *_, n in spans))
+            for i, _, _, n in spans:
+                if len(got[i].params) != n:
+                    raise CorruptPacketError(f"bulk read reply from ID {i} carries "
+                                             f"{len(got[i].params)} bytes, expected {n}")
+            return {i: got[i].params for i in ids}
+
+        raw = self._with_retries(once)
+        return {i: self._decode_span(t, a, raw[i]) for i, t, a, _ in spans}
+
+    def bulk_write(self, items: Mapping[int, Mapping[RegLike, int]]) -> None:
+        """Bulk Write ``{id: {reg: raw, ...}}`` (each ID's registers must be contiguous), no reply."""
+        entries = []
+        for i, regs in items.items():
+            encoded = sorted((self._encode_write(i, name, raw) for name, raw in regs.items()),
+                             key=lambda rd: rd[0].address)
+            if not encoded:
+                raise ValueError(f"bulk write for ID {i} names no register")
+            start, blob = encoded[0][0].address, b""
+            for r, data in encoded:
+                if r.address != start + len(blob):
+                    raise ValueError(f"bulk write for ID {i}: {r.name} is not contiguous with the "
+                                     f"registers before it")
+                blob += data
+            entries.append((i, start, blob))
+        self._with_retries(self._simple, pk.bulk_write(entries))

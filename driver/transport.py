@@ -1,0 +1,181 @@
+"""Serial transport: open a port by URL, write frames, block for packets until a deadline.
+
+Any URL pyserial knows works: ``/dev/ttyUSB0`` (U2D2), a pty path (the emulator) or
+``loop://`` (echo). Reads block in ``select()`` (or pyserial's own blocking read for
+ports without a file descriptor) with the time left to a :func:`time.monotonic`
+deadline; nothing spins.
+
+Reply timeouts come from :func:`packet_timeout_s`: bytes on the wire at the baud rate,
+the servos' Return Delay Time, and the USB-serial latency timer, which on Linux is a
+per-device sysfs file (FTDI default 16 ms; set it to 1 ms, see :func:`latency_timer_ms`).
+"""
+from __future__ import annotations
+
+import logging
+import os
+import re
+import select
+import time
+import warnings
+
+import serial
+
+from driver.errors import TransportError
+from driver.packets import Packet
+from driver.parser import PacketParser
+
+log = logging.getLogger(__name__)
+
+#: Baud rates the X series supports (Baud Rate item 8, index 0..7).
+STANDARD_BAUDS = (57_600, 1_000_000, 115_200, 2_000_000, 3_000_000, 4_000_000, 9_600, 4_500_000)
+
+#: Bits on the wire per byte: start + 8 data + stop.
+BITS_PER_BYTE = 10
+
+#: Fixed slack added to every reply timeout (OS scheduling, servo processing), s.
+DEFAULT_MARGIN_S = 0.002
+
+_SYSFS_USB_SERIAL = "/sys/bus/usb-serial/devices"
+_TTYUSB = re.compile(r"^ttyUSB\d+$")
+
+
+def packet_timeout_s(baud: int, nbytes: int, return_delay_us: float = 500.0,
+                     latency_timer_ms: float = 0.0, margin_s: float = DEFAULT_MARGIN_S) -> float:
+    """Time to wait for a reply, s.
+
+    ``nbytes`` bytes at ``baud`` (10 bits each), plus the servo's Return Delay Time
+    (``return_delay_us``), plus twice the USB latency timer (the request may wait one
+    period to leave the adapter and the reply one period to come back), plus ``margin_s``.
+    """
+    if baud <= 0:
+        raise ValueError(f"baud must be positive, got {baud}")
+    if nbytes < 0 or return_delay_us < 0 or latency_timer_ms < 0 or margin_s < 0:
+        raise ValueError("nbytes, return_delay_us, latency_timer_ms and margin_s must be >= 0")
+    return (nbytes * BITS_PER_BYTE / baud + return_delay_us * 1e-6
+            + 2.0 * latency_timer_ms * 1e-3 + margin_s)
+
+
+def latency_fix_command(device: str = "ttyUSB0") -> str:
+    """The one-line shell fix that sets a device's latency timer to 1 ms."""
+    return f"echo 1 | sudo tee {_SYSFS_USB_SERIAL}/{device}/latency_timer"
+
+
+def latency_timer_ms(port: str, *, warn: bool = True,
+                     sysfs_root: str = _SYSFS_USB_SERIAL) -> int | None:
+    """The USB-serial latency timer of ``port`` in ms, or ``None`` if it is not a ttyUSB.
+
+    Reads ``/sys/bus/usb-serial/devices/ttyUSBn/latency_timer`` (symlinks such as
+    ``/dev/serial/by-id/...`` are resolved). When ``warn`` and the value is above 1 ms,
+    issues a :class:`RuntimeWarning` carrying the one-line fix.
+    """
+    if "://" in port:
+        return None
+    dev = os.path.basename(os.path.realpath(port))
+    if not _TTYUSB.match(dev):
+        return None
+    path = os.path.join(sysfs_root, dev, "latency_timer")
+    try:
+        with open(path) as fh:
+            value = int(fh.read().strip())
+    except (OSError, ValueError):
+        return None
+    if warn and value > 1:
+        msg = (f"{port}: USB latency timer is {value} ms (every reply waits up to that long); "
+               f"set it to 1 ms: {latency_fix_command(dev)}")
+        log.warning(msg)
+        warnings.warn(msg, RuntimeWarning, stacklevel=2)
+    return value
+
+
+def open_port(url: str, baud: int, timeout_s: float = 0.1) -> serial.SerialBase:
+    """Open ``url`` with :func:`serial.serial_for_url` at ``baud``, 8N1, blocking reads.
+
+    ``timeout_s`` bounds a single blocking read; :class:`Transport` sets its own
+    deadlines. On a ttyUSB, low-latency mode is requested (ignored where unsupported).
+    Raises :class:`TransportError` naming the port on failure.
+    """
+    try:
+        port = serial.serial_for_url(url, baudrate=int(baud), timeout=timeout_s,
+                                     write_timeout=max(1.0, timeout_s))
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise TransportError(f"cannot open serial port {url!r} at {baud} bps: {exc}") from None
+    if "://" not in url and _TTYUSB.match(os.path.basename(os.path.realpath(url))):
+        try:
+            port.set_low_latency_mode(True)
+        except (AttributeError, OSError, ValueError, serial.SerialException) as exc:
+            log.debug("%s: low-latency mode not available: %s", url, exc)
+    return port
+
+
+class Transport:
+    """One open port plus an incremental :class:`PacketParser`.
+
+    ``write(frame)`` discards stale input and sends; ``read_packets(deadline)`` blocks
+    until at least one complete packet has arrived or ``deadline`` (a
+    :func:`time.monotonic` value) passes. Not thread-safe: :class:`driver.bus.Bus`
+    holds the lock.
+    """
+
+    def __init__(self, url: str, baud: int, *, port: serial.SerialBase | None = None):
+        self.url = url
+        self.baud = int(baud)
+        self._port = port if port is not None else open_port(url, baud)
+        self.parser = PacketParser()
+        try:
+            self._fd: int | None = self._port.fileno()
+        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+            self._fd = None
+        #: Latency timer of the adapter in ms (0 when not a ttyUSB).
+        self.latency_timer_ms = latency_timer_ms(url) or 0 if "://" not in url else 0
+
+    @property
+    def is_open(self) -> bool:
+        return bool(self._port is not None and self._port.is_open)
+
+    def close(self) -> None:
+        """Close the port (idempotent)."""
+        if self._port is not None and self._port.is_open:
+            try:
+                self._port.close()
+            except (OSError, serial.SerialException):
+                pass
+
+    def write(self, data: bytes) -> None:
+        """Drop unread input and buffered partial frames, then send ``data``."""
+        try:
+            self._port.reset_input_buffer()
+            self.parser.reset()
+            n = self._port.write(data)
+        except (OSError, serial.SerialException, TypeError) as exc:
+            raise TransportError(f"write to {self.url} failed: {exc}") from None
+        if n is not None and n != len(data):
+            raise TransportError(f"write to {self.url}: only {n} of {len(data)} bytes sent")
+
+    def _read_chunk(self, remaining_s: float) -> bytes:
+        port = self._port
+        if self._fd is not None:
+            ready, _, _ = select.select([self._fd], [], [], remaining_s)
+            if not ready:
+                return b""
+            return port.read(port.in_waiting or 1)
+        port.timeout = remaining_s
+        return port.read(max(1, port.in_waiting))
+
+    def read_packets(self, deadline: float) -> list[Packet]:
+        """Packets completed by bytes arriving before ``deadline`` (monotonic s).
+
+        Returns as soon as at least one packet is complete; returns ``[]`` at the
+        deadline (after giving up on a dangling partial frame).
+        """
+        while True:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0:
+                return self.parser.flush() if self.parser.pending else []
+            try:
+                chunk = self._read_chunk(remaining)
+            except (OSError, serial.SerialException, TypeError, ValueError) as exc:
+                raise TransportError(f"read from {self.url} failed: {exc}") from None
+            if chunk:
+                packets = self.parser.feed(chunk)
+                if packets:
+                    return packets
