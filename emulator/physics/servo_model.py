@@ -62,7 +62,8 @@ class ServoModel:
         self._prev: dict[str, int] = {}
         self._hold_position: float | None = None
         self._started = False
-        self._velocity_units = 0.0
+        self._sign = 1
+        self._homing = 0
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -80,6 +81,23 @@ class ServoModel:
     def shaft_speed_radps(self) -> float:
         """True output-shaft speed, rad/s (physical frame)."""
         return self.motor.output_speed_radps
+
+    @property
+    def position_pulse(self) -> float:
+        """Continuous (unquantised) position in Present Position's frame, pulse."""
+        return (self._sign * self.motor.output_angle_rad / u.RAD_PER_PULSE - self._wrap_pulse
+                + self._homing)
+
+    @property
+    def velocity_radps(self) -> float:
+        """True output speed in the servo's frame (Drive Mode direction applied), rad/s."""
+        return self._sign * self.motor.output_speed_radps
+
+    def set_shaft_angle(self, angle_rad: float) -> None:
+        """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
+        self.motor.angle_rad = angle_rad * self.motor.gear_ratio
+        self.motor.speed_radps = self.motor.current_a = 0.0
+        self._started = False
 
     # ---- sensors -------------------------------------------------------------------------------
     def _encoder_pulse(self, sign: int) -> int:
@@ -113,7 +131,8 @@ class ServoModel:
             velocity_trajectory, position_trajectory, present_input_voltage,
             present_temperature, moving, moving_status.
         """
-        sign = -1 if table["drive_mode"] & 1 else 1
+        sign = self._sign = -1 if table["drive_mode"] & 1 else 1
+        self._homing = table["homing_offset"]
         mode = table["operating_mode"]
         torque = bool(table["torque_enable"])
         raw = self._encoder_pulse(sign)

@@ -1,0 +1,103 @@
+"""Planar robot body: pose ``(x, y, θ)`` from four wheel ground speeds and steering angles.
+
+Each wheel ``i`` at body-frame position ``(x_i, y_i)`` rolls with signed ground speed ``v_i`` (m/s)
+along its steering direction ``δ_i`` (rad, counter-clockwise from the body x axis). A rigid body
+with twist ``(vx, vy, ω)`` (body frame) moves that contact point at ``(vx − ω y_i, vy + ω x_i)``.
+Four wheels give eight equations for three unknowns; we take the least-squares twist::
+
+    minimise  Σ_i ‖ (vx − ω y_i, vy + ω x_i) − v_i (cos δ_i, sin δ_i) ‖²
+
+so wheels that fight each other (mismatched commands) are averaged, and the residual per wheel
+(the slip it would need) is reported. With the wheels at the centroid-symmetric corners
+``(±a, ±b)``, equal speeds ``v1``, front angles ``δ1`` and rear angles ``δ2``, the normal equations
+decouple (``Σx_i = Σy_i = 0``) and give exactly the paper's model (1)–(3):
+``vx = ½(cos δ1 + cos δ2) v1``, ``vy = ½(sin δ1 + sin δ2) v1``,
+``ω = (x_w1 sin δ1 / (2 r1²) + x_w2 sin δ2 / (2 r2²)) v1``.
+The pose integrates the twist exactly for a twist held constant over the step.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def contact_matrix(wheel_xy_m: np.ndarray) -> np.ndarray:
+    """Map twist ``(vx, vy, ω)`` to stacked contact velocities ``[vx_1, vy_1, ..., vy_n]``, shape (2n, 3)."""
+    xy = np.asarray(wheel_xy_m, float)
+    m = np.zeros((2 * len(xy), 3))
+    m[0::2, 0] = 1.0
+    m[0::2, 2] = -xy[:, 1]
+    m[1::2, 1] = 1.0
+    m[1::2, 2] = xy[:, 0]
+    return m
+
+
+def wheel_velocities(speeds_mps: np.ndarray, steer_rad: np.ndarray) -> np.ndarray:
+    """Stacked wheel contact velocities ``[v_i cos δ_i, v_i sin δ_i, ...]``, shape (2n,)."""
+    v, d = np.asarray(speeds_mps, float), np.asarray(steer_rad, float)
+    out = np.empty(2 * len(v))
+    out[0::2] = v * np.cos(d)
+    out[1::2] = v * np.sin(d)
+    return out
+
+
+class RobotBody:
+    """Least-squares rigid-body fit of the wheels and pose integration.
+
+    Parameters
+    ----------
+    wheel_xy_m : array_like, shape (n, 2)
+        Wheel contact points in the body frame (x forward, y left), m.
+    pose : tuple of float
+        Initial ``(x_m, y_m, theta_rad)`` in the world frame.
+    """
+
+    def __init__(self, wheel_xy_m, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)):
+        self.wheel_xy_m = np.asarray(wheel_xy_m, float)
+        self._m = contact_matrix(self.wheel_xy_m)
+        self._pinv = np.linalg.pinv(self._m)       # (3, 2n): least-squares solution operator
+        self.x_m, self.y_m, self.theta_rad = map(float, pose)
+        self.twist = np.zeros(3)
+        self.residual_mps = np.zeros(len(self.wheel_xy_m))
+
+    def fit_twist(self, speeds_mps, steer_rad) -> np.ndarray:
+        """Least-squares body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame), shape (3,).
+
+        Also stores ``residual_mps`` (n,): each wheel's contact-velocity misfit (slip speed).
+        """
+        w = wheel_velocities(speeds_mps, steer_rad)
+        twist = self._pinv @ w
+        r = (self._m @ twist - w).reshape(-1, 2)
+        self.residual_mps = np.hypot(r[:, 0], r[:, 1])
+        return twist
+
+    def step(self, dt_s: float, speeds_mps, steer_rad) -> tuple[float, float, float]:
+        """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``."""
+        vx, vy, w = self.twist = self.fit_twist(speeds_mps, steer_rad)
+        h = w * dt_s
+        if abs(h) > 1e-9:                         # exact SE(2) motion at constant twist
+            s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w
+            dx, dy = s * vx - c * vy, c * vx + s * vy
+        else:
+            dx, dy = vx * dt_s, vy * dt_s
+        ct, st = math.cos(self.theta_rad), math.sin(self.theta_rad)
+        self.x_m += ct * dx - st * dy
+        self.y_m += st * dx + ct * dy
+        self.theta_rad += h
+        return self.x_m, self.y_m, self.theta_rad
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """World pose ``(x_m, y_m, theta_rad)``."""
+        return self.x_m, self.y_m, self.theta_rad
+
+
+def paper_model_rates(theta: float, delta1: float, delta2: float, v1: float, a: float, b: float
+                      ) -> tuple[float, float, float]:
+    """The paper's kinematic model (1)–(3): ``(ẋ, ẏ, θ̇)`` for front ``δ1``, rear ``δ2``, speed ``v1``."""
+    r2 = a * a + b * b
+    xdot = 0.5 * (math.cos(delta1 + theta) + math.cos(delta2 + theta)) * v1
+    ydot = 0.5 * (math.sin(delta1 + theta) + math.sin(delta2 + theta)) * v1
+    thdot = (a * math.sin(delta1) / (2 * r2) + (-a) * math.sin(delta2) / (2 * r2)) * v1
+    return xdot, ydot, thdot

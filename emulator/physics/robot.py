@@ -1,0 +1,123 @@
+"""Eight servos on one robot body: the emulator's whole physical world.
+
+``RobotPhysics.step(dt, tables)`` advances every servo with its raw control-table items, then the
+body from the drive-wheel ground speeds and the steering angles (``configs/robot.yaml``).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Mapping
+
+import numpy as np
+import yaml
+
+from driver.errors import ConfigError
+
+from . import units as u
+from .body import RobotBody
+from .params import PhysicsConfig
+from .servo_model import ServoModel
+
+
+@dataclass(frozen=True)
+class Wheel:
+    """One wheel module from ``configs/robot.yaml``."""
+
+    name: str
+    x_m: float
+    y_m: float
+    drive_id: int
+    steer_id: int
+    drive_direction: int
+    steer_direction: int
+    center_pulse: int
+
+
+@dataclass(frozen=True)
+class RobotGeometry:
+    """The parts of ``configs/robot.yaml`` the physics needs."""
+
+    model: str
+    wheel_radius_m: float
+    wheels: tuple[Wheel, ...]
+
+
+def load_robot_geometry(path: str | Path = "configs/robot.yaml") -> RobotGeometry:
+    """Read wheel positions, IDs, direction signs and steering centres.
+
+    Raises
+    ------
+    ConfigError
+        On a missing or malformed key (the message names it).
+    """
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except (OSError, yaml.YAMLError) as exc:
+        raise ConfigError(f"{path}: cannot read robot config ({exc})") from exc
+    try:
+        radius = float(doc["geometry"]["wheel_radius_m"])
+        wheels_doc = doc["wheels"]
+        drive_dir, steer_dir = doc["drive"]["direction"], doc["steering"]["direction"]
+        centers = doc["steering"]["center_pulse"]
+        model = str(doc["model"])
+    except (KeyError, TypeError) as exc:
+        raise ConfigError(f"{path}: missing key {exc}") from exc
+    if not (len(wheels_doc) == len(drive_dir) == len(steer_dir) == len(centers) == 4):
+        raise ConfigError(f"{path}: wheels, drive.direction, steering.direction and "
+                          "steering.center_pulse must each list 4 entries")
+    wheels = []
+    for i, w in enumerate(wheels_doc):
+        try:
+            wheels.append(Wheel(str(w["name"]), float(w["x_m"]), float(w["y_m"]), int(w["drive_id"]),
+                                int(w["steer_id"]), int(drive_dir[i]), int(steer_dir[i]), int(centers[i])))
+        except (KeyError, TypeError, ValueError) as exc:
+            raise ConfigError(f"{path}: wheels[{i}]: bad or missing key {exc}") from exc
+    return RobotGeometry(model, radius, tuple(wheels))
+
+
+class RobotPhysics:
+    """Eight :class:`ServoModel` (4 drive, 4 steering) coupled to a :class:`RobotBody`.
+
+    Parameters
+    ----------
+    cfg : PhysicsConfig
+        ``configs/emulator.yaml``.
+    geometry : RobotGeometry
+        ``configs/robot.yaml``.
+    rng : numpy.random.Generator, optional
+        Shared noise source.
+    """
+
+    def __init__(self, cfg: PhysicsConfig, geometry: RobotGeometry, rng: np.random.Generator | None = None):
+        self.geometry = geometry
+        gear = cfg.gear_ratio(geometry.model)
+        rng = rng if rng is not None else np.random.default_rng()
+
+        def servo(params):
+            return ServoModel(params, gear, cfg.supply_voltage_v, cfg.firmware, cfg.sensors, cfg.thermal, rng)
+
+        self.servos: dict[int, ServoModel] = {}
+        wheel_inertia = cfg.body.total_mass_kg / len(geometry.wheels) * geometry.wheel_radius_m ** 2
+        for w in geometry.wheels:
+            self.servos[w.drive_id] = servo(cfg.drive_motor)
+            if cfg.body.load_enabled:   # the robot's mass, reflected onto each drive shaft
+                self.servos[w.drive_id].external_load(0.0, wheel_inertia)
+            steer = self.servos[w.steer_id] = servo(cfg.steering_motor)
+            steer.set_shaft_angle(w.center_pulse * u.RAD_PER_PULSE)    # start with wheels straight
+        self.body = RobotBody([(w.x_m, w.y_m) for w in geometry.wheels])
+
+    def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Ground speeds (m/s, signed, forward positive) and steering angles (rad), shape (4,) each."""
+        g = self.geometry
+        speeds = np.array([w.drive_direction * self.servos[w.drive_id].velocity_radps * g.wheel_radius_m
+                           for w in g.wheels])
+        steer = np.array([w.steer_direction * (self.servos[w.steer_id].position_pulse - w.center_pulse)
+                          * u.RAD_PER_PULSE for w in g.wheels])
+        return speeds, steer
+
+    def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
+        """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
+        out = {sid: self.servos[sid].step(dt_s, tables[sid]) for sid in self.servos}
+        self.body.step(dt_s, *self.wheel_state())
+        return out
