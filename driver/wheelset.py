@@ -1,0 +1,203 @@
+"""The robot's four wheel modules: four drive servos (velocity mode) and four steering
+servos (position mode) on one :class:`~driver.bus.Bus`, configured from ``robot.yaml``.
+
+::
+
+    cfg = load_robot_config()
+    with Bus(cfg.link.port, cfg.link.baud) as bus, WheelSet(bus, cfg) as wheels:
+        wheels.configure()          # torque off, modes, gains, watchdog, return delay
+        wheels.enable()
+        wheels.write_goals([v1] * 4, [d1, d2, d2, d1])   # rad/s, rad: one Bulk Write
+        state = wheels.read_state()                      # one Sync Read of 126..135
+    # leaving the block writes zero speeds and torque off, also on Ctrl-C or an exception
+
+All values are SI in the wheel frame: direction signs and steering zero (``center_pulse``)
+are applied here and nowhere else. Out-of-range goals raise :class:`OutOfRangeError`
+before anything is sent.
+"""
+from __future__ import annotations
+
+import logging
+import math
+import time
+from dataclasses import dataclass
+from typing import Sequence
+
+from driver.bus import Bus
+from driver.control_table import OperatingMode, Reg
+from driver.errors import ConfigError, DxlError, OutOfRangeError
+from driver.robot_config import RobotConfig
+
+log = logging.getLogger(__name__)
+
+#: Relative slack on the configured speed/angle limits (float round-off from the controller).
+_LIMIT_TOL = 1e-9
+
+
+@dataclass(frozen=True)
+class WheelState:
+    """One snapshot of the four wheel modules, in wheel order of the config.
+
+    ``t_s``: :func:`time.monotonic` when the reply was complete; ``drive_radps``: wheel
+    speeds; ``drive_rad``: wheel rotation angles (multi-turn while in velocity mode);
+    ``steer_rad``: steering angles (0 = straight, + = counter-clockwise);
+    ``steer_radps``: steering rates; ``drive_current_a`` / ``steer_current_a``: motor
+    currents (signs as the servo reports them times the direction sign).
+    """
+
+    t_s: float
+    drive_radps: tuple[float, float, float, float]
+    drive_rad: tuple[float, float, float, float]
+    steer_rad: tuple[float, float, float, float]
+    steer_radps: tuple[float, float, float, float]
+    drive_current_a: tuple[float, float, float, float]
+    steer_current_a: tuple[float, float, float, float]
+
+
+class WheelSet:
+    """Four drive and four steering servos of ``config`` on ``bus``.
+
+    ``fast``: read state with Fast Sync Read (firmware >= 45) instead of Sync Read.
+    Use as a context manager: on exit (normal, exception, KeyboardInterrupt) it writes
+    zero wheel speeds and torque off to all eight servos, tolerating a dead bus.
+    """
+
+    def __init__(self, bus: Bus, config: RobotConfig, *, fast: bool = False):
+        self.bus = bus
+        self.config = config
+        self.fast = fast
+        self.table = config.table
+        self.drive_ids = config.drive_ids
+        self.steer_ids = config.steer_ids
+        self.ids = self.drive_ids + self.steer_ids
+        for i in self.ids:  # the model is known: no need to ping before every first access
+            bus._tables.setdefault(i, self.table)
+        self._vel = self.table[Reg.GOAL_VELOCITY]
+        self._pos = self.table[Reg.GOAL_POSITION]
+        self._first, self._last = Reg.PRESENT_CURRENT, Reg.PRESENT_POSITION
+
+    # --- setup -------------------------------------------------------------------------------
+
+    def configure(self) -> None:
+        """Check all eight servos answer with the configured model, then (torque off) set
+        Return Delay Time, operating modes, gains, profiles and the Bus Watchdog."""
+        cfg, bus = self.config, self.bus
+        found = bus.sync_read(self.ids, Reg.MODEL_NUMBER)
+        wrong = {i: v[Reg.MODEL_NUMBER] for i, v in found.items()
+                 if v[Reg.MODEL_NUMBER] != self.table.model_number}
+        if wrong:
+            raise ConfigError(f"{cfg.source}: model {cfg.model} ({self.table.model_number}) configured, "
+                              f"but servos report model numbers {wrong}")
+        self.disable()
+        rdt_raw = self.table[Reg.RETURN_DELAY_TIME].from_si(cfg.link.return_delay_us * 1e-6)
+        current = bus.sync_read(self.ids, Reg.RETURN_DELAY_TIME)
+        if any(v[Reg.RETURN_DELAY_TIME] != rdt_raw for v in current.values()):
+            bus.sync_write(Reg.RETURN_DELAY_TIME, {i: rdt_raw for i in self.ids})
+        bus.return_delay_us = cfg.link.return_delay_us
+        modes = {i: cfg.drive.operating_mode for i in self.drive_ids}
+        modes.update({i: cfg.steering.operating_mode for i in self.steer_ids})
+        bus.sync_write(Reg.OPERATING_MODE, modes)
+        for ids, group in ((self.drive_ids, cfg.drive), (self.steer_ids, cfg.steering)):
+            for name, raw in group.gains.items():
+                bus.sync_write(name, {i: raw for i in ids})
+            for name in (Reg.PROFILE_VELOCITY, Reg.PROFILE_ACCELERATION):
+                raw = getattr(group, str(name))
+                if raw is not None:
+                    bus.sync_write(name, {i: raw for i in ids})
+        wd = self.table[Reg.BUS_WATCHDOG]
+        bus.sync_write(Reg.BUS_WATCHDOG, {i: 0 for i in self.ids})  # clears a tripped watchdog
+        wd_raw = wd.from_si(cfg.bus_watchdog_s)
+        if wd_raw == 0 and cfg.bus_watchdog_s > 0:
+            wd_raw = 1
+        if wd_raw:
+            bus.sync_write(Reg.BUS_WATCHDOG, {i: wd_raw for i in self.ids})
+        got = bus.sync_read(self.ids, Reg.OPERATING_MODE)
+        bad = {i: v[Reg.OPERATING_MODE] for i, v in got.items() if v[Reg.OPERATING_MODE] != modes[i]}
+        if bad:
+            raise ConfigError(f"operating mode did not take on servos {bad} (expected {modes})")
+
+    def enable(self) -> None:
+        """Torque on for all eight servos."""
+        self.bus.sync_write(Reg.TORQUE_ENABLE, {i: 1 for i in self.ids})
+
+    def disable(self) -> None:
+        """Torque off for all eight servos."""
+        self.bus.sync_write(Reg.TORQUE_ENABLE, {i: 0 for i in self.ids})
+
+    # --- the cycle ---------------------------------------------------------------------------
+
+    def goal_raw(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> dict[int, int]:
+        """Raw goals ``{id: raw}`` for wheel speeds (rad/s) and steering angles (rad).
+
+        Raises :class:`OutOfRangeError` naming the wheel for a value beyond the configured
+        limits or the register range, or NaN; nothing is clamped.
+        """
+        cfg = self.config
+        if len(drive_radps) != 4 or len(steer_rad) != 4:
+            raise ValueError(f"expected 4 wheel speeds and 4 steering angles, got "
+                             f"{len(drive_radps)} and {len(steer_rad)}")
+        vmax = cfg.drive_max_radps * (1 + _LIMIT_TOL)
+        dmax = cfg.steer_angle_max_rad * (1 + _LIMIT_TOL)
+        out: dict[int, int] = {}
+        for w, v, d in zip(cfg.wheels, drive_radps, steer_rad):
+            v, d = float(v), float(d)
+            if not (math.isfinite(v) and abs(v) <= vmax):
+                raise OutOfRangeError(f"{w.name} wheel speed", v, -cfg.drive_max_radps,
+                                      cfg.drive_max_radps, "rad/s")
+            if not (math.isfinite(d) and abs(d) <= dmax):
+                raise OutOfRangeError(f"{w.name} steering angle", d, -cfg.steer_angle_max_rad,
+                                      cfg.steer_angle_max_rad, "rad")
+            out[w.drive_id] = self._vel.from_si(w.drive_direction * v)
+            pos = w.center_pulse + round(w.steer_direction * d / self._pos.scale)
+            out[w.steer_id] = self._pos.check_raw(pos)
+        return out
+
+    def write_goals(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> None:
+        """Send all eight goals in ONE Bulk Write: Goal Velocity to the drive servos,
+        Goal Position to the steering servos (wheel speeds rad/s, steering angles rad)."""
+        raw = self.goal_raw(drive_radps, steer_rad)
+        items = {i: {Reg.GOAL_VELOCITY: raw[i]} for i in self.drive_ids}
+        items.update({i: {Reg.GOAL_POSITION: raw[i]} for i in self.steer_ids})
+        self.bus.bulk_write(items)
+
+    def read_state(self) -> WheelState:
+        """Present current, velocity and position of all eight servos from ONE Sync Read
+        (or Fast Sync Read) of addresses 126..135, converted to the wheel frame."""
+        raw = self.bus.sync_read(self.ids, self._first, self._last, fast=self.fast)
+        t = time.monotonic()
+        cur = self.table[Reg.PRESENT_CURRENT]
+        vel = self.table[Reg.PRESENT_VELOCITY]
+        pos = self.table[Reg.PRESENT_POSITION]
+        dv, dp, dc, sp, sv, sc = [], [], [], [], [], []
+        for w in self.config.wheels:
+            d, s = raw[w.drive_id], raw[w.steer_id]
+            dv.append(w.drive_direction * vel.to_si(d[Reg.PRESENT_VELOCITY]))
+            dp.append(w.drive_direction * pos.to_si(d[Reg.PRESENT_POSITION]))
+            dc.append(w.drive_direction * cur.to_si(d[Reg.PRESENT_CURRENT]))
+            sp.append(w.steer_direction * pos.to_si(s[Reg.PRESENT_POSITION] - w.center_pulse))
+            sv.append(w.steer_direction * vel.to_si(s[Reg.PRESENT_VELOCITY]))
+            sc.append(w.steer_direction * cur.to_si(s[Reg.PRESENT_CURRENT]))
+        return WheelState(t, tuple(dv), tuple(dp), tuple(sp), tuple(sv), tuple(dc), tuple(sc))
+
+    # --- shutdown ----------------------------------------------------------------------------
+
+    def stop(self) -> None:
+        """Zero wheel speeds (torque stays on, steering holds)."""
+        self.bus.sync_write(Reg.GOAL_VELOCITY, {i: 0 for i in self.drive_ids})
+
+    def safe_shutdown(self) -> list[Exception]:
+        """Zero speeds, then torque off; never raises a bus error, returns what failed."""
+        failures: list[Exception] = []
+        for step in (self.stop, self.disable):
+            try:
+                step()
+            except (DxlError, OSError, ValueError) as exc:
+                log.warning("wheel set shutdown: %s failed: %s", step.__name__, exc)
+                failures.append(exc)
+        return failures
+
+    def __enter__(self) -> "WheelSet":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        self.safe_shutdown()
