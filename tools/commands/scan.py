@@ -1,0 +1,58 @@
+"""``swerve scan``: list every servo on a port (ID, model, model number, firmware)."""
+from __future__ import annotations
+
+import argparse
+
+NAME = "scan"
+HELP = "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping)"
+
+
+def _id_range(text: str) -> range:
+    """``"0-252"`` or ``"5"`` -> a range of IDs."""
+    try:
+        lo, _, hi = text.partition("-")
+        lo_i, hi_i = int(lo), int(hi or lo)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"bad ID range {text!r}; expected e.g. 1-8 or 0-252") from None
+    if not 0 <= lo_i <= hi_i <= 252:
+        raise argparse.ArgumentTypeError(f"ID range {text!r} must lie within 0-252")
+    return range(lo_i, hi_i + 1)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--port", required=True, help="serial port or URL, e.g. /dev/ttyUSB0 or a pty path")
+    parser.add_argument("--baud", type=int, default=1_000_000, help="baud rate (default 1000000)")
+    parser.add_argument("--all-bauds", action="store_true",
+                        help="try every standard X-series baud rate (57600 first)")
+    parser.add_argument("--ids", type=_id_range, default=range(0, 253), metavar="LO-HI",
+                        help="ID range to scan (default 0-252)")
+    parser.add_argument("--no-broadcast", action="store_true", help="ping each ID only (slower)")
+    parser.add_argument("--timeout-margin-ms", type=float, default=2.0,
+                        help="extra wait per reply in ms (raise for slow adapters or emulators)")
+
+
+def run(args: argparse.Namespace) -> int:
+    from driver.bus import Bus
+    from driver.errors import DxlError
+    from driver.transport import STANDARD_BAUDS
+
+    bauds = STANDARD_BAUDS if args.all_bauds else (args.baud,)
+    total = 0
+    for baud in bauds:
+        with Bus(args.port, baud, timeout_margin_s=args.timeout_margin_ms * 1e-3) as bus:
+            found = bus.scan(args.ids, broadcast=not args.no_broadcast)
+        if not found:
+            if args.all_bauds:
+                print(f"{baud:>8} bps: no servo")
+            continue
+        total += len(found)
+        print(f"{args.port} at {baud} bps: {len(found)} servo(s)")
+        print(f"{'ID':>4}  {'model':<14} {'number':>6}  {'firmware':>8}")
+        for r in found:
+            print(f"{r.id:>4}  {r.model:<14} {r.model_number:>6}  {r.firmware:>8}")
+    if not total:
+        rates = ", ".join(map(str, bauds))
+        raise DxlError(f"no servo answered on {args.port} at {rates} bps for IDs "
+                       f"{args.ids.start}-{args.ids.stop - 1} (check power, wiring, baud rate; "
+                       f"try --all-bauds)")
+    return 0
