@@ -1,0 +1,269 @@
+"""Control-table memory of one virtual servo: bytes, access rules, indirect mapping, resets.
+
+The layout, defaults, ranges and limits come from the same ``configs/models/*.yaml`` files the
+driver loads (:func:`driver.control_table.table_for`). Rules enforced on bus writes
+(e-Manual "Control Table", fact sheet §3 and §6):
+
+* EEPROM items (address < 64) are writable only while Torque Enable = 0 -> Access Error;
+* read-only items and undefined addresses -> Access Error;
+* a write that covers an item only partly -> Data Length Error;
+* a value outside the item's fixed range or allowed set -> Data Range Error;
+* a value outside a configured limit item (Velocity/Current/PWM/Position Limit) ->
+  ``limit_error`` (Data Limit Error by default; UNCONFIRMED, see emulator/README.md).
+
+A write is checked completely before any byte changes (all or nothing).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Iterable, Iterator, Mapping
+
+from driver.control_table import ControlTable, Reg, Register
+from driver.packets import ErrorNumber
+
+#: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
+INDIRECT_TARGET_MIN = 64
+INDIRECT_TARGET_MAX = 661
+EEPROM_END = 64
+#: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
+WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION)
+#: Factory Reset options: which items survive.
+RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = 0xFF, 0x01, 0x02
+POSITION_MODE = 3
+TIME_BASED_PROFILE_BIT = 0x04
+
+
+class WriteRejected(Exception):
+    """A bus write broke a rule; ``number`` is the status error to return."""
+
+    def __init__(self, number: ErrorNumber, detail: str):
+        super().__init__(detail)
+        self.number = number
+
+
+@dataclass(frozen=True)
+class _Slot:
+    """An Indirect Address item (2 bytes) and its Indirect Data byte."""
+
+    address: int
+    data: int
+
+
+class ServoMemory:
+    """The bytes of one servo's control table plus its rules.
+
+    ``read``/``write`` follow the bus rules; ``get``/``set`` bypass them (for the servo's own
+    firmware, physics and tests). Values are raw integers, sign-extended where the item is signed.
+    """
+
+    def __init__(self, table: ControlTable, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT):
+        self.table = table
+        self.limit_error = ErrorNumber(limit_error)
+        self.size = table.size
+        self._bytes = bytearray(self.size)
+        self._owner: list[Register | None] = [None] * self.size
+        for reg in table:
+            for a in range(reg.address, reg.address + reg.size):
+                self._owner[a] = reg
+        self._data_slot: dict[int, _Slot] = {}
+        self._addr_slot: dict[int, _Slot] = {}
+        for block in table.indirect:
+            for k in range(block.count):
+                slot = _Slot(block.address_start + 2 * k, block.data_start + k)
+                self._addr_slot[slot.address] = slot
+                self._addr_slot[slot.address + 1] = slot
+                self._data_slot[slot.data] = slot
+        self.watchdog_tripped = False
+        self.load_defaults()
+
+    # --- defaults and resets ------------------------------------------------------------------
+    def load_defaults(self, keep: Iterable[str] = ()) -> None:
+        """Every item to its default (except the names in ``keep``), indirect map to itself."""
+        kept = {name: self.get(name) for name in keep}
+        self._bytes[:] = bytes(self.size)
+        for reg in self.table:
+            self._put(reg, reg.default)
+        self._reset_indirect()
+        for name, value in kept.items():
+            self.set(name, value)
+        self.watchdog_tripped = False
+
+    def reset_ram(self) -> None:
+        """What a reboot does to memory: RAM items back to defaults, EEPROM kept."""
+        for reg in self.table:
+            if not reg.eeprom:
+                self._put(reg, reg.default)
+        self._reset_indirect()
+        self.watchdog_tripped = False
+
+    def factory_reset(self, option: int) -> None:
+        """Factory Reset: 0xFF everything, 0x01 all but ID, 0x02 all but ID and Baud Rate."""
+        keep = {RESET_ALL: (), RESET_EXCEPT_ID: (Reg.ID,),
+                RESET_EXCEPT_ID_BAUD: (Reg.ID, Reg.BAUD_RATE)}[option]
+        self.load_defaults(keep=[str(k) for k in keep])
+
+    def _reset_indirect(self) -> None:
+        for slot in set(self._data_slot.values()):
+            self._bytes[slot.address:slot.address + 2] = slot.data.to_bytes(2, "little")
+            self._bytes[slot.data] = 0
+
+    # --- bypass access ----------------------------------------------------------------------------
+    def get(self, name: str) -> int:
+        """Raw value of item ``name`` (no rules)."""
+        reg = self.table[name]
+        return reg.decode(bytes(self._bytes[reg.address:reg.address + reg.size]))
+
+    def set(self, name: str, raw: int) -> None:
+        """Store raw value ``raw`` in item ``name`` (no rules; raises if it does not fit the size)."""
+        self._put(self.table[name], raw)
+
+    def _put(self, reg: Register, raw: int) -> None:
+        self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
+
+    def snapshot(self) -> dict[str, int]:
+        """Every item's raw value by name."""
+        return {reg.name: self.get(reg.name) for reg in self.table}
+
+    def view(self) -> "Mapping[str, int]":
+        """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
+        return _MemoryView(self)
+
+    def eeprom_bytes(self) -> bytes:
+        return bytes(self._bytes[:EEPROM_END])
+
+    def restore_eeprom(self, data: bytes) -> None:
+        self._bytes[:EEPROM_END] = data
+
+    # --- bus read ---------------------------------------------------------------------------------
+    def read(self, address: int, length: int) -> bytes:
+        """Bytes ``address .. address+length-1`` as the bus sees them (indirect data resolved).
+
+        Raises :class:`WriteRejected` (Access Error) outside the table, Data Length Error for 0.
+        """
+        if length <= 0:
+            raise WriteRejected(ErrorNumber.DATA_LENGTH, "read of 0 bytes")
+        if address < 0 or address + length > self.size:
+            raise WriteRejected(ErrorNumber.ACCESS,
+                                f"read {address}+{length} outside the table (0..{self.size - 1})")
+        out = bytearray(self._bytes[address:address + length])
+        for a in range(address, address + length):
+            slot = self._data_slot.get(a)
+            if slot is not None:
+                out[a - address] = self._bytes[self._target(slot)]
+        return bytes(out)
+
+    def _target(self, slot: _Slot) -> int:
+        return int.from_bytes(self._bytes[slot.address:slot.address + 2], "little")
+
+    # --- bus write --------------------------------------------------------------------------------
+    def write(self, address: int, data: bytes) -> list[str]:
+        """Apply a bus write after checking every rule; return the item names changed.
+
+        Raises :class:`WriteRejected` with the error number to report; nothing is changed then.
+        """
+        if not data:
+            raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
+        if address < 0 or address + len(data) > self.size:
+            raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
+        # 1. resolve indirect data bytes to their targets; collect per-item byte patches
+        direct: dict[int, int] = {}
+        via_indirect: dict[int, int] = {}
+        slot_writes: dict[int, int] = {}
+        for i, b in enumerate(data):
+            a = address + i
+            if a in self._data_slot:
+                via_indirect[self._target(self._data_slot[a])] = b
+            elif a in self._addr_slot:
+                slot_writes[a] = b
+            else:
+                direct[a] = b
+        patches: dict[Register, dict[int, int]] = {}
+        for a, b in direct.items():
+            reg = self._owner[a]
+            if reg is None:
+                raise WriteRejected(ErrorNumber.ACCESS, f"address {a} is not a writable item")
+            patches.setdefault(reg, {})[a] = b
+        for reg, bytes_ in patches.items():
+            if len(bytes_) != reg.size:
+                raise WriteRejected(ErrorNumber.DATA_LENGTH,
+                                    f"{reg.name} needs {reg.size} bytes, got {len(bytes_)}")
+        for a, b in via_indirect.items():
+            reg = self._owner[a]
+            if reg is None:
+                raise WriteRejected(ErrorNumber.ACCESS, f"indirect target {a} is not an item")
+            patches.setdefault(reg, {})[a] = b
+        # 2. indirect address items: each 2-byte pair must be whole and in range
+        new_slots: dict[_Slot, int] = {}
+        for a in slot_writes:
+            slot = self._addr_slot[a]
+            if slot.address not in slot_writes or slot.address + 1 not in slot_writes:
+                raise WriteRejected(ErrorNumber.DATA_LENGTH, f"indirect address {slot.address} needs 2 bytes")
+            v = slot_writes[slot.address] | (slot_writes[slot.address + 1] << 8)
+            if not INDIRECT_TARGET_MIN <= v <= INDIRECT_TARGET_MAX:
+                raise WriteRejected(ErrorNumber.DATA_RANGE, f"indirect address {v} outside 64..661")
+            new_slots[slot] = v
+        # 3. item rules, against the memory as it will be after the whole write
+        new_values: dict[Register, int] = {}
+        for reg, bytes_ in patches.items():
+            raw = bytearray(self._bytes[reg.address:reg.address + reg.size])
+            for a, b in bytes_.items():
+                raw[a - reg.address] = b
+            new_values[reg] = reg.decode(bytes(raw))
+        torque_on = self.get(Reg.TORQUE_ENABLE) == 1
+        for reg, value in new_values.items():
+            self._check(reg, value, torque_on, new_values)
+        # 4. apply
+        for reg, value in new_values.items():
+            self._put(reg, value)
+        for slot, v in new_slots.items():
+            self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
+        return [reg.name for reg in new_values]
+
+    def _check(self, reg: Register, value: int, torque_on: bool, pending: dict[Register, int]) -> None:
+        if not reg.writable:
+            raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is read-only")
+        if reg.eeprom and torque_on:
+            raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is in EEPROM and torque is on")
+        if self.watchdog_tripped and reg.name in WATCHDOG_LOCKED:
+            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} is locked by the bus watchdog")
+        lo, hi = reg.raw_bounds()
+        if not lo <= value <= hi or (reg.allowed is not None and value not in reg.allowed):
+            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} = {value} outside [{lo}, {hi}]")
+        self._check_limits(reg, value, pending)
+
+    def _limit_value(self, name: str, pending: dict[Register, int]) -> int:
+        reg = self.table[name]
+        return pending.get(reg, self.get(name))
+
+    def _check_limits(self, reg: Register, value: int, pending: dict[Register, int]) -> None:
+        if reg.limit is not None:
+            if reg.name == Reg.PROFILE_VELOCITY and self.get(Reg.DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
+                return  # time-based profile: Profile Velocity is a time, not capped by Velocity Limit
+            cap = self._limit_value(reg.limit, pending)
+            if abs(value) > cap:
+                raise WriteRejected(self.limit_error, f"|{reg.name}| = {abs(value)} above {reg.limit} {cap}")
+        if reg.limit_min is not None or reg.limit_max is not None:
+            if reg.name == Reg.GOAL_POSITION and self.get(Reg.OPERATING_MODE) != POSITION_MODE:
+                return  # position limits apply only in Position Control Mode (3)
+            lo = self._limit_value(reg.limit_min, pending) if reg.limit_min else None
+            hi = self._limit_value(reg.limit_max, pending) if reg.limit_max else None
+            if (lo is not None and value < lo) or (hi is not None and value > hi):
+                raise WriteRejected(self.limit_error, f"{reg.name} = {value} outside [{lo}, {hi}]")
+
+
+class _MemoryView(Mapping):
+    """Read-only ``Mapping[str, int]`` over a :class:`ServoMemory`, decoding items on access."""
+
+    def __init__(self, memory: ServoMemory):
+        self._memory = memory
+
+    def __getitem__(self, name: str) -> int:
+        if name not in self._memory.table:
+            raise KeyError(name)
+        return self._memory.get(name)
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._memory.table.registers)
+
+    def __len__(self) -> int:
+        return len(self._memory.table.registers)

@@ -1,0 +1,107 @@
+"""The pseudo-terminal the emulated bus lives on.
+
+The client (SDK, driver, any serial tool) opens the slave path like a U2D2 port; the emulator
+reads and writes the master. The slave fd stays open here, so a client closing and reopening
+the port never makes the master report EIO. The master is non-blocking for writes: a client
+that never reads loses bytes (like an overflowing USB buffer) instead of stalling the emulator.
+"""
+from __future__ import annotations
+
+import errno
+import fcntl
+import os
+import struct
+import termios
+import tty
+from pathlib import Path
+
+#: Linux ``TCGETS2`` (struct termios2, 44 bytes: c_ispeed/c_ospeed at offsets 36/40).
+_TCGETS2 = 0x802C542A
+_SPEED_CONSTANTS = {getattr(termios, n): int(n[1:]) for n in dir(termios)
+                    if n.startswith("B") and n[1:].isdigit()}
+
+
+class PtyLink:
+    """A raw pty pair; ``path`` is the slave device the client opens.
+
+    ``link`` optionally names a symlink created to the slave (removed on :meth:`close`).
+    """
+
+    def __init__(self, baud_bps: int = 1_000_000, link: str | os.PathLike | None = None):
+        self.master, self.slave = os.openpty()
+        tty.setraw(self.slave)
+        self.path = os.ttyname(self.slave)
+        self._set_speed(baud_bps)
+        flags = fcntl.fcntl(self.master, fcntl.F_GETFL)
+        fcntl.fcntl(self.master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        self.link: Path | None = None
+        if link is not None:
+            self.link = Path(link)
+            if self.link.is_symlink() or self.link.exists():
+                if not self.link.is_symlink():
+                    self.close()
+                    raise FileExistsError(f"{self.link} exists and is not a symlink")
+                self.link.unlink()
+            self.link.symlink_to(self.path)
+
+    def _set_speed(self, bps: int) -> None:
+        const = {v: k for k, v in _SPEED_CONSTANTS.items()}.get(int(bps))
+        if const is None:
+            return
+        attrs = termios.tcgetattr(self.slave)
+        attrs[4] = attrs[5] = const
+        termios.tcsetattr(self.slave, termios.TCSANOW, attrs)
+
+    def speed_bps(self) -> int:
+        """The line speed the client last set (0 if unknown or B0)."""
+        buf = bytearray(44)
+        try:
+            fcntl.ioctl(self.master, _TCGETS2, buf)
+            speed = struct.unpack_from("<I", buf, 40)[0]
+            if speed:
+                return speed
+        except OSError:
+            pass
+        try:
+            return _SPEED_CONSTANTS.get(termios.tcgetattr(self.master)[5], 0)
+        except termios.error:
+            return 0
+
+    def read(self, n: int = 4096) -> bytes:
+        """Bytes the client sent (b"" if none are waiting)."""
+        try:
+            return os.read(self.master, n)
+        except BlockingIOError:
+            return b""
+        except OSError as exc:
+            if exc.errno == errno.EIO:
+                return b""
+            raise
+
+    def write(self, data: bytes) -> int:
+        """Send ``data`` to the client; returns bytes accepted (the rest is lost if the buffer is full)."""
+        sent = 0
+        while sent < len(data):
+            try:
+                n = os.write(self.master, data[sent:])
+            except BlockingIOError:
+                break
+            if n <= 0:
+                break
+            sent += n
+        return sent
+
+    def close(self) -> None:
+        """Close both ends and remove the symlink."""
+        if self.link is not None and self.link.is_symlink():
+            try:
+                self.link.unlink()
+            except OSError:
+                pass
+            self.link = None
+        for fd in (self.master, self.slave):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self.master = self.slave = -1

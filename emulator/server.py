@@ -1,0 +1,505 @@
+"""The emulated bus: virtual servos behind a pty, served by a reader thread and a clock thread.
+
+Reader thread: blocks in ``select`` on the pty master (and a wake-up pipe), feeds a
+:class:`driver.parser.PacketParser`, abandons a partial frame after an idle gap
+(``inter_byte_timeout_s``, 1.5 ms as on the servo), dispatches each instruction to the
+addressed servos under the one lock, then writes the replies after each servo's Return Delay
+Time (monotonic deadlines, ``time.sleep``; never spinning). Clock thread: calls
+:meth:`VirtualServo.advance` at ``clock_hz`` (Realtime Tick, Bus Watchdog, physics), then
+``world.step``.
+
+Reply order: broadcast Ping in ascending ID order; Sync/Bulk Read in listed order; Fast
+Sync/Bulk Read as one combined frame (:class:`driver.packets.FastStatus`), one slice per servo.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import select
+import threading
+import time
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Callable, Iterable, Mapping
+
+import yaml
+
+from driver.control_table import table_for
+from driver.errors import ConfigError
+from driver.packets import (BROADCAST_ID, MAX_ID, ErrorNumber, FastStatus, Instruction,
+                            InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
+                            parse_sync_read, parse_sync_write)
+from driver.parser import PacketParser
+
+from emulator.faults import Faults
+from emulator.pty_link import PtyLink
+from emulator.servo import BAUD_RATES, Dynamics, VirtualServo, baud_index
+
+log = logging.getLogger(__name__)
+
+DEFAULT_IDS = tuple(range(1, 9))
+DEFAULT_MODEL = "xh430-w210"
+DEFAULT_BAUD = 1_000_000
+BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
+IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
+MAX_CLOCK_CATCHUP_STEPS = 20
+SYNC_READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
+BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
+BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
+
+
+@dataclass
+class Stats:
+    """Counters of one emulator run (read them any time; written by the server threads)."""
+
+    packets_received: int = 0      # instruction packets decoded
+    replies_sent: int = 0          # status frames (or fast-read slices) written
+    replies_dropped: int = 0       # by fault injection
+    replies_corrupted: int = 0     # by fault injection
+    bad_frames: int = 0            # bad CRC / implausible length (parser)
+    dropped_bytes: int = 0         # garbage and abandoned partial frames (parser)
+    status_packets_ignored: int = 0  # status frames on the line (another device talking)
+    dispatch_errors: int = 0       # exceptions caught while handling one packet
+    wrong_baud_packets: int = 0    # no servo listens at the client's line speed
+    tx_overflow_bytes: int = 0     # reply bytes the pty would not take (client not reading)
+    clock_ticks: int = 0
+    clock_overruns: int = 0        # clock steps skipped because the thread ran late
+
+    def as_dict(self) -> dict[str, int]:
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass
+class _Reply:
+    frame: bytes
+    delay_s: float         # wait after the previous reply (or the instruction) ends
+    fast: bool = False     # part of a combined fast-read frame (one fault draw per frame)
+
+
+def _robot_servos(path: str | os.PathLike) -> tuple[list[int], str | None, int | None]:
+    """IDs, model and link baud from a robot config (``configs/robot.yaml``)."""
+    try:
+        doc = yaml.safe_load(Path(path).read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read robot config {path}: {exc.strerror}") from None
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    try:
+        ids = sorted({int(w[k]) for w in doc["wheels"] for k in ("drive_id", "steer_id")})
+    except (KeyError, TypeError, ValueError):
+        raise ConfigError(f"{path}: expected 'wheels' entries with drive_id and steer_id") from None
+    link = doc.get("link") or {}
+    baud = link.get("baud")
+    return ids, doc.get("model"), None if baud is None else int(baud)
+
+
+class Emulator:
+    """A bus of virtual X-series servos on a pty; use as a context manager.
+
+    Parameters
+    ----------
+    ids : iterable of int, default 1..8
+        Servo IDs (one servo each).
+    model : str, default ``"xh430-w210"``
+        Model name (a file in ``configs/models``).
+    baud : int, default 1_000_000
+        Line speed the servos' Baud Rate item starts at, and the speed assumed when the
+        client's termios speed reads as 0 or unknown.
+    robot_config : path, optional
+        Robot YAML; IDs, model and link baud come from it unless given explicitly.
+    wire_timing : bool
+        Pace replies as on a cable at the line speed (10 bits per byte).
+    faults : Faults or str, optional
+        Fault settings (:mod:`emulator.faults`), also reachable as :attr:`faults`.
+    time_scale : float
+        Simulated seconds per wall second for the clock (0 freezes simulated time).
+    link : path, optional
+        Symlink to create to the pty slave.
+    dynamics : callable or mapping, optional
+        ``dynamics(servo) -> Dynamics`` factory, or ``{id: Dynamics}``; physics per servo.
+    world : object, optional
+        Has ``step(dt_s, servos: dict[int, VirtualServo])``, called each tick after the servos.
+    clock_hz : float
+        Rate of :meth:`VirtualServo.advance` calls (default 1 kHz).
+    baud_check : bool
+        Servos only hear a client whose line speed equals their Baud Rate item.
+    limit_error : ErrorNumber
+        Error for a value beyond a limit item (UNCONFIRMED; default Data Limit Error 0x06).
+    crc_error_reply : bool
+        Answer a unicast frame with a bad CRC with CRC Error (0x03) instead of dropping it.
+    sync_chain_break : bool
+        In a Sync/Bulk Read, servos listed after an absent one stay silent too.
+    """
+
+    def __init__(self, ids: Iterable[int] | None = None, model: str | None = None,
+                 baud: int | None = None, *, robot_config: str | os.PathLike | None = None,
+                 wire_timing: bool = False, faults: Faults | str | None = None,
+                 time_scale: float = 1.0, link: str | os.PathLike | None = None,
+                 dynamics: Callable[[VirtualServo], Dynamics] | Mapping[int, Dynamics] | None = None,
+                 world=None, clock_hz: float = 1000.0, baud_check: bool = True,
+                 limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT, crc_error_reply: bool = False,
+                 sync_chain_break: bool = True, inter_byte_timeout_s: float = 1.5e-3,
+                 broadcast_slot_s: float = 1e-4):
+        cfg_ids = cfg_model = cfg_baud = None
+        if robot_config is not None:
+            cfg_ids, cfg_model, cfg_baud = _robot_servos(robot_config)
+        ids = list(ids if ids is not None else (cfg_ids or DEFAULT_IDS))
+        model = model or cfg_model or DEFAULT_MODEL
+        self.baud = int(baud or cfg_baud or DEFAULT_BAUD)
+        if self.baud not in BAUD_RATES:
+            raise ConfigError(f"baud {self.baud} is not an X-series rate ({', '.join(map(str, BAUD_RATES))})")
+        if not ids or len(set(ids)) != len(ids) or any(not 0 <= i <= MAX_ID for i in ids):
+            raise ConfigError(f"servo IDs must be distinct values in 0..252, got {ids}")
+        if time_scale < 0 or clock_hz <= 0:
+            raise ConfigError("time_scale must be >= 0 and clock_hz > 0")
+        self.table = table_for(model)
+        self.model = self.table.model
+        self.wire_timing = bool(wire_timing)
+        self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
+        self.time_scale = float(time_scale)
+        self.clock_hz = float(clock_hz)
+        self.baud_check = bool(baud_check)
+        self.crc_error_reply = bool(crc_error_reply)
+        self.sync_chain_break = bool(sync_chain_break)
+        self.inter_byte_timeout_s = float(inter_byte_timeout_s)
+        self.broadcast_slot_s = float(broadcast_slot_s)
+        self.world = world
+        self.stats = Stats()
+        self._lock = threading.Lock()
+        self.servos: tuple[VirtualServo, ...] = tuple(
+            VirtualServo(self.table, i, self.baud, limit_error=limit_error) for i in sorted(ids))
+        for s in self.servos:
+            if callable(dynamics):
+                s.dynamics = dynamics(s)
+            elif dynamics is not None:
+                s.dynamics = dynamics.get(s.id)
+        self.faults.attach(self._raise_hardware_error)
+        self._link_path = link
+        self._pty: PtyLink | None = None
+        self._parser = PacketParser()
+        self._stop = threading.Event()
+        self._threads: list[threading.Thread] = []
+        self._wake_r = self._wake_w = -1
+
+    # --- lifecycle ------------------------------------------------------------------------------
+    def start(self) -> "Emulator":
+        """Open the pty and start serving (idempotent)."""
+        if self._pty is not None:
+            return self
+        self._pty = PtyLink(self.baud, self._link_path)
+        self._wake_r, self._wake_w = os.pipe()
+        self._stop.clear()
+        self._threads = [threading.Thread(target=self._serve, name="emulator-bus", daemon=True)]
+        if self.time_scale > 0:
+            self._threads.append(threading.Thread(target=self._clock, name="emulator-clock", daemon=True))
+        for t in self._threads:
+            t.start()
+        return self
+
+    def close(self) -> None:
+        """Stop the threads and close the pty (idempotent)."""
+        if self._pty is None:
+            return
+        self._stop.set()
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
+        for t in self._threads:
+            t.join(timeout=5.0)
+        self._threads = []
+        self._pty.close()
+        self._pty = None
+        for fd in (self._wake_r, self._wake_w):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+        self._wake_r = self._wake_w = -1
+
+    def __enter__(self) -> "Emulator":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    @property
+    def port(self) -> str:
+        """Path of the pty slave the client opens (``/dev/pts/N``)."""
+        if self._pty is None:
+            raise RuntimeError("emulator is not running (use it as a context manager or call start())")
+        return self._pty.path
+
+    @property
+    def link_path(self) -> str | None:
+        return None if self._pty is None or self._pty.link is None else str(self._pty.link)
+
+    def servo(self, id_: int) -> VirtualServo:
+        """The servo whose ID item is currently ``id_``."""
+        for s in self.servos:
+            if s.id == id_:
+                return s
+        raise KeyError(f"no emulated servo with ID {id_} (IDs: {[s.id for s in self.servos]})")
+
+    @property
+    def lock(self) -> threading.Lock:
+        """The one lock guarding every servo's memory (hold it to read several items coherently)."""
+        return self._lock
+
+    def _raise_hardware_error(self, id_: int, bits: int) -> None:
+        with self._lock:
+            self.servo(id_).raise_hardware_error(bits)
+
+    def line_baud(self) -> int:
+        """The line speed the client set on the pty (``baud`` when it reads 0 or unknown)."""
+        speed = self._pty.speed_bps() if self._pty is not None else 0
+        return speed if speed in BAUD_RATES else self.baud
+
+    # --- reader thread -------------------------------------------------------------------------
+    def _serve(self) -> None:
+        pty, parser = self._pty, self._parser
+        first_byte_t = last_rx_t = 0.0
+        while not self._stop.is_set():
+            timeout = self.inter_byte_timeout_s if parser.pending else IDLE_POLL_S
+            try:
+                ready, _, _ = select.select([pty.master, self._wake_r], [], [], timeout)
+            except (OSError, ValueError):
+                break
+            if self._stop.is_set():
+                break
+            now = time.monotonic()
+            packets = []
+            if pty.master in ready:
+                data = pty.read()
+                if data:
+                    if not parser.pending:
+                        first_byte_t = now
+                    last_rx_t = now
+                    packets = parser.feed(data)
+            elif parser.pending and now - last_rx_t >= self.inter_byte_timeout_s:
+                packets = parser.flush()       # the sender went silent mid-frame: abandon it
+                if parser.pending:
+                    parser.reset()
+            self._count_parser_errors()
+            for pkt in packets:
+                self._handle(pkt, first_byte_t, now)
+                first_byte_t = now
+
+    def _count_parser_errors(self) -> None:
+        p = self._parser
+        errors = p.take_errors()
+        self.stats.bad_frames = p.bad_frames
+        self.stats.dropped_bytes = p.dropped_bytes
+        if errors and self.crc_error_reply:
+            self._reply_crc_errors(errors)
+
+    def _reply_crc_errors(self, errors) -> None:
+        from driver.errors import ChecksumError
+        for exc in errors:
+            if isinstance(exc, ChecksumError) and len(exc.frame) >= 8 and exc.frame[4] <= MAX_ID:
+                with self._lock:
+                    targets = self._addressed(exc.frame[4])
+                    replies = [_Reply(s.status(ErrorNumber.CRC).encode(), s.return_delay_s)
+                               for s, primary in targets if primary and s.status_return_level == 2]
+                self._transmit(replies, time.monotonic())
+
+    def _handle(self, pkt, first_byte_t: float, rx_t: float) -> None:
+        if isinstance(pkt, StatusPacket):
+            self.stats.status_packets_ignored += 1
+            return
+        self.stats.packets_received += 1
+        try:
+            with self._lock:
+                replies, touched = self._dispatch(pkt)
+            end_t = rx_t
+            if self.wire_timing:
+                end_t = max(rx_t, first_byte_t + len(pkt.encode()) * self._byte_time_s())
+            self._transmit(replies, end_t)
+            if touched:
+                with self._lock:
+                    for s in touched:
+                        s.apply_pending()      # ID / baud changes take effect after the reply
+        except Exception:  # noqa: BLE001 - one bad packet must never stop the bus
+            self.stats.dispatch_errors += 1
+            log.debug("error handling %r", pkt, exc_info=True)
+
+    def _byte_time_s(self) -> float:
+        return BITS_PER_BYTE / self.line_baud()
+
+    # --- dispatch (under the lock) -------------------------------------------------------------
+    def _listening(self) -> list[VirtualServo]:
+        """Servos present on the bus and listening at the client's line speed, by ascending ID."""
+        line = self.line_baud() if self.baud_check else None
+        out = [s for s in self.servos
+               if s.id not in self.faults.vanished and (line is None or s.baud_bps == line)]
+        return sorted(out, key=lambda s: s.id)
+
+    def _addressed(self, id_: int) -> list[tuple[VirtualServo, bool]]:
+        """``(servo, by_primary_id)`` for every listening servo an ID addresses."""
+        out = []
+        for s in self._listening():
+            if id_ == BROADCAST_ID or s.id == id_:
+                out.append((s, True))
+            elif s.secondary_id <= MAX_ID and s.secondary_id == id_:
+                out.append((s, False))
+        return out
+
+    def _dispatch(self, pkt: InstructionPacket) -> tuple[list[_Reply], list[VirtualServo]]:
+        listening = self._listening()
+        if not listening:
+            self.stats.wrong_baud_packets += 1
+            return [], []
+        inst = pkt.instruction
+        if inst in BUS_INSTRUCTIONS and pkt.id == BROADCAST_ID:
+            return self._dispatch_bus(pkt, listening)
+        replies: list[_Reply] = []
+        touched = []
+        broadcast_ping = pkt.id == BROADCAST_ID and inst == Instruction.PING
+        for servo, _primary in self._addressed(pkt.id):
+            status = servo.execute(pkt)
+            touched.append(servo)
+            status = servo.filter_reply(pkt, status)
+            if status is not None:
+                delay = servo.return_delay_s + (self.broadcast_slot_s if broadcast_ping and replies else 0.0)
+                replies.append(_Reply(status.encode(), delay))
+        return replies, touched
+
+    def _dispatch_bus(self, pkt: InstructionPacket, listening: list[VirtualServo]):
+        by_id = {s.id: s for s in listening}
+        inst, p = pkt.instruction, pkt.params
+        if inst == Instruction.SYNC_WRITE:
+            address, _length, data = parse_sync_write(p)
+            touched = []
+            for id_, d in data.items():
+                for s in self._writers(id_, listening):
+                    s.note_traffic()
+                    s.bus_write(address, d)
+                    touched.append(s)
+            return [], touched
+        if inst == Instruction.BULK_WRITE:
+            touched = []
+            for id_, address, d in parse_bulk_write(p):
+                for s in self._writers(id_, listening):
+                    s.note_traffic()
+                    s.bus_write(address, d)
+                    touched.append(s)
+            return [], touched
+        if inst in SYNC_READS:
+            address, length, ids = parse_sync_read(p)
+            items = [(i, address, length) for i in ids]
+        else:
+            items = parse_bulk_read(p)
+            if len({i for i, _, _ in items}) != len(items):
+                log.debug("bulk read lists an ID twice; ignored")
+                return [], []
+        fast = inst in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
+        statuses: list[tuple[VirtualServo | None, StatusPacket]] = []
+        for id_, address, length in items:
+            s = by_id.get(id_)
+            if s is None:
+                statuses.append((None, StatusPacket(id_ if id_ <= MAX_ID else 0, 0, bytes(length))))
+                continue
+            s.note_traffic()
+            st = s.read_status(address, length)
+            if fast and len(st.params) != length:       # keep the combined frame's layout
+                st = StatusPacket(st.id, st.error, bytes(length))
+            statuses.append((s, st))
+        present = [s for s, _ in statuses if s is not None]
+        if not present:
+            return [], []
+        if fast:
+            slices = FastStatus(tuple(st for _, st in statuses)).slices()
+            replies = []
+            for k, ((s, _), frame) in enumerate(zip(statuses, slices)):
+                if s is None:
+                    if self.sync_chain_break:
+                        break
+                    continue
+                replies.append(_Reply(frame, s.return_delay_s if k == 0 else 0.0, fast=True))
+            return replies, present
+        replies = []
+        for s, st in statuses:
+            if s is None:
+                if self.sync_chain_break:
+                    break
+                continue
+            replies.append(_Reply(st.encode(), s.return_delay_s))
+        return replies, present
+
+    def _writers(self, id_: int, listening: list[VirtualServo]) -> list[VirtualServo]:
+        return [s for s in listening if s.id == id_ or (s.secondary_id <= MAX_ID and s.secondary_id == id_)]
+
+    # --- transmit (outside the lock) ------------------------------------------------------------
+    def _transmit(self, replies: list[_Reply], start_t: float) -> None:
+        if not replies:
+            return
+        faults = self.faults
+        t = start_t
+        byte_t = self._byte_time_s()
+        fast_dropped = fast_drawn = False
+        for r in replies:
+            frame = r.frame
+            if r.fast:
+                if not fast_drawn:
+                    fast_dropped, fast_drawn = faults.should_drop(), True
+                    if fast_dropped:
+                        self.stats.replies_dropped += 1
+                if fast_dropped:
+                    continue
+            elif faults.should_drop():
+                self.stats.replies_dropped += 1
+                continue
+            frame, corrupted = faults.maybe_corrupt(frame)
+            if corrupted:
+                self.stats.replies_corrupted += 1
+            due = t + r.delay_s + faults.delay_s
+            if self.wire_timing:
+                due += len(frame) * byte_t     # the last byte reaches the host then
+            self._sleep_until(due)
+            sent = self._pty.write(frame)
+            self.stats.tx_overflow_bytes += len(frame) - sent
+            self.stats.replies_sent += 1
+            t = max(due, time.monotonic()) if not self.wire_timing else due
+
+    def _sleep_until(self, deadline: float) -> None:
+        remaining = deadline - time.monotonic()
+        if remaining > 0:
+            time.sleep(remaining)
+
+    # --- clock thread ----------------------------------------------------------------------------
+    def _clock(self) -> None:
+        period = 1.0 / self.clock_hz
+        dt_sim = period * self.time_scale
+        next_t = time.monotonic() + period
+        while not self._stop.wait(max(0.0, next_t - time.monotonic())):
+            now = time.monotonic()
+            due = int((now - next_t) / period) + 1
+            steps = min(due, MAX_CLOCK_CATCHUP_STEPS)
+            if due > steps:
+                self.stats.clock_overruns += due - steps
+            next_t += due * period
+            try:
+                with self._lock:
+                    for _ in range(steps):
+                        self._tick(dt_sim)
+            except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
+                self.stats.dispatch_errors += 1
+                log.debug("error in clock tick", exc_info=True)
+
+    def _tick(self, dt_s: float) -> None:
+        for s in self.servos:
+            s.advance(dt_s)
+        if self.world is not None:
+            self.world.step(dt_s, {s.id: s for s in self.servos})
+        self.stats.clock_ticks += 1
+
+    def advance(self, dt_s: float) -> None:
+        """Advance simulated time by ``dt_s`` s at once (tests; also works with ``time_scale=0``)."""
+        with self._lock:
+            steps = max(1, round(dt_s * self.clock_hz))
+            for _ in range(steps):
+                self._tick(dt_s / steps)
+
+    def set_baud_index(self, bps: int) -> int:
+        """Index of ``bps`` in the Baud Rate item (convenience for tests)."""
+        return baud_index(bps)

@@ -1,0 +1,354 @@
+"""One virtual X-series servo: instruction semantics, clock, watchdog, hardware-error latch.
+
+:class:`VirtualServo` turns one instruction into a :class:`~driver.packets.StatusPacket` (or
+``None`` where the protocol sends nothing). It does no I/O and no timing: the server
+(:mod:`emulator.server`) decides who is addressed, orders replies and writes them. Physics
+plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
+:class:`Dynamics`).
+"""
+from __future__ import annotations
+
+import logging
+from typing import Mapping, Protocol
+
+from driver.control_table import ControlTable, HardwareError, OperatingMode, Reg
+from driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, MAX_ID, ErrorNumber,
+                            Instruction, InstructionPacket, StatusPacket, parse_address_length)
+
+from emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
+                             WriteRejected)
+
+log = logging.getLogger(__name__)
+
+#: Baud Rate item index -> bits per second (e-Manual; also ``values_bps`` in the model file).
+BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
+WATCHDOG_UNIT_S = 0.020
+REALTIME_TICK_WRAP = 32768
+#: Items the physics model returns (written back into memory after each step).
+DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "present_position",
+                    "velocity_trajectory", "position_trajectory", "present_input_voltage",
+                    "present_temperature", "moving", "moving_status")
+#: Items the Control Table Backup instruction stores besides the EEPROM area (e-Manual).
+BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
+                    "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
+                    "profile_acceleration", "profile_velocity")
+
+
+def baud_index(bps: int) -> int:
+    """Baud Rate item value for ``bps``; raises ValueError if X servos do not support it."""
+    try:
+        return BAUD_RATES.index(int(bps))
+    except ValueError:
+        raise ValueError(f"{bps} bps is not an X-series baud rate ({', '.join(map(str, BAUD_RATES))})") from None
+
+
+class Dynamics(Protocol):
+    """What the physics model must provide (issue #4, e.g. ``emulator.physics.ServoModel``)."""
+
+    def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
+        """Advance ``dt_s`` s given raw items by name; return raw :data:`DYNAMICS_OUTPUTS`."""
+
+
+class VirtualServo:
+    """A servo on the emulated bus.
+
+    Parameters
+    ----------
+    table : ControlTable
+        Model control table (from :func:`driver.control_table.table_for`).
+    id_ : int
+        Initial ID (written to the ID item as if configured earlier).
+    baud_bps : int
+        Initial line speed (written to the Baud Rate item).
+    dynamics : Dynamics, optional
+        Physics model; ``None`` keeps Present* items static.
+    limit_error : ErrorNumber
+        Error returned for a value beyond a limit item (UNCONFIRMED; default Data Limit Error).
+    """
+
+    def __init__(self, table: ControlTable, id_: int, baud_bps: int = 1_000_000, *,
+                 dynamics: Dynamics | None = None, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT):
+        self.table = table
+        self.memory = ServoMemory(table, limit_error=limit_error)
+        self.memory.set(Reg.ID, id_)
+        self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
+        self.dynamics = dynamics
+        self._registered: tuple[int, bytes] | None = None
+        self._backup: tuple[bytes, dict[str, int]] | None = None
+        self._tick_ms = 0.0
+        self._since_traffic_s = 0.0
+        self._latched = False            # a Shutdown fault happened: torque stays off until reboot
+        self.apply_pending()
+
+    # --- identity used by the bus (changes take effect after the status reply) -------------------
+    def apply_pending(self) -> None:
+        """Make ID, Secondary ID and Baud Rate changes effective (after the reply went out)."""
+        self.id = self.memory.get(Reg.ID)
+        self.secondary_id = self.memory.get(Reg.SECONDARY_ID)
+        self.baud_bps = BAUD_RATES[self.memory.get(Reg.BAUD_RATE)]
+
+    @property
+    def model_number(self) -> int:
+        return self.memory.get(Reg.MODEL_NUMBER)
+
+    @property
+    def return_delay_s(self) -> float:
+        """Return Delay Time (9) in seconds (2 us units)."""
+        return self.memory.get(Reg.RETURN_DELAY_TIME) * 2e-6
+
+    @property
+    def status_return_level(self) -> int:
+        return self.memory.get(Reg.STATUS_RETURN_LEVEL)
+
+    # --- test access (bypass the bus rules) ---------------------------------------------------
+    def read(self, name: str) -> int:
+        """Raw value of item ``name``, as the memory holds it."""
+        return self.memory.get(name)
+
+    def write(self, name: str, raw: int) -> None:
+        """Store raw ``raw`` in item ``name`` without the bus rules (for tests and physics)."""
+        self.memory.set(name, raw)
+        self.apply_pending()
+
+    # --- status helpers -----------------------------------------------------------------------
+    def _error_byte(self, number: ErrorNumber = ErrorNumber.NONE) -> int:
+        alert = 0x80 if self.memory.get(Reg.HARDWARE_ERROR_STATUS) else 0
+        return int(number) | alert
+
+    def status(self, number: ErrorNumber = ErrorNumber.NONE, params: bytes = b"",
+               reply_id: int | None = None) -> StatusPacket:
+        """A status packet from this servo, with the Alert bit while a hardware error is latched."""
+        return StatusPacket(self.id if reply_id is None else reply_id, self._error_byte(number), params)
+
+    def read_status(self, address: int, length: int) -> StatusPacket:
+        """The status a Read (or one Sync/Bulk Read entry) produces."""
+        try:
+            return self.status(params=self.memory.read(address, length))
+        except WriteRejected as exc:
+            log.debug("ID %d read rejected: %s", self.id, exc)
+            return self.status(exc.number)
+
+    def bus_write(self, address: int, data: bytes) -> ErrorNumber:
+        """A Write (or Sync/Bulk Write entry) with every rule; returns the error number."""
+        if (address <= self.table[Reg.TORQUE_ENABLE].address < address + len(data)
+                and self._latched and data[self.table[Reg.TORQUE_ENABLE].address - address] == 1):
+            return ErrorNumber.RESULT_FAIL   # torque cannot come back before a reboot (UNCONFIRMED no.)
+        try:
+            changed = self.memory.write(address, data)
+        except WriteRejected as exc:
+            log.debug("ID %d write rejected: %s", self.id, exc)
+            return exc.number
+        self._after_write(changed)
+        return ErrorNumber.NONE
+
+    def _after_write(self, changed: list[str]) -> None:
+        m = self.memory
+        if Reg.OPERATING_MODE in changed:   # mode change resets profile and goal limits (e-Manual)
+            m.set(Reg.PROFILE_VELOCITY, 0)
+            m.set(Reg.PROFILE_ACCELERATION, 0)
+            m.set(Reg.GOAL_PWM, m.get(Reg.PWM_LIMIT))
+            m.set(Reg.GOAL_CURRENT, m.get(Reg.CURRENT_LIMIT))
+        if Reg.BUS_WATCHDOG in changed:
+            m.watchdog_tripped = False
+            self._since_traffic_s = 0.0
+
+    # --- instructions ---------------------------------------------------------------------------
+    def execute(self, pkt: InstructionPacket) -> StatusPacket | None:
+        """Execute ``pkt`` (addressed to this servo, its Secondary ID or broadcast).
+
+        Returns the status to send, before Status Return Level and broadcast rules are applied
+        by :meth:`filter_reply`. Sync/Bulk instructions are handled by the server.
+        """
+        self.note_traffic()
+        reply_id = self.id
+        inst = pkt.instruction
+        p = pkt.params
+        if inst == Instruction.PING:
+            return self.status(params=self.model_number.to_bytes(2, "little")
+                               + bytes((self.memory.get(Reg.FIRMWARE_VERSION),)))
+        if inst == Instruction.READ:
+            if len(p) != 4:
+                return self.status(ErrorNumber.DATA_LENGTH)
+            return self.read_status(*parse_address_length(p))
+        if inst in (Instruction.WRITE, Instruction.REG_WRITE):
+            if len(p) < 3:
+                return self.status(ErrorNumber.DATA_LENGTH)
+            address, data = int.from_bytes(p[:2], "little"), p[2:]
+            if inst == Instruction.WRITE:
+                return self.status(self.bus_write(address, data), reply_id=reply_id)
+            return self.status(self._reg_write(address, data))
+        if inst == Instruction.ACTION:
+            return self.status(self._action())
+        if inst == Instruction.REBOOT:
+            status = self.status()
+            self.reboot()
+            return status
+        if inst == Instruction.FACTORY_RESET:
+            return self._factory_reset(pkt)
+        if inst == Instruction.CLEAR:
+            return self.status(self._clear(p))
+        if inst == Instruction.CONTROL_TABLE_BACKUP:
+            return self._control_table_backup(p)
+        return self.status(ErrorNumber.INSTRUCTION)
+
+    def filter_reply(self, pkt: InstructionPacket, status: StatusPacket | None) -> StatusPacket | None:
+        """Apply broadcast, Secondary ID and Status Return Level rules to a unicast-style reply."""
+        if status is None or pkt.id == BROADCAST_ID:
+            return status if (status is not None and pkt.instruction == Instruction.PING) else None
+        if pkt.id != status.id and pkt.id == self.secondary_id:
+            return None          # addressed through the Secondary ID: executed, never answered
+        level = self.status_return_level
+        if pkt.instruction == Instruction.PING:
+            return status
+        if level == 0 or (level == 1 and pkt.instruction != Instruction.READ):
+            return None
+        return status
+
+    def _reg_write(self, address: int, data: bytes) -> ErrorNumber:
+        # Checked now against the current memory so the host learns of a bad value at once.
+        probe = ServoMemory(self.table, limit_error=self.memory.limit_error)
+        probe._bytes[:] = self.memory._bytes
+        probe.watchdog_tripped = self.memory.watchdog_tripped
+        try:
+            probe.write(address, data)
+        except WriteRejected as exc:
+            return exc.number
+        self._registered = (address, bytes(data))
+        self.memory.set(Reg.REGISTERED_INSTRUCTION, 1)
+        return ErrorNumber.NONE
+
+    def _action(self) -> ErrorNumber:
+        if self._registered is None:
+            return ErrorNumber.INSTRUCTION
+        address, data = self._registered
+        self._registered = None
+        self.memory.set(Reg.REGISTERED_INSTRUCTION, 0)
+        err = self.bus_write(address, data)
+        if err:
+            log.debug("ID %d: registered write failed at Action: %s", self.id, err.name)
+        return ErrorNumber.NONE
+
+    def _factory_reset(self, pkt: InstructionPacket) -> StatusPacket | None:
+        if len(pkt.params) != 1:
+            return self.status(ErrorNumber.DATA_LENGTH)
+        option = pkt.params[0]
+        if option not in (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD):
+            return self.status(ErrorNumber.DATA_RANGE)
+        if pkt.id == BROADCAST_ID and option == RESET_ALL:
+            return None      # firmware >= 42 ignores a broadcast reset-all (would clash IDs)
+        status = self.status()
+        self.memory.factory_reset(option)
+        self.reboot(keep_ram=False)
+        return status
+
+    def _clear(self, p: bytes) -> ErrorNumber:
+        if len(p) != len(CLEAR_MULTI_TURN):
+            return ErrorNumber.DATA_LENGTH
+        if bytes(p) != CLEAR_MULTI_TURN:
+            return ErrorNumber.DATA_RANGE
+        if self.memory.get(Reg.MOVING):
+            return ErrorNumber.RESULT_FAIL
+        self.memory.set(Reg.PRESENT_POSITION, self.memory.get(Reg.PRESENT_POSITION) % 4096)
+        hook = getattr(self.dynamics, "clear_multi_turn", None)
+        if callable(hook):
+            hook()
+        return ErrorNumber.NONE
+
+    def _control_table_backup(self, p: bytes) -> StatusPacket:
+        if len(p) != 5:
+            return self.status(ErrorNumber.DATA_LENGTH)
+        if bytes(p[1:]) != BACKUP_KEY or p[0] not in (1, 2):
+            return self.status(ErrorNumber.DATA_RANGE)
+        if self.memory.get(Reg.TORQUE_ENABLE):
+            return self.status(ErrorNumber.RESULT_FAIL)
+        if p[0] == 1:
+            self._backup = (self.memory.eeprom_bytes(),
+                            {n: self.memory.get(n) for n in BACKUP_RAM_ITEMS if n in self.table})
+            if Reg.BACKUP_READY in self.table:
+                self.memory.set(Reg.BACKUP_READY, 1)
+            return self.status()
+        if self._backup is None:
+            return self.status(ErrorNumber.RESULT_FAIL)
+        status = self.status()
+        self.memory.restore_eeprom(self._backup[0])
+        self.reboot()
+        return status
+
+    # --- lifecycle ------------------------------------------------------------------------------
+    def reboot(self, keep_ram: bool = False) -> None:
+        """What a Reboot does: RAM to defaults (torque off, errors cleared), EEPROM kept."""
+        if not keep_ram:
+            self.memory.reset_ram()
+        self._registered = None
+        self._latched = False
+        self._since_traffic_s = 0.0
+        if self._backup is not None and Reg.BACKUP_READY in self.table:
+            self.memory.set(Reg.BACKUP_READY, 1)
+        startup = self.memory.get(Reg.STARTUP_CONFIGURATION) if Reg.STARTUP_CONFIGURATION in self.table else 0
+        if startup & 0x02 and self._backup is not None:
+            for name, value in self._backup[1].items():
+                self.memory.set(name, value)
+        if startup & 0x01:
+            self.memory.set(Reg.TORQUE_ENABLE, 1)
+        hook = getattr(self.dynamics, "reboot", None)
+        if callable(hook):
+            hook()
+
+    def raise_hardware_error(self, bits: int) -> None:
+        """Latch Hardware Error Status ``bits``; bits also set in Shutdown (63) drop torque."""
+        m = self.memory
+        m.set(Reg.HARDWARE_ERROR_STATUS, m.get(Reg.HARDWARE_ERROR_STATUS) | (bits & 0xFF))
+        if bits & m.get(Reg.SHUTDOWN):
+            self._latched = True
+            m.set(Reg.TORQUE_ENABLE, 0)
+            m.set(Reg.PRESENT_PWM, 0)
+
+    def note_traffic(self) -> None:
+        """An instruction for this servo arrived: restart the Bus Watchdog timer."""
+        self._since_traffic_s = 0.0
+
+    def advance(self, dt_s: float) -> None:
+        """Advance simulated time by ``dt_s`` s: Realtime Tick, Bus Watchdog, then ``dynamics``."""
+        m = self.memory
+        self._tick_ms = (self._tick_ms + dt_s * 1e3) % REALTIME_TICK_WRAP
+        m.set(Reg.REALTIME_TICK, int(self._tick_ms))
+        self._since_traffic_s += dt_s
+        wd = m.get(Reg.BUS_WATCHDOG)
+        if (wd > 0 and not m.watchdog_tripped and m.get(Reg.TORQUE_ENABLE)
+                and self._since_traffic_s > wd * WATCHDOG_UNIT_S):
+            m.watchdog_tripped = True
+            m.set(Reg.BUS_WATCHDOG, -1)
+            m.set(Reg.GOAL_VELOCITY, 0)          # stop; physics also sees bus_watchdog == -1
+            m.set(Reg.GOAL_PWM, 0)
+            if m.get(Reg.OPERATING_MODE) in (OperatingMode.POSITION, OperatingMode.EXTENDED_POSITION,
+                                             OperatingMode.CURRENT_BASED_POSITION):
+                m.set(Reg.GOAL_POSITION, m.get(Reg.PRESENT_POSITION))
+        if self.dynamics is not None:
+            outputs = self.dynamics.step(dt_s, m.view())
+            for name in DYNAMICS_OUTPUTS:
+                if name in outputs:
+                    m.set(name, int(outputs[name]))
+
+
+def hardware_error_bits(spec: str | int) -> int:
+    """Bits from an int or names like ``"overload+overheating"`` (see :class:`HardwareError`)."""
+    if isinstance(spec, int):
+        return spec
+    names = {n.replace(" ", "_"): b for b, n in HardwareError.NAMES.items()}
+    names.update({"voltage": HardwareError.INPUT_VOLTAGE, "encoder": HardwareError.MOTOR_ENCODER,
+                  "overheat": HardwareError.OVERHEATING, "shock": HardwareError.ELECTRICAL_SHOCK})
+    bits = 0
+    for part in str(spec).replace(",", "+").split("+"):
+        part = part.strip().lower()
+        if not part:
+            continue
+        if part.isdigit() or part.startswith("0x"):
+            bits |= int(part, 0)
+        elif part in names:
+            bits |= names[part]
+        else:
+            raise ValueError(f"unknown hardware error {part!r}; use one of {', '.join(sorted(names))}")
+    return bits
+
+
+__all__ = ["VirtualServo", "Dynamics", "BAUD_RATES", "baud_index", "hardware_error_bits", "MAX_ID"]
