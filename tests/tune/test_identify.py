@@ -1,0 +1,61 @@
+"""Identification on data simulated with the emulator's ServoModel (noise, quantisation, jitter)."""
+from dataclasses import replace
+
+import numpy as np
+import pytest
+
+from emulator.physics import units as u
+from emulator.physics.params import MotorParams, load_config
+from tools.tune.identify import FITTED, identify, simulate_open_loop
+
+from .simdata import PLAN, pwm_record
+
+GEAR = 212.6
+PRIOR = MotorParams(resistance_ohm=8.0, inductance_h=3e-3, back_emf_v_s_per_rad=0.012,
+                    torque_nm_per_a=0.0067, friction_nm_s_per_rad=3e-7, inertia_kg_m2=9e-8)
+LSB = dict(position_lsb_rad=u.RAD_PER_PULSE, current_lsb_a=u.AMP_PER_CURRENT_UNIT)
+
+
+@pytest.fixture(scope="module")
+def table1():
+    return load_config("configs/emulator.yaml")
+
+
+@pytest.mark.parametrize("variant", ["drive", "steering"])
+def test_recovers_table1_within_5_percent_with_noise(table1, variant):
+    truth = getattr(table1, f"{variant}_motor")
+    rec = pwm_record(truth, GEAR, PLAN, seed=1)
+    ident = identify([rec], GEAR, PRIOR, **LSB)
+    for name in FITTED:
+        est = ident.estimates[name]
+        assert est.identified
+        assert est.value == pytest.approx(getattr(truth, name), rel=0.05), name
+        assert est.ci_low < est.value < est.ci_high
+    assert not ident.estimates["inductance_h"].identified
+    assert not ident.estimates["torque_nm_per_a"].identified
+    assert ident.residual_rms["position_pulse"] < 1.5
+    assert ident.extra["reduced_chi2"] == pytest.approx(1.0, abs=0.5)
+
+
+def test_thirty_percent_more_inertia_is_seen(table1):
+    base = table1.steering_motor
+    heavy = replace(base, inertia_kg_m2=1.3 * base.inertia_kg_m2)
+    j = [identify([pwm_record(p, GEAR, PLAN, seed=2)], GEAR, PRIOR, **LSB).params.inertia_kg_m2
+         for p in (base, heavy)]
+    assert j[1] / j[0] == pytest.approx(1.3, rel=0.05)
+
+
+def test_exact_solution_matches_the_emulator_motor_without_noise(table1):
+    from emulator.physics.params import SensorParams
+    p = table1.drive_motor
+    rec = pwm_record(p, GEAR, PLAN, sensors=SensorParams(), dt_s=5e-5)
+    sim = simulate_open_loop(p, GEAR, rec.t_s, rec.switch_t_s, rec.voltage_v)
+    assert np.max(np.abs(sim["current_a"] - rec.current_a)) < 2 * u.AMP_PER_CURRENT_UNIT
+    assert np.max(np.abs(sim["angle_rad"] - rec.position_rad)) < 2 * u.RAD_PER_PULSE
+
+
+def test_a_record_without_rest_samples_is_refused(table1):
+    rec = pwm_record(table1.drive_motor, GEAR, PLAN)
+    bad = replace(rec, switch_t_s=rec.switch_t_s - 1.0)
+    with pytest.raises(ValueError, match="rest samples"):
+        identify([bad], GEAR, PRIOR, **LSB)

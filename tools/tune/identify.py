@@ -1,0 +1,293 @@
+"""Levenberg–Marquardt identification of the servo's DC motor from open-loop PWM steps.
+
+Model (motor side, :func:`emulator.physics.motor.state_space`)::
+
+    L di/dt = v - R i - Ke w          J dw/dt = Km i - b w          dtheta/dt = w,   theta_out = theta / N
+
+with ``v = duty * V_supply`` piecewise constant between Goal PWM writes. Measured: Present Position
+(encoder pulses, floor-quantised) and Present Current (2.69 mA LSB, rounded), at irregular bus
+sample times.
+
+What the data can and cannot separate (README "Identifiability"):
+
+- ``R`` (from the current right after a step, ``v/R``) and ``Ke`` (from the steady speed and
+  current, ``v = R i + Ke N w_out``) are identified, given the gear ratio ``N`` of the model.
+- ``Km``, ``J`` and ``b`` enter only as ``Km/J`` and ``b/J``: scaling all three by one factor gives
+  identical responses, because no known torque acts on the shaft. ``Km`` is therefore fixed at
+  its prior and ``J``, ``b`` are reported *relative to that prior* (exact if the prior is right).
+- ``L``: the electrical time constant ``L/R`` (~0.3 ms) is below the bus sampling interval
+  (~1-3 ms); the data barely constrain it, so it is fixed at its prior.
+
+The fit is exact in time: each sample is evaluated with the closed-form solution of the linear
+ODE between input switches (eigen-decomposition), so irregular sample times need no resampling.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from emulator.physics.motor import state_space
+from emulator.physics.params import MotorParams
+
+FITTED = ("resistance_ohm", "back_emf_v_s_per_rad", "inertia_kg_m2", "friction_nm_s_per_rad")
+FIXED_REASONS = {
+    "inductance_h": "electrical time constant L/R ~0.3 ms is far below the bus sampling interval",
+    "torque_nm_per_a": "only Km/J and b/J are observable without a known load torque; "
+                       "J and b are reported relative to this Km",
+}
+UNITS = {"resistance_ohm": "ohm", "back_emf_v_s_per_rad": "V s/rad", "inertia_kg_m2": "kg m^2",
+         "friction_nm_s_per_rad": "N m s/rad", "inductance_h": "H", "torque_nm_per_a": "N m/A"}
+Z95 = 1.959963984540054
+
+
+@dataclass(frozen=True)
+class PwmRecord:
+    """One open-loop experiment: piecewise-constant armature voltage and the sampled response.
+
+    Attributes
+    ----------
+    t_s : ndarray, shape (n,)
+        Sample times, s, on the servo's clock, from the record start.
+    position_rad : ndarray, shape (n,)
+        Present Position, output-shaft rad (an integer number of encoder LSBs).
+    current_a : ndarray, shape (n,)
+        Present Current, A.
+    switch_t_s : ndarray, shape (m,)
+        Times at which each Goal PWM write was sent, s (same clock as ``t_s``).
+    voltage_v : ndarray, shape (m,)
+        Armature voltage from each switch on (duty times supply voltage), V. Before the first
+        switch the voltage is 0 and the motor is at rest.
+    """
+
+    t_s: np.ndarray
+    position_rad: np.ndarray
+    current_a: np.ndarray
+    switch_t_s: np.ndarray
+    voltage_v: np.ndarray
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """One parameter: value with a 95 % confidence interval (``nan`` if fixed)."""
+
+    value: float
+    ci_low: float
+    ci_high: float
+    unit: str
+    identified: bool
+    note: str = ""
+
+    @property
+    def rel_halfwidth(self) -> float:
+        """Half the 95 % interval relative to the value (``nan`` if fixed)."""
+        return 0.5 * (self.ci_high - self.ci_low) / self.value if self.identified else float("nan")
+
+
+@dataclass(frozen=True)
+class Identification:
+    """Result of :func:`identify`.
+
+    Attributes
+    ----------
+    params : MotorParams
+        Identified values with the non-identifiable ones at their priors.
+    gear_ratio : float
+        Gear ratio used (from the servo model), motor turns per output turn.
+    estimates : dict[str, Estimate]
+        Every motor parameter, identified or fixed.
+    derived : dict[str, float]
+        Combinations the data determine directly: mechanical time constant ``tau_m_s``,
+        ``km_over_j`` (1/(A s^2)), ``b_over_km`` (A s/rad), no-load output speed at 12 V.
+    delay_s : float
+        Fitted input delay (write to effect), s.
+    position_skew_s : float
+        Fitted age of Present Position relative to Present Current in one read, s (the
+        emulator samples the encoder one physics tick before the current).
+    residual_rms : dict[str, float]
+        RMS fit residual: ``position_pulse`` (LSB) and ``current_a`` (A).
+    noise_std : dict[str, float]
+        Sample standard deviation at rest (``position_pulse``, ``current_a``) used as weights.
+    correlation : ndarray, shape (4, 4)
+        Correlation of the fitted log-parameters, in :data:`FITTED` order.
+    n_samples : int
+        Samples used (both channels count once per bus read).
+    """
+
+    params: MotorParams
+    gear_ratio: float
+    estimates: dict[str, Estimate]
+    derived: dict[str, float]
+    delay_s: float
+    position_skew_s: float
+    residual_rms: dict[str, float]
+    noise_std: dict[str, float]
+    correlation: np.ndarray
+    n_samples: int
+    extra: dict = field(default_factory=dict)
+
+
+def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
+                       switch_t_s: np.ndarray, voltage_v: np.ndarray) -> dict[str, np.ndarray]:
+    """Exact response of the geared motor, from rest, to a piecewise-constant voltage.
+
+    Parameters
+    ----------
+    params : MotorParams
+        Motor-side constants.
+    gear_ratio : float
+        Motor turns per output turn.
+    t_s : ndarray, shape (n,)
+        Increasing sample times, s.
+    switch_t_s, voltage_v : ndarray, shape (m,)
+        The voltage is 0 before ``switch_t_s[0]`` and ``voltage_v[k]`` from ``switch_t_s[k]``.
+
+    Returns
+    -------
+    dict
+        ``angle_rad``, ``speed_radps`` (output shaft, from the start angle 0) and ``current_a``,
+        each shape (n,).
+    """
+    t_s = np.asarray(t_s, float)
+    a3, b3 = state_space(params, params.inertia_kg_m2)
+    a, b = a3[:2, :2], b3[:2, 0]
+    lam, vec = np.linalg.eig(a)
+    vinv = np.linalg.inv(vec)
+    a_inv_b = np.linalg.solve(a, b)
+    bounds = np.concatenate([[-np.inf], np.asarray(switch_t_s, float), [np.inf]])
+    volts = np.concatenate([[0.0], np.asarray(voltage_v, float)])
+    z = np.zeros(2)                                   # [i, w] at the segment start
+    theta = 0.0
+    out = np.zeros((3, t_s.size))
+    for k in range(volts.size):
+        t0 = bounds[k] if np.isfinite(bounds[k]) else 0.0
+        z_ss = -a_inv_b * volts[k]
+        c = vinv @ (z - z_ss)                          # modal coordinates of the transient
+
+        def solution(tau):
+            e = np.exp(np.outer(tau, lam))             # (n, 2)
+            zt = (z_ss[None, :] + (e * c[None, :]) @ vec.T).real
+            th = theta + z_ss[1] * tau + (((e - 1.0) / lam[None, :] * c[None, :]) @ vec[1, :]).real
+            return zt, th
+
+        sel = (t_s >= bounds[k]) & (t_s < bounds[k + 1])
+        zt, th = solution(t_s[sel] - t0)
+        out[0, sel], out[1, sel], out[2, sel] = th, zt[:, 1], zt[:, 0]
+        if np.isfinite(bounds[k + 1]):
+            zt, th = solution(np.array([bounds[k + 1] - t0]))
+            z, theta = zt[0], float(th[0])
+    return {"angle_rad": out[0] / gear_ratio, "speed_radps": out[1] / gear_ratio,
+            "current_a": out[2]}
+
+
+def _rest_std(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
+    """Samples taken before the first switch (motor at rest)."""
+    return signal[rec.t_s < rec.switch_t_s[0]] / lsb
+
+
+def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
+             position_lsb_rad: float, current_lsb_a: float) -> Identification:
+    """Fit ``R, Ke, J, b`` (plus an input delay, a position/current time skew and per-record
+    angle offsets as nuisance parameters) with Levenberg–Marquardt.
+
+    Parameters
+    ----------
+    records : list[PwmRecord]
+        Open-loop PWM experiments, each starting at rest with at least a few rest samples.
+    gear_ratio : float
+        Gear ratio of the servo model (not fitted: only ``Ke * N`` would be observable).
+    prior : MotorParams
+        Start values; ``inductance_h`` and ``torque_nm_per_a`` are kept fixed at these.
+    position_lsb_rad, current_lsb_a : float
+        Encoder and current quantisation steps (output rad per pulse; A per LSB).
+
+    Returns
+    -------
+    Identification
+
+    Raises
+    ------
+    ValueError
+        If a record has no rest samples or no switch.
+    """
+    for rec in records:
+        if rec.switch_t_s.size == 0 or not np.any(rec.t_s < rec.switch_t_s[0]):
+            raise ValueError("each PWM record needs rest samples before its first switch")
+    # Weights: quantisation (uniform, variance 1/12 LSB^2) plus the noise seen at rest.
+    pos_rest = np.concatenate([_rest_std(r, position_lsb_rad, r.position_rad) for r in records])
+    cur_rest = np.concatenate([_rest_std(r, current_lsb_a, r.current_a) for r in records])
+    sig_p = np.sqrt(1.0 / 12.0 + np.var(pos_rest))          # pulses
+    sig_i = np.sqrt(1.0 / 12.0 + np.var(cur_rest))          # current LSBs
+    x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0, 0.0],
+                         [np.mean(r.position_rad[r.t_s < r.switch_t_s[0]]) / position_lsb_rad + 0.5
+                          for r in records]])
+
+    def unpack(x):
+        return replace(prior, **dict(zip(FITTED, np.exp(x[:4])))), x[4], x[5], x[6:]
+
+    def residuals(x):
+        p, delay, skew, offsets = unpack(x)
+        res = []
+        for rec, off in zip(records, offsets):
+            n = rec.t_s.size
+            sim = simulate_open_loop(p, gear_ratio, np.concatenate([rec.t_s - skew, rec.t_s]),
+                                     rec.switch_t_s + delay, rec.voltage_v)
+            res.append((sim["angle_rad"][:n] / position_lsb_rad + off - 0.5
+                        - rec.position_rad / position_lsb_rad) / sig_p)
+            res.append((sim["current_a"][n:] - rec.current_a) / current_lsb_a / sig_i)
+        return np.concatenate(res)
+
+    sol = least_squares(residuals, x0, method="lm", x_scale="jac")
+    p, delay, skew, _ = unpack(sol.x)
+    m, k = sol.fun.size, sol.x.size
+    jac = sol.jac
+    s2 = 2.0 * sol.cost / max(m - k, 1)
+    cov = np.linalg.pinv(jac.T @ jac) * s2
+    std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    est = {}
+    for j, name in enumerate(FITTED):
+        v = getattr(p, name)
+        est[name] = Estimate(v, v * np.exp(-Z95 * std[j]), v * np.exp(Z95 * std[j]), UNITS[name], True,
+                             "relative to the fixed Km" if name in ("inertia_kg_m2", "friction_nm_s_per_rad")
+                             else "")
+    for name, why in FIXED_REASONS.items():
+        est[name] = Estimate(getattr(p, name), float("nan"), float("nan"), UNITS[name], False, why)
+    sub = cov[:4, :4]
+    d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
+    corr = sub / np.outer(d, d)
+    r_pos = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 0)]) * sig_p
+    r_cur = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 1)]) * sig_i
+    return Identification(
+        params=p, gear_ratio=gear_ratio, estimates=est, derived=derived_quantities(p, gear_ratio),
+        delay_s=float(delay), position_skew_s=float(skew),
+        residual_rms={"position_pulse": float(np.sqrt(np.mean(r_pos ** 2))),
+                      "current_a": float(np.sqrt(np.mean(r_cur ** 2))) * current_lsb_a},
+        noise_std={"position_pulse": float(np.std(pos_rest)), "current_a": float(np.std(cur_rest)) * current_lsb_a},
+        correlation=corr, n_samples=int(sum(r.t_s.size for r in records)),
+        extra={"nfev": int(sol.nfev), "status": int(sol.status), "reduced_chi2": float(s2)})
+
+
+def _channel_slices(records: list[PwmRecord], channel: int) -> list[tuple[int, int]]:
+    """``(start, length)`` of each record's position (0) or current (1) residuals."""
+    out, start = [], 0
+    for rec in records:
+        n = rec.t_s.size
+        out.append((start + channel * n, n))
+        start += 2 * n
+    return out
+
+
+def derived_quantities(p: MotorParams, gear_ratio: float, supply_v: float = 12.0) -> dict[str, float]:
+    """Combinations of the motor constants that the step data determine directly.
+
+    Returns
+    -------
+    dict
+        ``tau_m_s`` mechanical time constant ``J R / (R b + Ke Km)``; ``km_over_j`` (1/(A s^2));
+        ``b_over_km`` (A s/rad); ``no_load_speed_out_radps`` at ``supply_v``.
+    """
+    r, ke, km, b, j = (p.resistance_ohm, p.back_emf_v_s_per_rad, p.torque_nm_per_a,
+                       p.friction_nm_s_per_rad, p.inertia_kg_m2)
+    return {"tau_m_s": j * r / (r * b + ke * km), "km_over_j": km / j, "b_over_km": b / km,
+            "no_load_speed_out_radps": supply_v * km / (r * b + ke * km) / gear_ratio}
