@@ -1,0 +1,64 @@
+"""Driver test fixtures: one bus target that is the emulator's pty, or the real port
+given with ``--port`` (then fault-injection tests are skipped)."""
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+
+sys.path.insert(0, str(Path(__file__).parent))  # fake_servos helper
+
+
+@dataclass
+class Target:
+    url: str
+    baud: int
+    emu: object | None  # emulator.Emulator, or None on hardware
+
+    @property
+    def margin_s(self) -> float:
+        # a Python emulator on a loaded 2-core machine can stall for tens of ms
+        return 0.3 if self.emu is not None else 0.005
+
+
+@pytest.fixture
+def target(hw_port, hw_baud):
+    if hw_port:
+        yield Target(hw_port, hw_baud, None)
+        return
+    emulator = pytest.importorskip("emulator")
+    with emulator.Emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, time_scale=0) as emu:
+        yield Target(emu.port, 1_000_000, emu)
+
+
+@pytest.fixture
+def bus_url(target) -> str:
+    """The emulator's pty path, or the real port with --port."""
+    return target.url
+
+
+@pytest.fixture
+def emu(target):
+    """The emulator (for fault injection and inspection); skips on hardware."""
+    if target.emu is None:
+        pytest.skip("needs the emulator (fault injection / inspection)")
+    return target.emu
+
+
+@pytest.fixture
+def bus(target):
+    from driver.bus import Bus
+
+    with Bus(target.url, target.baud, timeout_margin_s=target.margin_s) as b:
+        yield b
+
+
+@pytest.fixture
+def fake():
+    """The scripted responder (wrong IDs, garbage, stray bytes the emulator cannot make)."""
+    from fake_servos import FakeServos
+
+    with FakeServos() as f:
+        yield f
