@@ -64,6 +64,7 @@ class ServoModel:
         self._started = False
         self._sign = 1
         self._homing = 0
+        self._goal_pulse = 0.0          # goal after limits / watchdog hold, pulse
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -218,11 +219,12 @@ class ServoModel:
         goal = float(t["goal_position"])
         if mode == u.MODE_POSITION:
             goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+        self._goal_pulse = goal
         new_goal = switched or t["goal_position"] != self._prev.get("goal_position")
         if tripped:
             if self._hold_position is None:
                 self._hold_position, new_goal = float(present), True
-            goal = self._hold_position
+            goal = self._goal_pulse = self._hold_position
         vlim = float(t["velocity_limit"])
         pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
         v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
@@ -269,8 +271,7 @@ class ServoModel:
         if ongoing:
             status |= u.PROFILE_ONGOING
         if torque and position_mode:
-            err = abs(float(t["goal_position"]) - present) if not ongoing else 0.0
-            if not ongoing and err <= self.fw.in_position_window_pulse:
+            if not ongoing and abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
                 status |= u.IN_POSITION
             if abs(self.profile.position - present) > self.fw.following_error_pulse:
                 status |= u.FOLLOWING_ERROR

@@ -175,3 +175,29 @@ def test_mode_switch_rewraps_position_and_resets_loop(steer):
     assert abs(outs[-1]["present_position"] - 6000) <= 1
     _, _, outs = simulate(s, table(operating_mode=u.MODE_POSITION, goal_position=6000 - 4096), 0.5, DT)
     assert abs(outs[-1]["present_position"] - (6000 - 4096)) <= 1
+
+
+def test_velocity_feedforward_cuts_the_following_error(steer):
+    def worst_lag(ff1):
+        s = steer()
+        simulate(s, table(operating_mode=u.MODE_POSITION, goal_position=1000), 1.0, DT)
+        _, _, outs = simulate(s, table(operating_mode=u.MODE_POSITION, goal_position=3000, profile_velocity=100,
+                                       profile_acceleration=20, position_p_gain=400,
+                                       feedforward_1st_gain=ff1), 1.0, DT)
+        return max(abs(o["position_trajectory"] - o["present_position"]) for o in outs)
+
+    # FF1 ≈ 4 · 885 / (218 units · 15.6 pulse/s/unit · 1 ms) ≈ 1040 supplies the PWM the speed needs
+    assert worst_lag(1000) < 0.2 * worst_lag(0)
+
+
+def test_position_d_gain_damps_the_step(steer):
+    plain, *_ = position_step(steer(), 2048, 50, DT, 1.0, position_p_gain=3000)
+    damped, *_ = position_step(steer(), 2048, 50, DT, 1.0, position_p_gain=3000, position_d_gain=2000)
+    assert damped.overshoot_pct < 0.7 * plain.overshoot_pct
+
+
+def test_in_position_uses_the_limited_goal(steer):
+    s = steer()
+    _, _, outs = simulate(s, table(operating_mode=u.MODE_POSITION, goal_position=3000,
+                                   max_position_limit=1000), 1.5, DT)
+    assert outs[-1]["moving_status"] & u.IN_POSITION
