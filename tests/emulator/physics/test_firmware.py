@@ -1,7 +1,6 @@
 """Profile generator, gain divisors, anti-windup."""
 import math
 
-import numpy as np
 import pytest
 
 from emulator.physics import units as u
