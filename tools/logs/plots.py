@@ -6,6 +6,7 @@ front_right, so the front axle (delta1) is wheels 1 and 4, the rear axle (delta2
 """
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 
 import matplotlib
@@ -17,11 +18,11 @@ import numpy as np  # noqa: E402
 FRONT, REAR = [0, 3], [1, 2]
 #: curve name -> (label, style)
 STYLE = {
-    "ref": ("reference", dict(color="k", ls="--", lw=1.4)),
+    "ref": ("reference", dict(color="k", ls="--", lw=1.4, zorder=4)),
     "sim": ("simulation", dict(color="tab:orange", lw=1.2)),
     "est": ("measured (odometry)", dict(color="tab:blue", lw=1.2)),
     "true": ("true (emulator)", dict(color="tab:green", lw=1.0, alpha=0.8)),
-    "cmd": ("commanded", dict(color="tab:red", lw=1.0)),
+    "cmd": ("commanded", dict(color="tab:red", lw=1.0, zorder=3)),
     "meas": ("measured", dict(color="tab:blue", lw=1.0)),
 }
 
@@ -90,15 +91,17 @@ def plot_velocities(log, sim, out: Path) -> Path:
     fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
     _line(axes[0], t, log.cmd_v1_mps, "cmd", label="v1 commanded")
     r = log.metadata.get("wheel_radius_m")
-    if r is not None:
-        _line(axes[0], t, float(r) * np.nanmean(log.meas_drive_radps, axis=1)
-              if np.isfinite(log.meas_drive_radps).any() else None, "meas",
-              label="v1 measured (mean wheel speed × r)")
+    if r is not None and np.isfinite(log.meas_drive_radps).any():
+        with warnings.catch_warnings():  # all-NaN rows (unread cycles) stay NaN
+            warnings.simplefilter("ignore", RuntimeWarning)
+            v1 = float(r) * np.nanmean(log.meas_drive_radps, axis=1)
+        _line(axes[0], t, v1, "meas", label="v1 measured (mean wheel speed × r)")
     axes[0].set_ylabel("v1 [m/s]")
     for j, c in enumerate(("tab:red", "tab:purple", "tab:brown", "tab:olive")):
         _line(axes[1], t, log.cmd_drive_radps[:, j], "cmd", label=f"wheel {j + 1} cmd", color=c, ls="--")
         _line(axes[1], t, log.meas_drive_radps[:, j], "meas", label=f"wheel {j + 1} meas", color=c)
     axes[1].set_ylabel("wheel speed [rad/s]")
+    axes[1].legend(fontsize=7, ncol=4, loc="best")
     _line(axes[2], t, log.cmd_omega_radps[:, 0], "cmd", label="ω1 (front) commanded")
     _line(axes[2], t, log.cmd_omega_radps[:, 1], "cmd", label="ω2 (rear) commanded", color="tab:purple")
     axes[2].set_ylabel("steering rate [rad/s]")
