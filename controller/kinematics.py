@@ -1,0 +1,143 @@
+"""Kinematic model (1)-(5) of the four-wheel independently steered robot.
+
+State ``s = (x, y, theta, delta1, delta2)`` in m and rad, inputs ``(v1, omega1, omega2)`` in m/s
+and rad/s. ``delta1`` steers both front wheels, ``delta2`` both rear wheels, and all four wheels
+are driven at the same ground speed ``v1``. Wheel positions in the body frame: front ``(a, b)``,
+rear ``(-a, b)``; ``b`` only enters through ``r**2 = a**2 + b**2``.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from controller.errors import ControllerError
+
+#: ``configs/robot.yaml`` relative to the repository root.
+ROBOT_YAML = Path(__file__).resolve().parent.parent / "configs" / "robot.yaml"
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """Wheel layout: ``a_m`` half wheelbase, ``b_m`` half track, ``wheel_radius_m``."""
+
+    a_m: float = 0.1125
+    b_m: float = 0.1125
+    wheel_radius_m: float = 0.033
+
+    @property
+    def r2_m2(self) -> float:
+        """Squared distance ``a**2 + b**2`` of every wheel from the centroid, m^2."""
+        return self.a_m ** 2 + self.b_m ** 2
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Actuator limits: wheel speed m/s, steering rate rad/s, steering angle rad."""
+
+    v1_max_mps: float = 0.13
+    steer_rate_max_radps: float = 4.0
+    steer_angle_max_rad: float = 1.5708
+
+
+def load_robot(path: str | Path = ROBOT_YAML) -> tuple[Geometry, Limits]:
+    """Read geometry and limits from a robot YAML file (``configs/robot.yaml``).
+
+    Returns
+    -------
+    (Geometry, Limits)
+    """
+    import yaml
+
+    try:
+        with open(path, encoding="utf-8") as fh:
+            cfg = yaml.safe_load(fh)
+        g, lim = cfg["geometry"], cfg["limits"]
+        geom = Geometry(float(g["a_m"]), float(g["b_m"]), float(g["wheel_radius_m"]))
+        limits = Limits(float(lim["v1_max_mps"]), float(lim["steer_rate_max_radps"]),
+                        float(lim.get("steer_angle_max_rad", np.pi / 2)))
+    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
+        raise ControllerError(f"cannot read robot geometry/limits from {path}: {exc}") from exc
+    vals = [geom.a_m, geom.b_m, geom.wheel_radius_m, limits.v1_max_mps,
+            limits.steer_rate_max_radps, limits.steer_angle_max_rad]
+    if not all(np.isfinite(v) and v > 0 for v in vals):
+        raise ControllerError(f"{path}: geometry and limits must be positive numbers")
+    return geom, limits
+
+
+def state_derivative(state, inputs, geom: Geometry = Geometry()) -> np.ndarray:
+    """Right-hand side of model (1)-(5).
+
+    Parameters
+    ----------
+    state : array_like, shape (..., 5)
+        ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``.
+    inputs : array_like, shape (..., 3)
+        ``(v1_mps, omega1_radps, omega2_radps)``.
+
+    Returns
+    -------
+    ndarray, shape (..., 5)
+        Time derivative of the state.
+    """
+    s = np.asarray(state, dtype=float)
+    u = np.asarray(inputs, dtype=float)
+    th, d1, d2 = s[..., 2], s[..., 3], s[..., 4]
+    v1, w1, w2 = u[..., 0], u[..., 1], u[..., 2]
+    k = geom.a_m / (2.0 * geom.r2_m2)
+    out = np.empty(np.broadcast_shapes(s.shape, u.shape[:-1] + (5,)))
+    out[..., 0] = 0.5 * (np.cos(d1 + th) + np.cos(d2 + th)) * v1
+    out[..., 1] = 0.5 * (np.sin(d1 + th) + np.sin(d2 + th)) * v1
+    out[..., 2] = k * (np.sin(d1) - np.sin(d2)) * v1
+    out[..., 3] = w1
+    out[..., 4] = w2
+    return out
+
+
+def rk4_step(state, inputs, dt_s: float, geom: Geometry = Geometry(), substeps: int = 2):
+    """Integrate model (1)-(5) over ``dt_s`` with inputs held constant (classical RK4).
+
+    Returns the state after ``dt_s``, shape (5,).
+    """
+    s = np.asarray(state, dtype=float)
+    h = dt_s / substeps
+    for _ in range(substeps):
+        k1 = state_derivative(s, inputs, geom)
+        k2 = state_derivative(s + 0.5 * h * k1, inputs, geom)
+        k3 = state_derivative(s + 0.5 * h * k2, inputs, geom)
+        k4 = state_derivative(s + h * k3, inputs, geom)
+        s = s + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
+    return s
+
+
+def wheel_commands(v1_mps: float, delta1_rad: float, delta2_rad: float) -> np.ndarray:
+    """The robot's eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]``.
+
+    Wheels 1 and 4 are front, 2 and 3 rear (the paper's order); drive goals in m/s
+    (ground speed), steering goals in rad. Returns shape (8,).
+    """
+    v, d1, d2 = float(v1_mps), float(delta1_rad), float(delta2_rad)
+    return np.array([v, v, v, v, d1, d2, d2, d1])
+
+
+def drive_angular_speed(v1_mps, wheel_radius_m: float = 0.033):
+    """Drive-wheel angular speed in rad/s for ground speed ``v1_mps`` (``v1 / r``)."""
+    if not wheel_radius_m > 0:
+        raise ControllerError(f"wheel radius must be positive, got {wheel_radius_m}")
+    return np.asarray(v1_mps, dtype=float) / wheel_radius_m
+
+
+def symmetric_steering(curvature_1pm, speed_mps, geom: Geometry = Geometry()):
+    """Steering that makes the body follow a path with its heading along the velocity.
+
+    With ``delta1 = -delta2 = delta`` the body moves along its own x-axis with speed
+    ``v1 cos(delta)`` on a path of curvature ``a tan(delta) / (a**2 + b**2)``.
+
+    Returns
+    -------
+    delta_rad, v1_mps : ndarray
+        Front steering angle (rear is its negative) and wheel speed.
+    """
+    delta = np.arctan(geom.r2_m2 * np.asarray(curvature_1pm, dtype=float) / geom.a_m)
+    return delta, np.asarray(speed_mps, dtype=float) / np.cos(delta)

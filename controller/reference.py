@@ -1,0 +1,352 @@
+"""Trajectories (what to track) and references (desired states and inputs on the time grid).
+
+A :class:`Trajectory` is a path plus the paper's problem data (``tf``, ``N``, ``tau``, ``Q``,
+``R``, start state). :func:`load_trajectory` reads ``configs/trajectories/NAME.yaml`` or a YAML or
+``t,x,y`` CSV file. :func:`build_reference` samples it on ``t_i = i tau`` (``i = 0..N``) with the
+body aligned with the path (``theta_d = atan2(y', x')``, unwrapped) and symmetric steering,
+and assigns each step a chained-form frame angle ``phi_i`` (see :func:`frame_schedule`).
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from controller.chained import to_chained, wrap_angle
+from controller.errors import ControllerError, SingularityError
+from controller.kinematics import Geometry, Limits
+from controller.paths import CirclePath, CurvilinearPath, LinePath, read_csv_path
+
+#: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
+TRAJECTORY_DIR = Path(__file__).resolve().parent.parent / "configs" / "trajectories"
+
+#: Weights for a CSV path given without a YAML file (the line case's, R exponents negative).
+DEFAULT_Q_DIAG = (1e3, 1.0, 1e2, 1.0, 1e3)
+DEFAULT_R_DIAG = (1e-4, 1e-2, 1e-2)
+#: Sampling period of the robot's loop, s (62.5 Hz).
+DEFAULT_TAU_S = 0.016
+#: Below this speed (m/s) a path counts as stopped (standstill or cusp).
+MIN_SPEED_MPS = 2e-3
+#: Hysteresis of the frame schedule: re-anchor when the travel direction is more than this
+#: (rad) from the frame's x-axis (mod pi); the new frame puts it within pi/4.
+FRAME_SWITCH_RAD = 1.2
+#: The plain chained form (fixed frame) refuses references with |cos(sigma)| below this.
+FIXED_FRAME_MIN_MARGIN = 0.05
+
+
+@dataclass(frozen=True)
+class Trajectory:
+    """A path to track and the synthesis problem's data.
+
+    Attributes: ``name``; ``path`` (see :mod:`controller.paths`); ``tf_s``; ``n_steps`` (N);
+    ``tau_s``; ``Q`` (5, 5); ``R`` (3, 3); ``start`` the robot's start state (5,) or ``None``
+    for "on the reference, aligned" (steering set from the path's curvature).
+    """
+
+    name: str
+    path: object
+    tf_s: float
+    n_steps: int
+    tau_s: float
+    Q: np.ndarray
+    R: np.ndarray
+    start: np.ndarray | None = None
+    source: str = ""
+
+    def start_state(self, geom: Geometry = Geometry()) -> np.ndarray:
+        """The robot's start state ``(x, y, theta, delta1, delta2)``, shape (5,)."""
+        if self.start is not None:
+            return np.array(self.start, dtype=float)
+        return desired_states(self.path, np.array([0.0]), geom)[0][0]
+
+
+def _diag(values, n, what, src):
+    try:
+        d = np.array([float(v) for v in values])
+    except (TypeError, ValueError) as exc:
+        raise ControllerError(f"{src}: {what} must be {n} numbers") from exc
+    if d.shape != (n,) or not np.all(np.isfinite(d)) or np.any(d <= 0):
+        raise ControllerError(f"{src}: {what} must be {n} positive numbers, got {values}")
+    return np.diag(d)
+
+
+def _path_from_spec(spec, tf_s, src, base: Path):
+    kind = spec.get("type")
+    try:
+        if kind == "line":
+            return LinePath(tuple(map(float, spec.get("start_m", (0, 0)))),
+                            tuple(map(float, spec["velocity_mps"])), tf_s)
+        if kind == "circle":
+            return CirclePath(float(spec.get("radius_m", 1.0)),
+                              float(spec.get("period_s", tf_s)), tf_s)
+        if kind == "curvilinear":
+            return CurvilinearPath(float(spec.get("offset_m", 0.6)),
+                                   float(spec.get("period_s", tf_s)), tf_s)
+        if kind == "csv":
+            return read_csv_path(base / spec["file"], float(spec.get("smoothing_m", 1e-4)))
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ControllerError(f"{src}: bad path specification {spec}: {exc}") from exc
+    raise ControllerError(f"{src}: path type must be line, circle, curvilinear or csv, "
+                          f"got {kind!r}")
+
+
+def _start_from_spec(spec, path, geom, src):
+    if spec is None:
+        return None
+    try:
+        pose = [float(spec.get(k, 0.0)) for k in ("x_m", "y_m", "theta_rad")]
+        steer = spec.get("steering_rad", "ackermann")
+        if steer == "ackermann":
+            # steering that fits the path's curvature at t = 0 (the paper's circle start)
+            sd = desired_states(path, np.array([0.0]), geom)[0][0]
+            steer = sd[3:]
+        state = np.array(pose + [float(v) for v in steer])
+    except (AttributeError, TypeError, ValueError) as exc:
+        raise ControllerError(f"{src}: bad start state {spec}: {exc}") from exc
+    if state.shape != (5,) or not np.all(np.isfinite(state)):
+        raise ControllerError(f"{src}: start state must be 5 finite numbers, got {spec}")
+    return state
+
+
+def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Trajectory:
+    """Load a named trajectory (``line``, ``circle``, ``curvilinear``: files in
+    ``configs/trajectories``) or a ``.yaml`` / ``.csv`` file.
+
+    A CSV file holds ``t,x,y`` samples (s, m, m); it gets ``tau = 0.016 s``,
+    ``N = floor(tf / tau)``, :data:`DEFAULT_Q_DIAG`, :data:`DEFAULT_R_DIAG` and starts on the
+    path. Raises :class:`ControllerError` on anything malformed.
+    """
+    import yaml
+
+    text = str(name_or_path)
+    p = Path(text)
+    if p.suffix.lower() not in (".yaml", ".yml", ".csv"):
+        cand = TRAJECTORY_DIR / f"{text}.yaml"
+        if not cand.is_file():
+            names = sorted(f.stem for f in TRAJECTORY_DIR.glob("*.yaml"))
+            raise ControllerError(f"unknown trajectory {text!r}: use one of {', '.join(names)}"
+                                  " or a path to a .yaml or .csv file")
+        p = cand
+    if not p.is_file():
+        raise ControllerError(f"trajectory file {p} does not exist")
+    if p.suffix.lower() == ".csv":
+        path = read_csv_path(p)
+        tf = path.t_end_s
+        n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
+        if n < 10:
+            raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
+        return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
+                          np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), None, str(p))
+    try:
+        cfg = yaml.safe_load(p.read_text(encoding="utf-8"))
+    except (OSError, yaml.YAMLError) as exc:
+        raise ControllerError(f"cannot read trajectory file {p}: {exc}") from exc
+    if not isinstance(cfg, dict) or "path" not in cfg:
+        raise ControllerError(f"{p}: a trajectory file needs a 'path' mapping")
+    try:
+        tau = float(cfg.get("tau_s", DEFAULT_TAU_S))
+        tf_given = cfg.get("tf_s")
+        path0 = _path_from_spec(cfg["path"], float(tf_given or 1.0), p, p.parent)
+        tf = float(tf_given) if tf_given is not None else path0.t_end_s
+        if tf_given is None:
+            pass
+        elif getattr(path0, "t_end_s", tf) != tf and cfg["path"].get("type") != "csv":
+            path0 = _path_from_spec(cfg["path"], tf, p, p.parent)
+        n = int(cfg.get("n_steps", np.floor(tf / tau + 1e-9)))
+    except (TypeError, ValueError) as exc:
+        raise ControllerError(f"{p}: bad tf_s / tau_s / n_steps: {exc}") from exc
+    if not (tau > 0 and n >= 10 and np.isfinite(tf)) or abs(n * tau - tf) > 1e-6 * max(tf, 1):
+        raise ControllerError(f"{p}: need tf_s = n_steps * tau_s (got {tf}, {n}, {tau})")
+    if tf > getattr(path0, "t_end_s", tf) + 1e-9:
+        raise ControllerError(f"{p}: tf_s = {tf} s is longer than the path ({path0.t_end_s} s)")
+    Q = _diag(cfg.get("Q_diag", DEFAULT_Q_DIAG), 5, "Q_diag", p)
+    R = _diag(cfg.get("R_diag", DEFAULT_R_DIAG), 3, "R_diag", p)
+    start = _start_from_spec(cfg.get("start"), path0, geom, p)
+    return Trajectory(str(cfg.get("name", p.stem)), path0, tf, n, tau, Q, R, start, str(p))
+
+
+def desired_states(path, t, geom: Geometry = Geometry()):
+    """Desired states and inputs of a path (body along the velocity, symmetric steering).
+
+    Returns
+    -------
+    states : ndarray, shape (n, 5)
+        ``(x, y, theta_d, delta, -delta)``, ``theta_d`` unwrapped along ``t``.
+    inputs : ndarray, shape (n, 3)
+        ``(v1, omega, -omega)``.
+    extra : dict
+        ``speed_mps``, ``curvature_1pm``, ``theta_rate_radps``, ``theta_acc_radps2`` and the raw
+        ``derivatives`` (4, 2, n).
+    """
+    der = path.derivatives(t)
+    p, v, a, j = der
+    V2 = v[0] ** 2 + v[1] ** 2
+    V = np.sqrt(V2)
+    cross = v[0] * a[1] - v[1] * a[0]
+    dot = v[0] * a[0] + v[1] * a[1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kappa = cross / V ** 3
+        kappa_dot = (v[0] * j[1] - v[1] * j[0]) / V ** 3 - 3 * cross * dot / V ** 5
+        th_rate = cross / V2
+        th_acc = (v[0] * j[1] - v[1] * j[0]) / V2 - 2 * cross * dot / V2 ** 2
+    theta = np.unwrap(np.arctan2(v[1], v[0]))
+    q = geom.r2_m2 / geom.a_m
+    delta = np.arctan(q * kappa)
+    delta_rate = q * kappa_dot / (1 + (q * kappa) ** 2)
+    v1 = V / np.cos(delta)
+    states = np.stack([p[0], p[1], theta, delta, -delta], axis=-1)
+    inputs = np.stack([v1, delta_rate, -delta_rate], axis=-1)
+    extra = dict(speed_mps=V, curvature_1pm=kappa, theta_rate_radps=th_rate,
+                 theta_acc_radps2=th_acc, derivatives=der)
+    return states, inputs, extra
+
+
+def chained_desired(states, extra, phi, geom: Geometry = Geometry()):
+    """Desired chained state and inputs (11)-(18) in the frame ``phi`` (rad, shape (n,)).
+
+    ``xd = (x', theta_rate/x'_dot, theta - phi, y'_dot/x'_dot, y')``, ``ud1 = x'_dot``,
+    ``ud2 = d/dt xd2``, ``ud3 = d/dt xd4``. Returns ``xd`` (n, 5) and ``ud`` (n, 3).
+    """
+    _, v, a, _ = extra["derivatives"]
+    c, s = np.cos(phi), np.sin(phi)
+    vx, vy = c * v[0] + s * v[1], -s * v[0] + c * v[1]
+    ax, ay = c * a[0] + s * a[1], -s * a[0] + c * a[1]
+    xd = to_chained(states, geom, phi)
+    thr, tha = extra["theta_rate_radps"], extra["theta_acc_radps2"]
+    ud = np.stack([vx, (tha * vx - thr * ax) / vx ** 2, (ay * vx - vy * ax) / vx ** 2], axis=-1)
+    return xd, ud
+
+
+def frame_schedule(theta_d, mode: str = "rotating", switch_rad: float = FRAME_SWITCH_RAD):
+    """Chained-form frame angle ``phi_i`` for each sample of the unwrapped heading ``theta_d``.
+
+    ``mode="fixed"``: ``phi = 0`` (the paper). ``mode="rotating"``: start at 0 unless the path
+    starts more than ``switch_rad`` from the x-axis (mod pi); whenever the travel direction gets
+    more than ``switch_rad`` (mod pi) from the frame's x-axis, re-anchor to the multiple of pi/2
+    nearest to it. The chained states then stay bounded by ``tan(switch_rad)``.
+    """
+    th = np.asarray(theta_d, dtype=float)
+    if mode == "fixed":
+        return np.zeros_like(th)
+    if mode != "rotating":
+        raise ControllerError(f"frame mode must be 'rotating' or 'fixed', got {mode!r}")
+    phi = np.empty_like(th)
+    cur = 0.0
+    for i, t in enumerate(th):
+        dev = (t - cur + np.pi / 2) % np.pi - np.pi / 2
+        if abs(dev) > switch_rad:
+            cur = cur + np.pi / 2 * np.round((t - cur) / (np.pi / 2))
+        phi[i] = cur
+    return phi
+
+
+@dataclass
+class Reference:
+    """A trajectory sampled on ``t_i = i tau``, ``i = 0..N``.
+
+    Arrays: ``times_s`` (N+1,), ``states`` (N+1, 5) desired states, ``inputs`` (N+1, 3) desired
+    ``(v1, omega1, omega2)``, ``phi_rad`` (N+1,) chained frame of each step, ``xd`` (N+1, 5) and
+    ``ud`` (N+1, 3) desired chained state and inputs in the frame ``phi_rad[i]``.
+    """
+
+    trajectory: Trajectory
+    geom: Geometry
+    times_s: np.ndarray
+    states: np.ndarray
+    inputs: np.ndarray
+    phi_rad: np.ndarray
+    xd: np.ndarray
+    ud: np.ndarray
+    frames: str = "rotating"
+    extra: dict = field(default_factory=dict, repr=False)
+
+    @property
+    def tau_s(self) -> float:
+        return self.trajectory.tau_s
+
+    @property
+    def n_steps(self) -> int:
+        return self.trajectory.n_steps
+
+    @property
+    def tf_s(self) -> float:
+        return self.trajectory.tf_s
+
+    def start_state(self) -> np.ndarray:
+        """The robot's start state, shape (5,)."""
+        return self.trajectory.start_state(self.geom)
+
+    def index(self, t_s: float) -> int:
+        """Gain-schedule index in force at time ``t_s``: ``floor(t / tau)`` within [0, N-1]."""
+        return int(min(max(np.floor(t_s / self.tau_s + 1e-9), 0), self.n_steps - 1))
+
+    def at(self, t_s: float, phi_rad: float | None = None):
+        """Desired state (5,), inputs (3,), chained state (5,) and inputs (3,) at ``t_s``.
+
+        The chained values are in the frame ``phi_rad`` (default: that of :meth:`index`).
+        ``theta_d`` is unwrapped consistently with the sampled grid.
+        """
+        t = float(min(max(t_s, 0.0), self.tf_s))
+        i = self.index(t)
+        phi = self.phi_rad[i] if phi_rad is None else phi_rad
+        s, u, ex = desired_states(self.trajectory.path, np.array([t]), self.geom)
+        s[0, 2] = self.states[i, 2] + wrap_angle(s[0, 2] - self.states[i, 2])
+        xd, ud = chained_desired(s, ex, np.array([phi]), self.geom)
+        return s[0], u[0], xd[0], ud[0]
+
+
+def build_reference(traj: Trajectory, geom: Geometry = Geometry(), limits: Limits = Limits(),
+                    frames: str = "rotating") -> Reference:
+    """Sample a trajectory on its time grid and check that the robot can follow it.
+
+    Raises
+    ------
+    ControllerError
+        The path stops (cusp, standstill), needs a wheel speed above ``limits.v1_max_mps`` or a
+        steering angle/rate beyond the limits, or has non-finite values.
+    SingularityError
+        ``frames="fixed"`` (the paper's plain chained form) and the path's direction of travel
+        becomes parallel to the world y-axis.
+    """
+    N, tau = traj.n_steps, traj.tau_s
+    t = np.arange(N + 1) * tau
+    states, inputs, extra = desired_states(traj.path, t, geom)
+    name = traj.name
+    if not (np.all(np.isfinite(extra["derivatives"]))):
+        raise ControllerError(f"trajectory {name!r}: the path has NaN or infinite values")
+    V = extra["speed_mps"]
+    if V.min() < MIN_SPEED_MPS:
+        i = int(np.argmin(V))
+        raise ControllerError(
+            f"trajectory {name!r} stops at t = {t[i]:.3f} s (speed {V[i]:.2g} m/s): a cusp or "
+            "standstill has no direction of travel, which the tracking law needs")
+    if not np.all(np.isfinite(states)) or not np.all(np.isfinite(inputs)):
+        raise ControllerError(f"trajectory {name!r}: desired states are not finite")
+    i = int(np.argmax(np.abs(inputs[:, 0])))
+    if abs(inputs[i, 0]) > limits.v1_max_mps:
+        raise ControllerError(
+            f"trajectory {name!r} needs wheel speed {inputs[i, 0]:.3f} m/s at t = {t[i]:.2f} s, "
+            f"above the limit v1_max = {limits.v1_max_mps} m/s: slow the path down")
+    i = int(np.argmax(np.abs(states[:, 3])))
+    if abs(states[i, 3]) > limits.steer_angle_max_rad:
+        raise ControllerError(f"trajectory {name!r} needs steering {states[i, 3]:.2f} rad at "
+                              f"t = {t[i]:.2f} s, beyond {limits.steer_angle_max_rad} rad")
+    i = int(np.argmax(np.abs(inputs[:, 1])))
+    if abs(inputs[i, 1]) > limits.steer_rate_max_radps:
+        raise ControllerError(
+            f"trajectory {name!r} needs steering rate {inputs[i, 1]:.2f} rad/s at "
+            f"t = {t[i]:.2f} s, above the servo's {limits.steer_rate_max_radps} rad/s")
+    phi = frame_schedule(states[:, 2], frames)
+    margin = np.abs(np.cos(states[:, 2] - phi))
+    if frames == "fixed" and margin.min() < FIXED_FRAME_MIN_MARGIN:
+        i = int(np.argmin(margin))
+        raise SingularityError(
+            f"trajectory {name!r} crosses the chained form's singular set at t = {t[i]:.2f} s "
+            "(direction of travel parallel to the world y-axis, where x2, x4, u2, u3 are "
+            "unbounded): the paper's plain chained-form law cannot track it; use the rotating "
+            "frame law (--law rotating)", t_s=float(t[i]))
+    xd, ud = chained_desired(states, extra, phi, geom)
+    if not (np.all(np.isfinite(xd)) and np.all(np.isfinite(ud))):
+        raise ControllerError(f"trajectory {name!r}: chained reference is not finite")
+    return Reference(traj, geom, t, states, inputs, phi, xd, ud, frames, extra)

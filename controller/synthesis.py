@@ -1,0 +1,255 @@
+"""The paper's synthesis (42)-(59): nonlinear conjugate gradient on all gains K(i) at once.
+
+``k <- k + eta s``, ``s <- -z+ + beta s`` with the beta family (44)::
+
+    beta = [mu g+'z+ + (1 - mu) z+'(g+ - g)] / [nu g'z + (1 - nu) s'(g+ - g)]
+
+(mu, nu) = (1, 0) Dai-Yuan (the paper's choice, default), (1, 1) Fletcher-Reeves, (0, 1)
+Polak-Ribiere-Polyak, (0, 0) Hestenes-Stiefel. ``z = g`` is the paper's method; with
+``precondition=True``, ``z`` is the gradient scaled block by block by the exact Hessian of J
+in K(i) alone, ``2 (tau R + Bd' P_{i+1} Bd) (.) X_i X_i'``, with ``P`` the cost-to-go of the
+current gains (a variable-metric preconditioner; the beta formulas are the preconditioned
+ones). ``eta`` comes from SciPy's strong-Wolfe line search
+(:func:`scipy.optimize.line_search`, Nocedal & Wright Alg. 3.5-3.6).
+
+The gradient is the exact adjoint recursion (see ``shared/reference/paper-equations.md`` §5;
+the paper's printed (55)-(59) has an index typo and drops the ``B K`` term)::
+
+    lambda_N = 0,  lambda_i = 2 tau (Q + K_i'R K_i) x_i + M_i' lambda_{i+1}
+    dJ/dK_i = 2 tau R K_i x_i x_i' + Bd_i' lambda_{i+1} x_i'
+
+Sign convention: ``u = ud + K x~`` (see :mod:`controller.ltv`).
+"""
+from __future__ import annotations
+
+import time
+import warnings
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import line_search
+
+from controller.errors import ControllerError
+from controller.ltv import closed_loop, policy_cost_matrices, rollout
+
+#: (mu, nu) of each member of the beta family (44).
+BETA_METHODS = {"dai-yuan": (1.0, 0.0), "fletcher-reeves": (1.0, 1.0),
+                "polak-ribiere": (0.0, 1.0), "hestenes-stiefel": (0.0, 0.0)}
+BETA_ALIASES = {"dy": "dai-yuan", "fr": "fletcher-reeves", "prp": "polak-ribiere",
+                "pr": "polak-ribiere", "hs": "hestenes-stiefel"}
+
+#: Scales of the unit initial errors used when the start error is zero
+#: (x m, x2 1/m, theta rad, x4 -, y m).
+BASIS_ERROR_SCALES = (0.05, 0.5, 0.1, 0.1, 0.05)
+REG = 1e-10
+
+
+def initial_error_set(x0, mode: str = "auto") -> np.ndarray:
+    """Initial errors to optimise over, shape (5, m).
+
+    ``"start"``: the start error ``x0`` alone. ``"basis"``: the scaled unit errors
+    :data:`BASIS_ERROR_SCALES` (J is then a weighted trace of ``P_0``, meaningful for any start).
+    ``"auto"``: ``"start"`` unless ``x0`` is (numerically) zero, as in the paper's circle case.
+    """
+    x0 = np.asarray(x0, dtype=float).reshape(5)
+    if mode == "auto":
+        mode = "start" if np.linalg.norm(x0) > 1e-9 else "basis"
+    if mode == "start":
+        return x0[:, None].copy()
+    if mode == "basis":
+        return np.diag(BASIS_ERROR_SCALES)
+    raise ControllerError(f"initial-error mode must be auto, start or basis, got {mode!r}")
+
+
+def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0):
+    """Cost J and its exact gradient dJ/dK.
+
+    Parameters
+    ----------
+    K : ndarray, shape (N, 3, 5)
+    Ad, Bd : ndarray, shapes (N, 5, 5), (N, 5, 3)
+    Q, R : ndarray, shapes (5, 5), (3, 3)
+    tau : float
+    X0 : ndarray, shape (5,) or (5, m)
+
+    Returns
+    -------
+    J : float
+        ``inf`` if the error trajectory overflows.
+    G : ndarray, shape (N, 3, 5)
+    """
+    N = K.shape[0]
+    with np.errstate(over="ignore", invalid="ignore"):
+        M = closed_loop(Ad, Bd, K)
+        X = rollout(M, X0)
+        Xs = X[:-1]
+        KX = K @ Xs
+        J = tau * (np.einsum("nim,ij,njm->", Xs, Q, Xs) + np.einsum("nim,ij,njm->", KX, R, KX))
+        if not np.isfinite(J):
+            return np.inf, np.zeros_like(K)
+        L = 2 * tau * (Q @ Xs + np.swapaxes(K, 1, 2) @ (R @ KX))
+        MT = np.swapaxes(M, 1, 2)
+        lam = np.empty_like(X)
+        lam[N] = 0.0
+        for i in range(N - 1, -1, -1):
+            np.matmul(MT[i], lam[i + 1], out=lam[i])
+            lam[i] += L[i]
+        XT = np.swapaxes(Xs, 1, 2)
+        G = 2 * tau * (R @ KX) @ XT + (np.swapaxes(Bd, 1, 2) @ lam[1:]) @ XT
+    if not np.all(np.isfinite(G)):
+        return np.inf, np.zeros_like(K)
+    return float(J), G
+
+
+def _preconditioner(K, Ad, Bd, Q, R, tau, X0):
+    """Return ``apply(G) -> Z``, the block-diagonal Hessian solve at gains K."""
+    P = policy_cost_matrices(Ad, Bd, K, Q, R, tau)
+    H = tau * R + np.swapaxes(Bd, 1, 2) @ P[1:] @ Bd             # (N, 3, 3)
+    X = rollout(closed_loop(Ad, Bd, K), X0)[:-1]
+    S = X @ np.swapaxes(X, 1, 2)                                  # (N, 5, 5)
+    tr = np.trace(S, axis1=1, axis2=2)
+    eps = REG * np.maximum(tr, 1e-300) + 1e-300
+    Sinv = np.linalg.inv(S + eps[:, None, None] * np.eye(5))
+    Hinv = np.linalg.inv(H)
+    return lambda G: 0.5 * Hinv @ G @ Sinv
+
+
+@dataclass
+class SynthesisResult:
+    """Outcome of :func:`conjugate_gradient`.
+
+    ``K`` (N, 3, 5) gains, ``cost`` final J, ``evaluations`` cost+gradient evaluations,
+    ``iterations``, ``seconds``, ``message``, ``history`` list of (evaluations, seconds, J).
+    """
+
+    K: np.ndarray
+    cost: float
+    evaluations: int
+    iterations: int
+    seconds: float
+    message: str
+    history: list = field(default_factory=list)
+
+
+def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
+                       precondition: bool = True, max_iter: int = 2000,
+                       target_cost: float | None = None, rtol: float = 1e-10,
+                       c2: float = 0.1, progress: bool = False) -> SynthesisResult:
+    """Minimise J over all K(i) by nonlinear CG with a strong-Wolfe line search.
+
+    Parameters
+    ----------
+    Ad, Bd, Q, R, tau : see :func:`cost_and_gradient`.
+    X0 : ndarray, shape (5,) or (5, m)
+        Initial error(s); J sums over the columns (:func:`initial_error_set`).
+    K0 : ndarray, shape (N, 3, 5), optional
+        Start gains (default zero, "arbitrary initial values" in the paper).
+    beta : str
+        ``dai-yuan`` (default), ``fletcher-reeves``, ``polak-ribiere``, ``hestenes-stiefel``
+        or their initials.
+    precondition : bool
+        Block-diagonal Hessian preconditioning (False: the paper's plain method).
+    max_iter : int
+        Maximum CG iterations.
+    target_cost : float, optional
+        Stop as soon as J <= target_cost (e.g. ``1.01 * J*``).
+    rtol : float
+        Stop when an iteration lowers J by less than ``rtol * J`` three times in a row.
+    c2 : float
+        Curvature constant of the strong Wolfe conditions (< 1/2 for FR/DY theory).
+    progress : bool
+        Show a tqdm progress bar.
+    """
+    name = BETA_ALIASES.get(beta.lower(), beta.lower())
+    if name not in BETA_METHODS:
+        raise ControllerError(f"unknown beta method {beta!r}: use one of "
+                              f"{', '.join(BETA_METHODS)}")
+    mu, nu = BETA_METHODS[name]
+    N = Ad.shape[0]
+    shape = (N, 3, 5)
+    X0 = np.asarray(X0, dtype=float).reshape(5, -1)
+    k = np.zeros(N * 15) if K0 is None else np.array(K0, dtype=float).reshape(-1)
+    if k.size != N * 15:
+        raise ControllerError(f"initial gains must have shape {shape}")
+    t0 = time.perf_counter()
+    cache = {"x": None, "f": None, "g": None}
+    count = [0]
+    history = []
+
+    def evaluate(x):
+        if cache["x"] is None or not np.array_equal(x, cache["x"]):
+            f, G = cost_and_gradient(x.reshape(shape), Ad, Bd, Q, R, tau, X0)
+            count[0] += 1
+            cache.update(x=x.copy(), f=f, g=G.reshape(-1))
+        return cache["f"], cache["g"]
+
+    def fun(x):
+        return evaluate(x)[0]
+
+    def grad(x):
+        return evaluate(x)[1]
+
+    def precond(x, g):
+        if not precondition:
+            return g
+        return _preconditioner(x.reshape(shape), Ad, Bd, Q, R, tau, X0)(
+            g.reshape(shape)).reshape(-1)
+
+    f, g = evaluate(k)
+    if not np.isfinite(f):
+        raise ControllerError("initial gains make the error system overflow")
+    history.append((count[0], time.perf_counter() - t0, f))
+    z = precond(k, g)
+    s = -z
+    f_old = f + 0.5 * np.linalg.norm(g)
+    message, stalls, it = "maximum iterations reached", 0, 0
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_iter, desc=f"CG ({name})", unit="it", leave=False)
+    try:
+        for it in range(1, max_iter + 1):
+            if target_cost is not None and f <= target_cost:
+                message = "target cost reached"
+                break
+            if not np.any(g):
+                message = "zero gradient (J does not depend on K: zero initial error?)"
+                break
+            if g @ s >= 0:            # not a descent direction: restart
+                s = -z
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                alpha, *_ = line_search(fun, grad, k, s, gfk=g, old_fval=f, old_old_fval=f_old,
+                                        c1=1e-4, c2=c2, maxiter=30)
+            if alpha is None:
+                if np.array_equal(s, -z):
+                    message = "line search failed along the (preconditioned) gradient"
+                    break
+                s = -z                # restart with steepest descent
+                continue
+            k_new = k + alpha * s
+            f_new, g_new = evaluate(k_new)
+            z_new = precond(k_new, g_new)
+            y = g_new - g
+            num = mu * (g_new @ z_new) + (1 - mu) * (z_new @ y)
+            den = nu * (g @ z) + (1 - nu) * (s @ y)
+            b = num / den if den != 0 else 0.0
+            s = -z_new + b * s
+            stalls = stalls + 1 if f - f_new <= rtol * abs(f) else 0
+            f_old, f, g, z, k = f, f_new, g_new, z_new, k_new
+            history.append((count[0], time.perf_counter() - t0, f))
+            if bar is not None:
+                bar.update(1)
+                bar.set_postfix(J=f"{f:.6g}", evals=count[0])
+            if stalls >= 3:
+                message = "converged (relative decrease below rtol)"
+                break
+        else:
+            if target_cost is not None and f <= target_cost:
+                message = "target cost reached"
+    finally:
+        if bar is not None:
+            bar.close()
+    return SynthesisResult(k.reshape(shape), float(f), count[0], it,
+                           time.perf_counter() - t0, message, history)

@@ -1,0 +1,198 @@
+"""The online tracking law: chained-form time-varying LQ feedback, 62.5 Hz on the robot.
+
+At time t with the robot's state estimate s (x, y, theta, delta1, delta2)::
+
+    i   = floor(t / tau)                       gain-schedule step, frame phi_i
+    x   = chained coordinates of s in the frame phi_i      (controller.chained)
+    x~  = x - xd(t)          (heading component wrapped)
+    u   = r ud(t) + K_i x~                      (sign convention u = ud + K x~)
+    (v1, omega1, omega2) = inverse input map of u at s, then saturated
+
+``phi_i = 0`` everywhere is the paper's plain law, singular where the travel direction is
+parallel to the world y-axis. The default reference re-anchors the frame by multiples of
+pi/2 (:func:`controller.reference.frame_schedule`), so ``|sigma - phi| <= 1.2 rad`` on the
+reference; for the robot's own state the chained coordinates are evaluated with
+``|cos(sigma - phi)|`` floored at :data:`STATE_MARGIN` (large heading errors saturate the
+error instead of producing infinities).
+
+Saturation: ``|v1| <= v1_max``, ``|omega| <= steer_rate_max`` and steering angles kept in
+``[-steer_angle_max, steer_angle_max]``. The law has no integrator, so nothing inside it winds
+up; what would wind up is the tracking error while the robot is held back by the limits. The
+optional reference governor (``governor=True``) therefore slows the reference clock by
+``r = min(1, v1_max / |v1 requested|)`` after each saturated step (and scales ``ud`` by r), so
+the reference waits for the robot instead of running away.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from controller.chained import wrap_angle
+from controller.errors import ControllerError, SingularityError
+from controller.gains_io import GainSchedule
+from controller.kinematics import Limits
+from controller.ltv import chained_error
+from controller.reference import Reference
+
+#: Floor of |cos(sigma - phi)| used for the robot's own state (about 84 degrees).
+STATE_MARGIN = 0.1
+#: The plain chained law (fixed frame) refuses states with |cos(sigma)| below this.
+PLAIN_MIN_MARGIN = 0.02
+
+
+def _chained_terms(state, phi, geom, floor):
+    """Chained coordinates and the pieces of the inverse input map, with |cos sigma'| floored."""
+    x, y, th, d1, d2 = (float(v) for v in state)
+    c, s = np.cos(phi), np.sin(phi)
+    xr, yr, thr = c * x + s * y, -s * x + c * y, th - phi
+    a, r2 = geom.a_m, geom.r2_m2
+    c1, c2 = np.cos(d1 + thr), np.cos(d2 + thr)
+    s1, s2 = np.sin(d1 + thr), np.sin(d2 + thr)
+    D = a * (np.sin(d1) - np.sin(d2)) / r2
+    B1, B2 = a * np.cos(d1) / r2, -a * np.cos(d2) / r2
+    sig = 0.5 * (d1 + d2) + thr
+    cs = np.cos(sig)
+    cs_f = np.copysign(max(abs(cs), floor), cs)
+    C = c1 + c2
+    if abs(cs) < floor:         # scale the travel term as if |cos sigma'| were the floor
+        C = C * cs_f / cs if cs != 0 else 2 * cs_f * np.cos(0.5 * (d1 - d2))
+    Kden = 2 * cs_f ** 2
+    chained = np.array([xr, D / C, thr, np.sin(sig) / cs_f, yr])
+    return chained, (C, D, B1, B2, s1, s2, Kden)
+
+
+class TrackingLaw:
+    """Chained-form LQ tracking law, usable at any rate (the robot runs it at 62.5 Hz).
+
+    Parameters
+    ----------
+    reference : controller.reference.Reference
+        Desired states/inputs (:func:`controller.reference.build_reference`).
+    gains : controller.gains_io.GainSchedule
+        ``K`` (N, 3, 5) on the same grid and frames as ``reference``.
+    limits : controller.kinematics.Limits
+        Wheel-speed and steering limits (``configs/robot.yaml``).
+    governor : bool
+        Slow the reference clock while the wheel speed saturates (see module docstring).
+
+    Notes
+    -----
+    :meth:`command` is stateful only through the governor (reference clock) and the
+    diagnostics in :attr:`last`; call :meth:`reset` before a new run.
+    """
+
+    def __init__(self, reference: Reference, gains: GainSchedule, limits: Limits = Limits(),
+                 governor: bool = True):
+        if gains.n_steps != reference.n_steps or abs(gains.tau_s - reference.tau_s) > 1e-12:
+            raise ControllerError(
+                f"gain schedule ({gains.n_steps} steps of {gains.tau_s} s, trajectory "
+                f"{gains.trajectory!r}) does not fit trajectory {reference.trajectory.name!r} "
+                f"({reference.n_steps} steps of {reference.tau_s} s)")
+        if not np.allclose(gains.phi_rad, reference.phi_rad[:-1]):
+            raise ControllerError("gain schedule and reference use different chained frames "
+                                  "(synthesised for the other law?)")
+        self.reference = reference
+        self.gains = gains
+        self.limits = limits
+        self.governor = governor
+        self.plain = reference.frames == "fixed"
+        self.reset()
+
+    def reset(self) -> None:
+        """Restart the reference clock (call before each run)."""
+        self._t_prev = None
+        self._s = 0.0
+        self._rate = 1.0
+        self.last: dict = {}
+
+    @property
+    def reference_time_s(self) -> float:
+        """Current reference time (equals t unless the governor has slowed it)."""
+        return self._s
+
+    def finished(self) -> bool:
+        """True once the reference clock has reached tf."""
+        return self._s >= self.reference.tf_s - 1e-9
+
+    def command(self, t_s: float, state) -> tuple[float, float, float]:
+        """Inputs ``(v1_mps, omega1_radps, omega2_radps)`` for the state estimate at ``t_s``.
+
+        Parameters
+        ----------
+        t_s : float
+            Time since the start of the trajectory, s (non-decreasing between calls).
+        state : array_like, shape (5,)
+            ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``.
+
+        Returns zeros once the reference has ended. Raises :class:`ControllerError` for a
+        non-finite state and :class:`SingularityError` if the plain (fixed-frame) law meets
+        the chained form's singular set.
+        """
+        s_vec = np.asarray(state, dtype=float).reshape(-1)
+        if s_vec.shape != (5,) or not np.all(np.isfinite(s_vec)) or not np.isfinite(t_s):
+            raise ControllerError(f"state must be 5 finite numbers, got {state!r} at t = {t_s}")
+        ref, lim = self.reference, self.limits
+        if self._t_prev is None:
+            self._s = max(float(t_s), 0.0)
+        else:
+            dt = float(t_s) - self._t_prev
+            if dt < 0:
+                raise ControllerError(f"time went backwards ({self._t_prev} -> {t_s} s)")
+            self._s += dt * (self._rate if self.governor else 1.0)
+        self._t_prev = float(t_s)
+        if self.finished():
+            self.last = dict(finished=True, s=self._s)
+            return 0.0, 0.0, 0.0
+        i = ref.index(self._s)
+        phi = self.gains.phi_rad[i]
+        sd, _, xd, ud = ref.at(self._s, phi)
+        floor = PLAIN_MIN_MARGIN if self.plain else STATE_MARGIN
+        sig = 0.5 * (s_vec[3] + s_vec[4]) + s_vec[2] - phi
+        if self.plain and abs(np.cos(sig)) < PLAIN_MIN_MARGIN:
+            raise SingularityError(
+                f"at t = {t_s:.3f} s the robot travels parallel to the world y-axis "
+                f"(sigma = {np.degrees(wrap_angle(sig)):.1f} deg): the paper's plain "
+                "chained-form law is singular there; use the rotating-frame law",
+                t_s=float(t_s))
+        x, (C, D, B1, B2, s1, s2, Kden) = _chained_terms(s_vec, phi, ref.geom, floor)
+        e = chained_error(x, xd)
+        r = self._rate if self.governor else 1.0
+        u = r * ud + self.gains.K[i] @ e
+        # inverse input map (chained.inputs_from_chained with the floored terms)
+        v1 = 2.0 * u[0] / C
+        a11 = (B1 * C + D * s1) / C ** 2
+        a12 = (B2 * C + D * s2) / C ** 2
+        r1 = u[1] - v1 * D ** 2 * (s1 + s2) / (2.0 * C ** 2)
+        r2 = u[2] * Kden - v1 * D
+        den = a11 - a12
+        if abs(den) < 1e-12 or not np.all(np.isfinite([v1, r1, r2])):
+            raise ControllerError(f"inverse input map is singular at t = {t_s:.3f} s "
+                                  f"(state {s_vec.round(4).tolist()})")
+        w1 = (r1 - a12 * r2) / den
+        w2 = r2 - w1
+        raw = np.array([v1, w1, w2])
+        v1s = float(np.clip(v1, -lim.v1_max_mps, lim.v1_max_mps))
+        ws = np.clip([w1, w2], -lim.steer_rate_max_radps, lim.steer_rate_max_radps)
+        for k, d in enumerate(s_vec[3:]):      # do not push a wheel past its angle limit
+            if abs(d) >= lim.steer_angle_max_rad and np.sign(ws[k]) == np.sign(d):
+                ws[k] = 0.0
+        self._rate = min(1.0, lim.v1_max_mps / abs(v1)) if v1 != 0 else 1.0
+        self.last = dict(finished=False, s=self._s, index=i, phi=phi, error=e, u=u, ud=ud,
+                         raw=raw, desired_state=sd,
+                         saturated=bool(abs(v1) > lim.v1_max_mps or
+                                        np.any(np.abs([w1, w2]) > lim.steer_rate_max_radps)))
+        return v1s, float(ws[0]), float(ws[1])
+
+    def wheel_goals(self, t_s: float, state) -> np.ndarray:
+        """The eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]`` for one control step.
+
+        Steering goals are positions: the estimated angles advanced by ``omega * tau`` and
+        kept within the steering limit. Shape (8,), m/s and rad.
+        """
+        from controller.kinematics import wheel_commands
+
+        v1, w1, w2 = self.command(t_s, state)
+        st = np.asarray(state, dtype=float)
+        lim, tau = self.limits.steer_angle_max_rad, self.reference.tau_s
+        d1 = float(np.clip(st[3] + w1 * tau, -lim, lim))
+        d2 = float(np.clip(st[4] + w2 * tau, -lim, lim))
+        return wheel_commands(v1, d1, d2)
