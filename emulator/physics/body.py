@@ -74,7 +74,8 @@ class RobotBody:
 
     def step(self, dt_s: float, speeds_mps, steer_rad) -> tuple[float, float, float]:
         """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``."""
-        vx, vy, w = self.twist = self.fit_twist(speeds_mps, steer_rad)
+        self.twist = self.fit_twist(speeds_mps, steer_rad)
+        vx, vy, w = (float(v) for v in self.twist)
         h = w * dt_s
         if abs(h) > 1e-9:                         # exact SE(2) motion at constant twist
             s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w

@@ -119,5 +119,24 @@ class RobotPhysics:
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
         out = {sid: self.servos[sid].step(dt_s, tables[sid]) for sid in self.servos}
-        self.body.step(dt_s, *self.wheel_state())
+        self.step_body(dt_s)
         return out
+
+    def step_body(self, dt_s: float, _servos: object = None) -> tuple[float, float, float]:
+        """Advance only the body from the servos' present shaft states (servos stepped elsewhere).
+
+        Signature-compatible with the emulator server's ``world.step(dt_s, servos_by_id)`` hook:
+        pass ``world=BodyWorld(robot)`` and ``dynamics=robot.servos``.
+        """
+        return self.body.step(dt_s, *self.wheel_state())
+
+
+class BodyWorld:
+    """Adapter for an emulator that steps each servo itself: ``step(dt_s, servos)`` moves the body."""
+
+    def __init__(self, robot: RobotPhysics):
+        self.robot = robot
+
+    def step(self, dt_s: float, servos: object = None) -> tuple[float, float, float]:
+        """Advance the body by ``dt_s`` (the servos were already stepped); return the pose."""
+        return self.robot.step_body(dt_s)

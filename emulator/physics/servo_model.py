@@ -100,6 +100,19 @@ class ServoModel:
         self.motor.speed_radps = self.motor.current_a = 0.0
         self._started = False
 
+    def clear_multi_turn(self) -> None:
+        """Clear instruction (0x10): Present Position back within one turn (+ Homing Offset)."""
+        self._rewrap(self._encoder_pulse(self._sign))
+
+    def reboot(self) -> None:
+        """Reboot / power cycle: firmware state cleared, Present Position re-wrapped; the shaft stays put."""
+        self.loop.reset()
+        self.profile = ProfileGenerator()
+        self._prev = {}
+        self._hold_position = None
+        self.duty = 0.0
+        self._rewrap(self._encoder_pulse(self._sign))
+
     # ---- sensors -------------------------------------------------------------------------------
     def _encoder_pulse(self, sign: int) -> int:
         x = sign * self.motor.output_angle_rad / u.RAD_PER_PULSE

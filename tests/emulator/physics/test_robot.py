@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from emulator.physics import units as u
-from emulator.physics.robot import RobotPhysics, load_robot_geometry
+from emulator.physics.robot import BodyWorld, RobotPhysics, load_robot_geometry
 from emulator.physics.steptest import table
 from driver.errors import ConfigError
 
@@ -77,3 +77,14 @@ def test_robot_geometry_errors_name_the_key(tmp_path):
     p.write_text("model: xh430-w210\ngeometry: {}\n")
     with pytest.raises(ConfigError, match="wheel_radius_m"):
         load_robot_geometry(p)
+
+
+def test_body_world_adapter_moves_the_body_after_externally_stepped_servos(cfg, geometry):
+    robot = RobotPhysics(cfg, geometry)
+    tabs, v = _tables(cfg, geometry, 0.1, 0.0, 0.0)
+    world = BodyWorld(robot)
+    for _ in range(2000):
+        for sid, servo in robot.servos.items():     # what the emulator's own servo loop does
+            servo.step(DT, tabs[sid])
+        world.step(DT, robot.servos)
+    assert robot.body.x_m == pytest.approx(0.1 * 1.0, rel=0.1)

@@ -201,3 +201,15 @@ def test_in_position_uses_the_limited_goal(steer):
     _, _, outs = simulate(s, table(operating_mode=u.MODE_POSITION, goal_position=3000,
                                    max_position_limit=1000), 1.5, DT)
     assert outs[-1]["moving_status"] & u.IN_POSITION
+
+
+def test_clear_multi_turn_and_reboot_rewrap_present_position(steer):
+    s = steer()
+    _, _, outs = simulate(s, table(operating_mode=u.MODE_EXTENDED_POSITION, goal_position=9000), 3.0, DT)
+    assert abs(outs[-1]["present_position"] - 9000) <= 1
+    s.clear_multi_turn()
+    _, _, outs = simulate(s, table(operating_mode=u.MODE_EXTENDED_POSITION, goal_position=9000,
+                                   torque_enable=0), 0.01, DT)
+    assert abs(outs[-1]["present_position"] - 9000 % 4096) <= 1
+    s.reboot()
+    assert s.loop.integral == 0.0 and not s.profile.ongoing
