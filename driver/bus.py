@@ -122,6 +122,10 @@ class Bus:
             t = self._tables[id_]
         return t
 
+    def set_model(self, id_: int, model: str | int | ControlTable) -> None:
+        """Declare the model of servo ``id_`` (name, number or table) so no Ping is needed."""
+        self._tables[id_] = model if isinstance(model, ControlTable) else table_for(model)
+
     def register(self, id_: int, reg: RegLike) -> Register:
         """The :class:`Register` named ``reg`` for servo ``id_`` (RegisterError if unknown)."""
         return self.table(id_)[reg]

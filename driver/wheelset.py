@@ -70,8 +70,8 @@ class WheelSet:
         self.drive_ids = config.drive_ids
         self.steer_ids = config.steer_ids
         self.ids = self.drive_ids + self.steer_ids
-        for i in self.ids:  # the model is known: no need to ping before every first access
-            bus._tables.setdefault(i, self.table)
+        for i in self.ids:  # the model is known: no Ping needed before the first access
+            bus.set_model(i, self.table)
         self._vel = self.table[Reg.GOAL_VELOCITY]
         self._pos = self.table[Reg.GOAL_POSITION]
         self._first, self._last = Reg.PRESENT_CURRENT, Reg.PRESENT_POSITION
