@@ -116,6 +116,7 @@ class RunLogWriter:
         self._put("/swerve/metadata", 0, T["std_msgs/msg/String"](data=self._metadata_json))
         self._flush()
         self._bag.set_custom_data("swerve_metadata", self._metadata_json)
+        self._warm_up()
 
     def close(self) -> None:
         """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
@@ -136,53 +137,60 @@ class RunLogWriter:
         """Log one cycle on every topic; flush every ``flush_every`` cycles."""
         if not self._open:
             raise RuntimeError("RunLogWriter.write() outside an open log")
+        ns = int(rec.stamp_ns)
+        for topic, msg in self._messages(rec):
+            self._put(topic, ns, msg)
+        self.cycles_written += 1
+        if self.cycles_written % self.flush_every == 0:
+            self._flush()
+
+    def _warm_up(self) -> None:
+        """Serialise one message of every type once: rosbags builds its serialisers lazily
+        (~35 ms), which must not land in the first control cycle."""
+        z = np.zeros(3)
+        rec = CycleRecord(t_s=0.0, stamp_ns=0, cycle=0, ref_pose=z, true_pose=z, sim_pose=z)
+        for _, msg in self._messages(rec):
+            self._ts.serialize_cdr(msg, msg.__msgtype__)
+
+    def _messages(self, rec: CycleRecord) -> list:
+        """``(topic, message)`` for one cycle, ``/swerve/cycle`` first."""
         T = self._ts.types
         ns = int(rec.stamp_ns)
         header = T["std_msgs/msg/Header"](
             stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
             frame_id="odom")
         nan4 = np.full(4, np.nan)
-
-        flat = pack(rec)
         layout = T["std_msgs/msg/MultiArrayLayout"](
             dim=[T["std_msgs/msg/MultiArrayDimension"](label="cycle_record_v1", size=CYCLE_SIZE,
                                                        stride=CYCLE_SIZE)],
             data_offset=0)
-        self._put("/swerve/cycle", ns, T["std_msgs/msg/Float64MultiArray"](layout=layout, data=flat))
-
-        self._put("/joint_states", ns, T["sensor_msgs/msg/JointState"](
+        out = [("/swerve/cycle", T["std_msgs/msg/Float64MultiArray"](layout=layout, data=pack(rec)))]
+        out.append(("/joint_states", T["sensor_msgs/msg/JointState"](
             header=header, name=self._joints,
             position=np.concatenate([nan4, rec.meas_steer_rad]),
             velocity=np.concatenate([rec.meas_drive_radps, nan4]),
-            effort=np.asarray(rec.meas_current_a, dtype=np.float64)))
-
+            effort=np.asarray(rec.meas_current_a, dtype=np.float64))))
         point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
             positions=np.concatenate([nan4, rec.cmd_steer_rad]),
             velocities=np.concatenate([rec.cmd_drive_radps, nan4]),
             accelerations=np.empty(0), effort=np.empty(0),
             time_from_start=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0))
-        self._put("/trajectory", ns, T["trajectory_msgs/msg/JointTrajectory"](
-            header=header, joint_names=self._joints, points=[point]))
-
-        odom = T["nav_msgs/msg/Odometry"](
+        out.append(("/trajectory", T["trajectory_msgs/msg/JointTrajectory"](
+            header=header, joint_names=self._joints, points=[point])))
+        nan3 = T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)
+        out.append(("/odom", T["nav_msgs/msg/Odometry"](
             header=header, child_frame_id="base_link",
             pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(rec.est_pose),
                                                            covariance=np.zeros(36)),
             twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                twist=T["geometry_msgs/msg/Twist"](
-                    linear=T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan),
-                    angular=T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)),
-                covariance=np.zeros(36)))
-        self._put("/odom", ns, odom)
-
+                twist=T["geometry_msgs/msg/Twist"](linear=nan3, angular=nan3),
+                covariance=np.zeros(36)))))
         for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
                             ("/sim_pose", rec.sim_pose)):
             if np.isfinite(pose).all():
-                self._put(topic, ns, T["geometry_msgs/msg/PoseStamped"](header=header,
-                                                                        pose=self._pose(pose)))
-        self.cycles_written += 1
-        if self.cycles_written % self.flush_every == 0:
-            self._flush()
+                out.append((topic, T["geometry_msgs/msg/PoseStamped"](header=header,
+                                                                      pose=self._pose(pose))))
+        return out
 
     def _pose(self, pose):
         T = self._ts.types
