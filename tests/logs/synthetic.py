@@ -1,7 +1,7 @@
 """A synthetic run for the log tests: a 0.5 m circle at 62.5 Hz with measurement noise.
 
 Also runnable as ``python synthetic.py BAG N_CYCLES FLUSH_EVERY``: writes N cycles, prints
-``wrote <k>`` after each one and then sleeps without closing, so a test can SIGKILL it mid-run.
+``wrote <k>`` after each one and then sleeps inside the ``with`` block, so a test can SIGKILL it mid-run.
 """
 from __future__ import annotations
 
@@ -55,9 +55,8 @@ def write(path, recs, flush_every: int = 1) -> None:
 
 if __name__ == "__main__":
     bag, n, flush = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
-    w = RunLogWriter(bag, META, flush_every=flush)
-    w.open()
-    for r in iter_records(n):
-        w.write(r)
-        print(f"wrote {w.cycles_written}", flush=True)
-    time.sleep(60)  # the test kills us here, before close()
+    with RunLogWriter(bag, META, flush_every=flush) as w:
+        for r in iter_records(n):
+            w.write(r)
+            print(f"wrote {w.cycles_written}", flush=True)
+        time.sleep(60)  # the test kills us here: SIGKILL skips close(), SIGINT (Ctrl-C) does not

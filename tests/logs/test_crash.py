@@ -14,18 +14,18 @@ from tools.logs import read_log, repair_log
 SCRIPT = Path(__file__).with_name("synthetic.py")
 
 
-def _kill_after(bag: Path, n: int, flush_every: int) -> None:
+def _kill_after(bag: Path, n: int, flush_every: int, sig=signal.SIGKILL) -> None:
     proc = subprocess.Popen([sys.executable, str(SCRIPT), str(bag), str(n), str(flush_every)],
                             stdout=subprocess.PIPE, text=True)
     try:
         for line in proc.stdout:
             if line.strip() == f"wrote {n}":
                 break
-        os.kill(proc.pid, signal.SIGKILL)
+        os.kill(proc.pid, sig)
     finally:
         proc.wait(timeout=10)
         proc.stdout.close()
-    assert proc.returncode == -signal.SIGKILL
+    assert proc.returncode == -sig  # Python re-raises an unhandled SIGINT after cleanup
 
 
 @pytest.mark.parametrize("flush_every", [1, 8], ids=["flush1", "flush8"])
@@ -57,3 +57,13 @@ def test_truncated_tail_and_repair(tmp_path, capsys):
     with AnyReader([fixed]) as reader:
         n = sum(1 for c, _, _ in reader.messages() if c.topic == "/swerve/cycle")
     assert n == len(log)
+
+
+def test_ctrl_c_closes_the_log_cleanly(tmp_path):
+    bag = tmp_path / "interrupted"
+    _kill_after(bag, 50, 8, sig=signal.SIGINT)  # KeyboardInterrupt leaves the with block
+    assert (bag / "metadata.yaml").exists()
+    log = read_log(bag)
+    assert log.clean and len(log) == 50
+    with AnyReader([bag]) as reader:
+        assert reader.message_count == 1 + 6 * 50  # metadata + 6 topics per cycle (no /sim_pose)
