@@ -10,8 +10,8 @@ HELP = "export a run log (ROS 2 bag) to CSV, one row per control cycle"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", type=Path, help="run-log bag directory (or its .mcap file)")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("log", metavar="LOG", type=Path, help="run-log bag directory (or its .mcap file)")
+    parser.add_argument("--out", metavar="FILE", type=Path, default=None,
                         help="CSV file to write (default: LOG.csv next to the log)")
 
 

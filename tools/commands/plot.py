@@ -10,9 +10,9 @@ HELP = "plot a run log: path, pose, velocities, steering angles, tracking error 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("log", type=Path, help="run-log bag directory (or its .mcap file)")
-    parser.add_argument("--out", type=Path, required=True, help="directory for the PNG files")
-    parser.add_argument("--sim", type=Path, default=None,
+    parser.add_argument("log", metavar="LOG", type=Path, help="run-log bag directory (or its .mcap file)")
+    parser.add_argument("--out", metavar="DIR", type=Path, required=True, help="directory for the PNG files")
+    parser.add_argument("--sim", metavar="SIMLOG", type=Path, default=None,
                         help="a second run log (e.g. from `swerve sim`) overlaid as simulation")
 
 

@@ -37,12 +37,14 @@ def _line(ax, t, y, key, label=None, **extra):
 def _poses(log, sim) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """curve name -> (t_s (n,), pose (n, 3)) for every pose source present."""
     t = log.t_s
-    out = {"ref": (t, log.ref_pose), "est": (t, log.est_pose), "true": (t, log.true_pose)}
     if sim is not None:  # a separate simulated run: its ground truth, else its estimate
         sp = sim.true_pose if np.isfinite(sim.true_pose).any() else sim.est_pose
-        out["sim"] = (sim.t_s, sp)
+        sim_curve = (sim.t_s, sp)
     else:
-        out["sim"] = (t, log.sim_pose)
+        sim_curve = (t, log.sim_pose)
+    # legend order of the paper: reference, simulation, measured
+    out = {"ref": (t, log.ref_pose), "sim": sim_curve, "est": (t, log.est_pose),
+           "true": (t, log.true_pose)}
     return out
 
 
