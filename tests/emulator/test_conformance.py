@@ -1,0 +1,285 @@
+"""Protocol conformance of the emulator, driven through real clients over the pty.
+
+Every test runs twice: with the unmodified dynamixel-sdk 4.1 and with the project's
+:class:`driver.bus.Bus` (fixture ``client`` in conftest.py). Expected values come from the
+e-Manual (fact sheet ``shared/reference/dynamixel-protocol2.md``), not from the emulator.
+"""
+from __future__ import annotations
+
+import time
+
+import pytest
+
+from driver.control_table import HardwareError, Reg
+from driver.packets import ErrorNumber
+
+from .conftest import TABLE, TIMEOUT
+
+IDS = list(range(1, 9))
+XH430_W210 = 1010
+ALERT = 0x80
+
+
+def _value_for(reg, servo) -> int:
+    """A valid raw value for ``reg`` different from its default where possible."""
+    special = {Reg.TORQUE_ENABLE: 1, Reg.LED: 1, Reg.STATUS_RETURN_LEVEL: 2, Reg.BUS_WATCHDOG: 0}
+    if reg.name in special:
+        return special[reg.name]
+    lo, hi = reg.raw_bounds()
+    v = lo + (hi - lo) // 3
+    if reg.limit:
+        cap = servo.read(reg.limit)
+        v = max(-cap, min(cap, v))
+    if reg.limit_min:
+        v = max(servo.read(reg.limit_min), min(servo.read(reg.limit_max), v))
+    return v
+
+
+def test_ping_every_id(client):
+    for i in IDS:
+        assert client.ping(i) == (XH430_W210, 0)
+    assert client.ping(42) == TIMEOUT
+
+
+def test_broadcast_ping_finds_all_eight(client):
+    assert client.broadcast_ping() == {i: XH430_W210 for i in IDS}
+
+
+def test_read_every_item_matches_memory(client, emulator):
+    servo = emulator.servo(3)
+    for reg in TABLE:
+        got = client.read(3, reg.address, reg.size)
+        assert got != TIMEOUT, reg.name
+        data, err = got
+        assert err == 0, reg.name
+        if reg.name != Reg.REALTIME_TICK:                    # the clock moves it
+            assert reg.decode(data) == servo.read(reg.name), reg.name
+
+
+def test_realtime_tick_advances(client, emulator):
+    tick = TABLE[Reg.REALTIME_TICK]
+    first = tick.decode(client.read(1, tick.address, 2)[0])
+    deadline = time.monotonic() + 5.0
+    while time.monotonic() < deadline:
+        if tick.decode(client.read(1, tick.address, 2)[0]) != first:
+            break
+        time.sleep(0.01)
+    else:
+        pytest.fail("Realtime Tick did not move in 5 s")
+
+
+def test_write_every_ram_item(client, emulator):
+    servo = emulator.servo(2)
+    ram = [r for r in TABLE if r.writable and not r.eeprom]
+    assert len(ram) > 15
+    for reg in ram:
+        value = _value_for(reg, servo)
+        assert client.write(2, reg.address, reg.encode(value)) == 0, reg.name
+        data, err = client.read(2, reg.address, reg.size)
+        assert (reg.decode(data), err) == (value, 0), reg.name
+        assert servo.read(reg.name) == value, reg.name
+
+
+def test_read_only_and_undefined_addresses_are_access_errors(client, emulator):
+    pos = TABLE[Reg.PRESENT_POSITION]
+    assert client.write(1, pos.address, pos.encode(5)) == ErrorNumber.ACCESS
+    assert client.write(1, 14, b"\x01") == ErrorNumber.ACCESS          # reserved address
+    assert client.read(1, 700, 4)[1] == ErrorNumber.ACCESS              # outside the table
+
+
+def test_eeprom_writable_only_with_torque_off(client, emulator):
+    rdt = TABLE[Reg.RETURN_DELAY_TIME]
+    assert client.write(4, rdt.address, b"\x10") == 0
+    assert emulator.servo(4).read(Reg.RETURN_DELAY_TIME) == 0x10
+    assert client.write(4, TABLE[Reg.TORQUE_ENABLE].address, b"\x01") == 0
+    assert client.write(4, rdt.address, b"\x20") == ErrorNumber.ACCESS
+    assert emulator.servo(4).read(Reg.RETURN_DELAY_TIME) == 0x10        # unchanged
+    assert client.write(4, TABLE[Reg.TORQUE_ENABLE].address, b"\x00") == 0
+    assert client.write(4, rdt.address, b"\x20") == 0
+
+
+def test_range_limit_and_length_errors(client, emulator):
+    mode = TABLE[Reg.OPERATING_MODE]
+    assert client.write(5, mode.address, b"\x02") == ErrorNumber.DATA_RANGE     # not an allowed mode
+    assert client.write(5, TABLE[Reg.LED].address, b"\x02") == ErrorNumber.DATA_RANGE
+    gv = TABLE[Reg.GOAL_VELOCITY]
+    assert client.write(5, gv.address, gv.encode(300)) == ErrorNumber.DATA_LIMIT  # > Velocity Limit 210
+    assert client.write(5, gv.address, gv.encode(-210)) == 0
+    gp = TABLE[Reg.GOAL_POSITION]
+    assert client.write(5, gp.address, gp.encode(5000)) == ErrorNumber.DATA_LIMIT  # mode 3: 0..4095
+    assert client.write(5, gp.address, b"\x00\x08") == ErrorNumber.DATA_LENGTH      # 2 of 4 bytes
+    assert emulator.servo(5).read(Reg.GOAL_POSITION) == 0
+
+
+def test_sync_write_and_sync_read_across_eight(client, emulator):
+    gp = TABLE[Reg.GOAL_POSITION]
+    values = {i: 100 * i for i in IDS}
+    client.sync_write(gp.address, 4, {i: gp.encode(v) for i, v in values.items()})
+    client.ping(1)                           # no reply to a sync write: a round trip orders it
+    got = client.sync_read(IDS, gp.address, 4)
+    assert got == values
+    for i in IDS:
+        emulator.servo(i).write(Reg.PRESENT_POSITION, -1000 * i)
+    got = client.sync_read(IDS, TABLE[Reg.PRESENT_POSITION].address, 4)
+    assert got == {i: (-1000 * i) & 0xFFFFFFFF for i in IDS}            # clients return unsigned
+
+
+def test_fast_sync_read(client, emulator):
+    for i in IDS:
+        emulator.servo(i).write(Reg.PRESENT_POSITION, 7 * i)
+        emulator.servo(i).write(Reg.PRESENT_VELOCITY, i)
+    got = client.sync_read(IDS, TABLE[Reg.PRESENT_POSITION].address, 4, fast=True)
+    assert got == {i: 7 * i for i in IDS}
+    got = client.sync_read(IDS, TABLE[Reg.PRESENT_VELOCITY].address, 4, fast=True)
+    assert got == {i: i for i in IDS}
+
+
+def test_bulk_write_and_bulk_read(client, emulator):
+    led, gv = TABLE[Reg.LED], TABLE[Reg.GOAL_VELOCITY]
+    client.bulk_write([(1, led.address, b"\x01"), (2, gv.address, gv.encode(-50)),
+                       (3, gv.address, gv.encode(77))])
+    client.ping(1)                           # no reply to a bulk write: a round trip orders it
+    assert emulator.servo(1).read(Reg.LED) == 1
+    assert emulator.servo(2).read(Reg.GOAL_VELOCITY) == -50
+    items = [(1, led.address, 1), (2, gv.address, 4), (3, gv.address, 4),
+             (8, TABLE[Reg.PRESENT_TEMPERATURE].address, 1)]
+    expect = {1: 1, 2: (-50) & 0xFFFFFFFF, 3: 77, 8: 30}
+    assert client.bulk_read(items) == expect
+    assert client.bulk_read(items, fast=True) == expect
+
+
+def test_reg_write_then_action(client, emulator):
+    gv = TABLE[Reg.GOAL_VELOCITY]
+    assert client.reg_write(6, gv.address, gv.encode(123)) == 0
+    assert emulator.servo(6).read(Reg.GOAL_VELOCITY) == 0
+    assert emulator.servo(6).read(Reg.REGISTERED_INSTRUCTION) == 1
+    client.action()                          # broadcast: no status (the SDK does not wait for one)
+    client.ping(6)
+    assert client.read(6, gv.address, 4) == (gv.encode(123), 0)
+    assert emulator.servo(6).read(Reg.REGISTERED_INSTRUCTION) == 0
+
+
+def test_reboot_resets_ram_keeps_eeprom(client, emulator):
+    assert client.write(7, TABLE[Reg.RETURN_DELAY_TIME].address, b"\x05") == 0
+    assert client.write(7, TABLE[Reg.TORQUE_ENABLE].address, b"\x01") == 0
+    assert client.write(7, TABLE[Reg.LED].address, b"\x01") == 0
+    assert client.reboot(7) == 0
+    s = emulator.servo(7)
+    assert (s.read(Reg.TORQUE_ENABLE), s.read(Reg.LED), s.read(Reg.RETURN_DELAY_TIME)) == (0, 0, 5)
+    assert client.ping(7) == (XH430_W210, 0)
+
+
+def test_factory_reset_options(client, emulator):
+    rdt = TABLE[Reg.RETURN_DELAY_TIME].address
+    for id_ in (2, 3):
+        assert client.write(id_, rdt, b"\x00") == 0
+    assert client.factory_reset(2, 0x02) == 0          # all but ID and baud
+    assert emulator.servo(2).read(Reg.RETURN_DELAY_TIME) == 250
+    assert client.ping(2) == (XH430_W210, 0)
+    assert client.factory_reset(3, 0x01) == 0          # all but ID: baud back to 57600
+    assert client.ping(3) == TIMEOUT                   # no longer at 1 Mbps
+    s = emulator.servos[2]
+    assert (s.id, s.baud_bps) == (3, 57600)
+    assert client.factory_reset(8, 0xFF) == 0          # everything: ID 1, 57600 bps
+    assert client.ping(8) == TIMEOUT
+    assert (emulator.servos[7].id, emulator.servos[7].baud_bps) == (1, 57600)
+
+
+def test_id_change_takes_effect_after_reply(client, emulator):
+    assert client.write(3, TABLE[Reg.ID].address, bytes((20,))) == 0   # reply still from ID 3
+    assert client.ping(3) == TIMEOUT
+    assert client.ping(20) == (XH430_W210, 0)
+
+
+def test_status_return_level(client, emulator):
+    srl, led = TABLE[Reg.STATUS_RETURN_LEVEL].address, TABLE[Reg.LED].address
+    assert client.write(4, srl, b"\x01") == TIMEOUT          # level 1: writes are not answered
+    assert client.read(4, led, 1) == (b"\x00", 0)            # reads are
+    assert client.write(4, led, b"\x01") == TIMEOUT
+    assert emulator.servo(4).read(Reg.LED) == 1              # ...but executed
+    assert client.write(4, srl, b"\x00") == TIMEOUT
+    assert client.read(4, led, 1) == TIMEOUT                 # level 0: only Ping
+    assert client.ping(4) == (XH430_W210, 0)
+
+
+def test_secondary_id_executes_without_reply(client, emulator):
+    assert client.write(5, TABLE[Reg.SECONDARY_ID].address, bytes((100,))) == 0
+    assert client.write(100, TABLE[Reg.LED].address, b"\x01") == TIMEOUT
+    assert emulator.servo(5).read(Reg.LED) == 1
+
+
+def test_hardware_error_sets_alert_drops_torque_until_reboot(client, emulator):
+    te = TABLE[Reg.TORQUE_ENABLE].address
+    assert client.write(3, te, b"\x01") == 0
+    emulator.faults.raise_hardware_error(3, "overload")
+    s = emulator.servo(3)
+    assert s.read(Reg.TORQUE_ENABLE) == 0
+    assert s.read(Reg.HARDWARE_ERROR_STATUS) == HardwareError.OVERLOAD
+    _, err = client.read(3, TABLE[Reg.LED].address, 1)
+    assert err & ALERT
+    assert client.write(3, te, b"\x01") not in (0, TIMEOUT)
+    assert s.read(Reg.TORQUE_ENABLE) == 0
+    assert client.reboot(3) in (0, ALERT)                    # status may still carry the alert
+    assert client.ping(3) == (XH430_W210, 0)
+    assert client.write(3, te, b"\x01") == 0
+
+
+def test_indirect_address_maps_data(client, emulator):
+    ia1, id1 = 168, 224
+    pos = TABLE[Reg.PRESENT_POSITION].address
+    for k in range(4):
+        assert client.write(1, ia1 + 2 * k, (pos + k).to_bytes(2, "little")) == 0
+    emulator.servo(1).write(Reg.PRESENT_POSITION, 0x01020304)
+    assert client.read(1, id1, 4) == (bytes((4, 3, 2, 1)), 0)
+    gp = TABLE[Reg.GOAL_POSITION].address
+    for k in range(4):
+        assert client.write(1, ia1 + 8 + 2 * k, (gp + k).to_bytes(2, "little")) == 0
+    assert client.write(1, id1 + 4, (1234).to_bytes(4, "little")) == 0
+    assert emulator.servo(1).read(Reg.GOAL_POSITION) == 1234
+    assert client.write(1, ia1, (10).to_bytes(2, "little")) == ErrorNumber.DATA_RANGE  # < 64
+
+
+def test_clear_multi_turn(client, emulator):
+    emulator.servo(2).write(Reg.PRESENT_POSITION, 3 * 4096 + 100)
+    assert client.clear(2) == 0
+    assert emulator.servo(2).read(Reg.PRESENT_POSITION) == 100
+    emulator.servo(2).write(Reg.MOVING, 1)
+    assert client.clear(2) == ErrorNumber.RESULT_FAIL
+
+
+def test_vanished_servo_breaks_sync_read_chain_and_comes_back(client, emulator):
+    address = TABLE[Reg.PRESENT_POSITION].address
+    emulator.faults.vanish(4)
+    assert client.ping(4) == TIMEOUT
+    assert client.sync_read(IDS, address, 4) == TIMEOUT
+    assert client.sync_read([1, 2, 3], address, 4) == {1: 0, 2: 0, 3: 0}
+    emulator.faults.restore(4)
+    assert client.sync_read(IDS, address, 4) == {i: 0 for i in IDS}
+
+
+def test_dropped_and_corrupted_replies(client, emulator):
+    emulator.faults.drop_rate = 1.0
+    assert client.ping(1) == TIMEOUT
+    emulator.faults.drop_rate = 0.0
+    emulator.faults.corrupt_rate = 1.0
+    assert client.ping(1) == TIMEOUT          # corrupted: a bad frame is no reply
+    emulator.faults.corrupt_rate = 0.0
+    assert client.ping(1) == (XH430_W210, 0)
+    assert emulator.stats.replies_dropped >= 1 and emulator.stats.replies_corrupted >= 1
+
+
+def test_return_delay_really_delays(client, emulator):
+    """Lower bounds only (a loaded machine makes replies later, never earlier)."""
+    def fastest(id_, n=8):
+        best = float("inf")
+        for _ in range(n):
+            t = time.monotonic()
+            assert client.ping(id_) != TIMEOUT
+            best = min(best, time.monotonic() - t)
+        return best
+
+    rdt = TABLE[Reg.RETURN_DELAY_TIME].address
+    assert client.write(1, rdt, bytes((254,))) == 0           # 508 us
+    assert fastest(1) >= 0.5e-3
+    emulator.faults.delay_s = 0.02
+    assert fastest(2, 3) >= 0.02
