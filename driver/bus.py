@@ -403,7 +403,12 @@ class Bus:
         """Send a fast sync/bulk read and split the single combined reply."""
         ids = [i for i, _ in items]
         reply_bytes = 10 + sum(n + 4 for _, n in items)
-        got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False)
+        try:
+            got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False)
+        except DxlTimeoutError as exc:
+            raise DxlTimeoutError(ids, pkt.instruction, exc.timeout_s,
+                                  "the combined reply was incomplete: one of these servos is "
+                                  "missing or does not support fast reads") from None
         st = got[BROADCAST_ID]
         body = bytes((Instruction.STATUS, st.error)) + st.params
         frame = pk.HEADER + bytes((BROADCAST_ID,)) + struct.pack("<H", len(body) + 2) + body
