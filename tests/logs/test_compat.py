@@ -42,3 +42,9 @@ def test_rosbags_anyreader_deserialises_every_message(run_bag, run_records):
     assert odom.pose.pose.position.x == r.est_pose[0]
     assert np.isclose(2 * np.arctan2(odom.pose.pose.orientation.z, odom.pose.pose.orientation.w), r.est_pose[2])
     assert len(msgs["/true_pose"]) == 500 and "/sim_pose" not in msgs
+
+
+def test_bag_time_range_is_the_runs(run_bag, run_records):
+    with AnyReader([run_bag]) as reader:
+        assert reader.start_time == run_records[0].stamp_ns
+        assert reader.end_time == run_records[-1].stamp_ns + 1  # rosbags: end is exclusive

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import struct
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Sequence
@@ -56,8 +57,8 @@ class RunLogWriter:
     path : bag directory to create (must not exist); holds ``<name>.mcap`` and, once closed,
         ``metadata.yaml``.
     metadata : JSON-serialisable run description (trajectory, gains file, time scale, port,
-        config...). Written at open to ``/swerve/metadata`` and at close to the bag's
-        ``custom_data``.
+        config...). Written to ``/swerve/metadata`` just before the first cycle (same time
+        stamp) and at close to the bag's ``custom_data``.
     wheels : wheel names in robot.yaml order (joint names derive from them).
     flush_every : cycles between flushes of the pending MCAP chunk to the OS. 1 (default) makes
         the file readable to the last completed cycle after a crash; N loses at most N-1 cycles.
@@ -112,17 +113,22 @@ class RunLogWriter:
         for topic, msgtype in TOPICS.items():
             self._conn[topic] = self._bag.add_connection(topic, msgtype, typestore=self._ts)
         self._open = True
-        T = self._ts.types
-        self._put("/swerve/metadata", 0, T["std_msgs/msg/String"](data=self._metadata_json))
-        self._flush()
+        self._flush()  # schemas and channels reach the disk before the first cycle
         self._bag.set_custom_data("swerve_metadata", self._metadata_json)
         self._warm_up()
 
     def close(self) -> None:
         """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
         if self._open:
+            if not self.cycles_written:
+                self._put_metadata(time.time_ns())
             self._open = False
             self._bag.close()
+
+    def _put_metadata(self, stamp_ns: int) -> None:
+        # stamped like the first cycle, so the bag's time range is the run's (not 1970-now)
+        self._put("/swerve/metadata", stamp_ns,
+                  self._ts.types["std_msgs/msg/String"](data=self._metadata_json))
 
     # -- writing ---------------------------------------------------------------------------
     def _put(self, topic: str, stamp_ns: int, msg) -> None:
@@ -138,6 +144,8 @@ class RunLogWriter:
         if not self._open:
             raise RuntimeError("RunLogWriter.write() outside an open log")
         ns = int(rec.stamp_ns)
+        if not self.cycles_written:
+            self._put_metadata(ns)
         for topic, msg in self._messages(rec):
             self._put(topic, ns, msg)
         self.cycles_written += 1

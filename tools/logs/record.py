@@ -37,7 +37,8 @@ class CycleRecord:
     """
 
     t_s: float                       #: trajectory time, s
-    stamp_ns: int                    #: clock time of the cycle, ns (bag message time)
+    stamp_ns: int                    #: clock time of the cycle, ns (bag message time); use
+    #: ``time.time_ns()`` so viewers show the real date (a monotonic base also works)
     cycle: int                       #: cycle index, 0-based
     period_s: float = np.nan         #: measured loop period, s
     cmd_drive_radps: np.ndarray = _nan(4)   #: (4,) commanded wheel speeds, rad/s
