@@ -59,6 +59,9 @@ class PwmRecord:
     voltage_v : ndarray, shape (m,)
         Armature voltage from each switch on (duty times supply voltage), V. Before the first
         switch the voltage is 0 and the motor is at rest.
+    switch_std_s : ndarray, shape (m,), optional
+        Uncertainty of each switch time, s (e.g. half the gap between the samples around the
+        write). Each switch time is fitted within it (a Gaussian prior); default 1 ms.
     """
 
     t_s: np.ndarray
@@ -66,6 +69,13 @@ class PwmRecord:
     current_a: np.ndarray
     switch_t_s: np.ndarray
     voltage_v: np.ndarray
+    switch_std_s: np.ndarray | None = None
+
+    def switch_std(self) -> np.ndarray:
+        """Switch-time uncertainties, s, shape (m,)."""
+        if self.switch_std_s is None:
+            return np.full(self.switch_t_s.shape, 1e-3)
+        return np.maximum(np.asarray(self.switch_std_s, float), 2e-4)
 
 
 @dataclass(frozen=True)
@@ -101,7 +111,7 @@ class Identification:
         Combinations the data determine directly: mechanical time constant ``tau_m_s``,
         ``km_over_j`` (1/(A s^2)), ``b_over_km`` (A s/rad), no-load output speed at 12 V.
     delay_s : float
-        Fitted input delay (write to effect), s.
+        Mean fitted shift of the switch times (write to effect), s.
     position_skew_s : float
         Fitted age of Present Position relative to Present Current in one read, s (the
         emulator samples the encoder one physics tick before the current).
@@ -188,8 +198,8 @@ def _rest_std(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
 
 def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
              position_lsb_rad: float, current_lsb_a: float) -> Identification:
-    """Fit ``R, Ke, J, b`` (plus an input delay, a position/current time skew and per-record
-    angle offsets as nuisance parameters) with Levenberg–Marquardt.
+    """Fit ``R, Ke, J, b`` (plus per-switch time shifts, a position/current time skew and
+    per-record angle offsets as nuisance parameters) with Levenberg–Marquardt.
 
     Parameters
     ----------
@@ -219,31 +229,38 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
     cur_rest = np.concatenate([_rest_std(r, current_lsb_a, r.current_a) for r in records])
     sig_p = np.sqrt(1.0 / 12.0 + np.var(pos_rest))          # pulses
     sig_i = np.sqrt(1.0 / 12.0 + np.var(cur_rest))          # current LSBs
-    x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0, 0.0],
+    n_sw = [r.switch_t_s.size for r in records]
+    x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0], np.zeros(sum(n_sw)),
                          [np.mean(r.position_rad[r.t_s < r.switch_t_s[0]]) / position_lsb_rad + 0.5
                           for r in records]])
+    n_fit = 5 + sum(n_sw)
 
     def unpack(x):
-        return replace(prior, **dict(zip(FITTED, np.exp(x[:4])))), x[4], x[5], x[6:]
+        shifts = np.split(x[5:n_fit], np.cumsum(n_sw)[:-1])
+        return replace(prior, **dict(zip(FITTED, np.exp(x[:4])))), x[4], shifts, x[n_fit:]
 
     def residuals(x):
-        p, delay, skew, offsets = unpack(x)
+        p, skew, shifts, offsets = unpack(x)
         res = []
-        for rec, off in zip(records, offsets):
+        for rec, shift, off in zip(records, shifts, offsets):
             n = rec.t_s.size
             sim = simulate_open_loop(p, gear_ratio, np.concatenate([rec.t_s - skew, rec.t_s]),
-                                     rec.switch_t_s + delay, rec.voltage_v)
+                                     rec.switch_t_s + shift, rec.voltage_v)
             res.append((sim["angle_rad"][:n] / position_lsb_rad + off - 0.5
                         - rec.position_rad / position_lsb_rad) / sig_p)
             res.append((sim["current_a"][n:] - rec.current_a) / current_lsb_a / sig_i)
+            res.append(shift / rec.switch_std())
         return np.concatenate(res)
 
     sol = least_squares(residuals, x0, method="lm", x_scale="jac")
-    p, delay, skew, _ = unpack(sol.x)
-    m, k = sol.fun.size, sol.x.size
+    p, skew, shifts, _ = unpack(sol.x)
+    delay = float(np.mean(np.concatenate(shifts)))
+    m, k = sol.fun.size - sum(n_sw), sol.x.size - sum(n_sw)    # the switch priors are not data
+    r_pos = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 0)]) * sig_p
+    r_cur = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 1)]) * sig_i
+    s2 = float(np.sum(r_pos ** 2) / sig_p ** 2 + np.sum(r_cur ** 2) / sig_i ** 2) / max(m - k, 1)
     jac = sol.jac
-    s2 = 2.0 * sol.cost / max(m - k, 1)
-    cov = np.linalg.pinv(jac.T @ jac) * s2
+    cov = np.linalg.pinv(jac.T @ jac) * max(s2, 1.0)     # never claim more than the noise allows
     std = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     est = {}
     for j, name in enumerate(FITTED):
@@ -256,8 +273,6 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
     sub = cov[:4, :4]
     d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
     corr = sub / np.outer(d, d)
-    r_pos = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 0)]) * sig_p
-    r_cur = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 1)]) * sig_i
     return Identification(
         params=p, gear_ratio=gear_ratio, estimates=est, derived=derived_quantities(p, gear_ratio),
         delay_s=float(delay), position_skew_s=float(skew),
@@ -274,7 +289,7 @@ def _channel_slices(records: list[PwmRecord], channel: int) -> list[tuple[int, i
     for rec in records:
         n = rec.t_s.size
         out.append((start + channel * n, n))
-        start += 2 * n
+        start += 2 * n + rec.switch_t_s.size
     return out
 
 

@@ -1,0 +1,173 @@
+"""``swerve tune``: identify one servo's DC motor from step experiments and design its loop gains.
+
+Runs on a real bus (``--port``) or on an in-process emulator on a pty (``--emulate``) through the
+same driver code path. Drive servos get the velocity PI tuned, steering servos the position P.
+Results: ``OUT/tune_<id>.json|.yaml``, ``OUT/pwm_<id>.png``, ``OUT/step_<id>.png``. The gains stay
+in the servo's RAM; ``--write-config`` also stores them in the robot config.
+"""
+from __future__ import annotations
+
+import argparse
+import math
+
+NAME = "tune"
+HELP = "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec"
+
+NOISE_POSITION_PULSE = 0.5      # --noise: encoder noise before quantisation, pulse (std)
+NOISE_CURRENT_A = 0.004         # --noise: current sensor noise, A (std, ~1.5 LSB)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group(required=True)
+    where.add_argument("--port", help="serial port of the bus (e.g. /dev/ttyUSB0)")
+    where.add_argument("--emulate", action="store_true", help="tune an emulated servo (in-process, on a pty)")
+    parser.add_argument("--baud", type=int, default=None, help="bps (default: robot config link.baud)")
+    parser.add_argument("--id", type=int, default=1, help="servo ID (default 1)")
+    parser.add_argument("--mode", choices=("drive", "steering"), default=None,
+                        help="which loop to tune (default: from the ID's role in the robot config)")
+    parser.add_argument("--overshoot-max", type=float, default=0.02,
+                        help="velocity step overshoot limit, fraction (default 0.02)")
+    parser.add_argument("--settle-max", type=float, default=math.inf,
+                        help="2 %% settle-time limit of the tuned step, s (default: none, fastest)")
+    parser.add_argument("--velocity-step", type=float, default=None,
+                        help="velocity step, rad/s at the output (default 100 units = 2.40 rad/s)")
+    parser.add_argument("--position-step", type=float, default=None,
+                        help="position step, rad (default 512 pulses = 0.785 rad)")
+    parser.add_argument("--pwm", type=float, default=0.5, help="largest open-loop PWM duty, 0..1 (default 0.5)")
+    parser.add_argument("--current-max", type=float, default=None,
+                        help="abort above this |Present Current|, A (default: the servo's Current Limit)")
+    parser.add_argument("--robot-config", default="configs/robot.yaml", help="robot config (IDs, limits, gains)")
+    parser.add_argument("--prior", default="configs/emulator.yaml",
+                        help="motor parameters to start from and to fix L, Km (paper Table 1)")
+    parser.add_argument("--emulator-config", default="configs/emulator.yaml",
+                        help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia)")
+    parser.add_argument("--noise", action="store_true",
+                        help=f"--emulate: sensor noise on ({NOISE_POSITION_PULSE} pulse, {NOISE_CURRENT_A * 1e3:g} mA std)")
+    parser.add_argument("--seed", type=int, default=None, help="--emulate: noise seed")
+    parser.add_argument("--write-config", action="store_true",
+                        help="store the gains in --robot-config (drive.gains or steering.gains)")
+    parser.add_argument("--out", default="out/tune", help="directory for PNG/JSON/YAML results")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _emulator(args, cfg, rc):
+    """An in-process emulator whose servos run :class:`ServoModel` with ``cfg``'s physics."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from emulator import Emulator
+    from emulator.physics import units as u
+    from emulator.physics.servo_model import ServoModel
+
+    sensors = cfg.sensors
+    if args.noise:
+        sensors = replace(sensors, position_noise_std_pulse=NOISE_POSITION_PULSE,
+                          current_noise_std_a=NOISE_CURRENT_A)
+    rng = np.random.default_rng(args.seed)
+    gear = cfg.gear_ratio(rc.model)
+    centers = {w.steer_id: w.center_pulse for w in rc.wheels}
+
+    def dynamics(servo):
+        steering = servo.id in centers
+        model = ServoModel(cfg.steering_motor if steering else cfg.drive_motor, gear, cfg.supply_voltage_v,
+                           cfg.firmware, sensors, cfg.thermal, rng)
+        if steering:
+            model.set_shaft_angle(centers[servo.id] * u.RAD_PER_PULSE)
+        return model
+
+    ids = sorted(set(rc.drive_ids) | set(rc.steer_ids))
+    return Emulator(ids, rc.model, args.baud or rc.link.baud, dynamics=dynamics)
+
+
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from tqdm import tqdm
+
+    from driver.bus import Bus
+    from driver.control_table import Reg
+    from driver.errors import ConfigError, DxlTimeoutError, SwerveError
+    from driver.robot_config import load_robot_config
+    from emulator.physics.params import load_config
+    from tools.tune.config_io import write_gains
+    from tools.tune.design import Spec
+    from tools.tune.experiments import Limits
+    from tools.tune.pipeline import tune_servo
+    from tools.tune.report import write_report
+
+    rc = load_robot_config(args.robot_config)
+    prior_cfg = load_config(args.prior)
+    if not 0.0 < args.pwm <= 1.0:
+        raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
+    group = args.mode or ("drive" if args.id in rc.drive_ids else "steering" if args.id in rc.steer_ids else None)
+    if group is None:
+        raise ConfigError(f"servo ID {args.id} is neither a drive nor a steering servo in {args.robot_config}; "
+                          "give --mode")
+    spec_kw = {"velocity_overshoot_max": args.overshoot_max}
+    spec_kw["velocity_settle_max_s" if group == "drive" else "position_settle_max_s"] = args.settle_max
+    if args.velocity_step is not None:
+        spec_kw["velocity_step_radps"] = args.velocity_step
+    if args.position_step is not None:
+        spec_kw["position_step_rad"] = args.position_step
+    spec = Spec(**spec_kw)
+    prior = prior_cfg.drive_motor if group == "drive" else prior_cfg.steering_motor
+    center_rad = None
+    if group == "steering":
+        pulse = next((w.center_pulse for w in rc.wheels if w.steer_id == args.id), 2048)
+        center_rad = rc.table[Reg.PRESENT_POSITION].to_si(pulse)
+
+    with contextlib.ExitStack() as stack:
+        if args.emulate:
+            emu = stack.enter_context(_emulator(args, load_config(args.emulator_config), rc))
+            port, margin = emu.port, 0.05
+        else:
+            port, margin = args.port, 0.002
+        bus = stack.enter_context(Bus(port, args.baud or rc.link.baud, retries=1, timeout_margin_s=margin))
+        try:
+            found = bus.ping(args.id)
+        except DxlTimeoutError:
+            raise SwerveError(f"servo ID {args.id} does not answer on {port} (ping timed out): check the ID with "
+                              "'swerve scan', the cable and the power; nothing was written") from None
+        current_max = args.current_max or bus.read_si(args.id, Reg.CURRENT_LIMIT)
+        if group == "steering":
+            limits = Limits(position_min_rad=center_rad - rc.steer_angle_max_rad,
+                            position_max_rad=center_rad + rc.steer_angle_max_rad, current_max_a=current_max)
+        else:
+            limits = Limits(speed_max_radps=rc.drive_max_radps, current_max_a=current_max)
+        bar = stack.enter_context(tqdm(total=None, unit="s", disable=args.no_progress,
+                                       desc=f"ID {args.id} ({found.model}, {group})",
+                                       bar_format="{desc}: {n:.1f} s of experiments [{postfix}]"))
+
+        def progress(phase):
+            bar.set_postfix_str(phase)
+            return bar.update
+
+        res = tune_servo(bus, args.id, group, spec, prior, limits=limits, firmware=prior_cfg.firmware,
+                         center_rad=center_rad, duty_max=args.pwm, progress=progress)
+    paths = write_report(res, args.out)
+    _print(res, paths)
+    if args.write_config:
+        write_gains(args.robot_config, group, res.design.gains)
+        print(f"gains written to {args.robot_config} ({group}.gains)")
+    if not res.meets_spec:
+        raise SwerveError("the tuned gains do not meet the spec when measured: " + "; ".join(res.spec_notes))
+    return 0
+
+
+def _print(res, paths) -> None:
+    ident = res.identification
+    print(f"servo ID {res.id} ({res.model}, {res.group}), gear {res.gear_ratio:g}, supply {res.supply_voltage_v:.1f} V,"
+          f" {ident.n_samples} samples ({res.clock} clock)")
+    for name, e in ident.estimates.items():
+        ci = f"[{e.ci_low:.4g}, {e.ci_high:.4g}] 95 %" if e.identified else f"fixed: {e.note}"
+        print(f"  {name:24s} {e.value:.4g} {e.unit:10s} {ci}")
+    print(f"  residual RMS: {ident.residual_rms['position_pulse']:.2f} pulse, "
+          f"{ident.residual_rms['current_a'] * 1e3:.2f} mA; tau_m {ident.derived['tau_m_s'] * 1e3:.2f} ms")
+    print(f"  gains: {res.design.gains}")
+    print("                  overshoot %   rise ms   settle ms")
+    for name, loop in (("before", res.before), ("after", res.after)):
+        for what, m in (("predicted", loop.predicted.reported), ("measured", loop.measured)):
+            print(f"  {name:6s} {what:9s} {m.overshoot_pct:9.2f} {m.rise_s * 1e3:9.1f} {m.settle_s * 1e3:11.1f}")
+    print(f"  spec: {'met' if res.meets_spec else 'NOT met'} ({'; '.join(res.spec_notes)})")
+    print("  files: " + ", ".join(str(p) for p in paths))
