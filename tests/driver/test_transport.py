@@ -113,3 +113,14 @@ def test_closed_port_raises_transport_error():
     t.close()
     with pytest.raises(TransportError):
         t.write(b"\x00")
+
+
+def test_bus_ignores_its_own_echo():
+    """On loop:// the only thing that comes back is our instruction: not a reply."""
+    from driver.bus import Bus
+    from driver.errors import DxlTimeoutError
+
+    with Bus("loop://", default_model="xh430-w210", timeout_margin_s=0.05) as bus:
+        with pytest.raises(DxlTimeoutError) as ei:
+            bus.read(1, "present_position")
+    assert ei.value.ids == (1,)

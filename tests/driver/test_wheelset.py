@@ -144,3 +144,27 @@ def test_configure_rejects_wrong_model(hw_port):
             Bus(emu.port, timeout_margin_s=0.3) as bus:
         with pytest.raises(ConfigError, match="1000"):
             WheelSet(bus, CFG).configure()
+
+
+class _NoBus:
+    """Stands in for a Bus where only the pure conversion is exercised."""
+
+    def set_model(self, id_, model):
+        pass
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_v = st.floats(-CFG.drive_max_radps, CFG.drive_max_radps)
+_d = st.floats(-CFG.steer_angle_max_rad, CFG.steer_angle_max_rad)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(_v, min_size=4, max_size=4), st.lists(_d, min_size=4, max_size=4))
+def test_goal_conversion_roundtrips_within_half_lsb(v, d):
+    ws = WheelSet(_NoBus(), CFG)
+    raw = ws.goal_raw(v, d)
+    for k, w in enumerate(CFG.wheels):
+        assert abs(w.drive_direction * raw[w.drive_id] * VEL - v[k]) <= VEL / 2 + 1e-12
+        assert abs(w.steer_direction * (raw[w.steer_id] - w.center_pulse) * POS - d[k]) <= POS / 2 + 1e-12
