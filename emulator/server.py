@@ -25,8 +25,8 @@ from typing import Callable, Iterable, Mapping
 import yaml
 
 from driver.control_table import table_for
-from driver.errors import ConfigError
-from driver.packets import (BROADCAST_ID, MAX_ID, ErrorNumber, FastStatus, Instruction,
+from driver.errors import ChecksumError, ConfigError, CorruptPacketError
+from driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
                             parse_sync_read, parse_sync_write)
 from driver.parser import PacketParser
@@ -59,7 +59,8 @@ class Stats:
     bad_frames: int = 0            # bad CRC / implausible length (parser)
     dropped_bytes: int = 0         # garbage and abandoned partial frames (parser)
     status_packets_ignored: int = 0  # status frames on the line (another device talking)
-    dispatch_errors: int = 0       # exceptions caught while handling one packet
+    malformed_packets: int = 0     # valid frames whose parameters make no sense (ignored)
+    dispatch_errors: int = 0       # unexpected exceptions caught while handling one packet
     wrong_baud_packets: int = 0    # no servo listens at the client's line speed
     tx_overflow_bytes: int = 0     # reply bytes the pty would not take (client not reading)
     clock_ticks: int = 0
@@ -294,7 +295,6 @@ class Emulator:
             self._reply_crc_errors(errors)
 
     def _reply_crc_errors(self, errors) -> None:
-        from driver.errors import ChecksumError
         for exc in errors:
             if isinstance(exc, ChecksumError) and len(exc.frame) >= 8 and exc.frame[4] <= MAX_ID:
                 with self._lock:
@@ -310,7 +310,12 @@ class Emulator:
         self.stats.packets_received += 1
         try:
             with self._lock:
-                replies, touched = self._dispatch(pkt)
+                try:
+                    replies, touched = self._dispatch(pkt)
+                except CorruptPacketError as exc:     # e.g. a sync write block of the wrong size
+                    self.stats.malformed_packets += 1
+                    log.debug("ignored %s: %s", pkt.name, exc)
+                    return
             end_t = rx_t
             if self.wire_timing:
                 end_t = max(rx_t, first_byte_t + len(pkt.encode()) * self._byte_time_s())
@@ -393,6 +398,8 @@ class Emulator:
                 log.debug("bulk read lists an ID twice; ignored")
                 return [], []
         fast = inst in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
+        if fast and 1 + sum(n + 4 for _, _, n in items) > MAX_LENGTH:
+            raise CorruptPacketError("fast read reply would exceed the largest frame")
         statuses: list[tuple[VirtualServo | None, StatusPacket]] = []
         for id_, address, length in items:
             s = by_id.get(id_)
