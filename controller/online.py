@@ -1,0 +1,287 @@
+"""The online tracking loop: read 8 servos, estimate the pose, apply K(t), command 8 servos.
+
+One cycle every ``tau`` (16 ms, 62.5 Hz) of robot time, on absolute monotonic deadlines
+(:class:`controller.loop_timer.Ticker`); with an emulator running ``time_scale`` times faster
+than real time the wall period is ``tau / time_scale``. Per cycle:
+
+1. one (fast) sync read of present current/velocity/position of all eight servos;
+2. odometry on the measured wheel speeds and steering angles with model (1)-(5);
+3. the tracking law on the state ``(x, y, theta, delta1, delta2)`` where the pose is the
+   odometry estimate and the steering angles are the *commanded* ones (integrated steering
+   rates), as the law's input model assumes;
+4. one bulk write of ``[v1/r] * 4`` and ``[d1, d2, d2, d1]``;
+5. ``on_cycle(fields)`` with a dict of :class:`tools.logs.record.CycleRecord` fields, for the log.
+
+The wheels object is injected (anything with ``read_state()``, ``write_goals(drive_radps,
+steer_rad)`` and ``stop()``, e.g. :class:`driver.wheelset.WheelSet`), so the same loop runs
+on the robot and on the emulator. Failures stop the loop with :class:`LoopAbort` naming the
+servo and the cause: a hardware-error alert, too many consecutive failed reads (a missing
+servo), or a stall long enough for the servos' Bus Watchdog to expire.
+"""
+from __future__ import annotations
+
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from controller.kinematics import Geometry
+from controller.loop_timer import Ticker
+from controller.odometry import Odometry
+from controller.simulate import SimResult, metrics
+from controller.tracking import TrackingLaw
+from driver.errors import CorruptPacketError, DxlTimeoutError, ServoError, SwerveError
+
+log = logging.getLogger(__name__)
+
+#: :class:`tools.logs.record.CycleFlag` bit values (kept numeric: controller does not import tools)
+FLAG_OVERRUN, FLAG_STALE = 1, 2
+
+
+class LoopAbort(SwerveError):
+    """The loop stopped the robot: ``cause`` says why, ``ids`` which servos."""
+
+    def __init__(self, message: str, cause: str, ids=()):
+        self.cause = cause
+        self.ids = tuple(ids)
+        super().__init__(message)
+
+
+@dataclass
+class RunResult:
+    """Per-cycle arrays and the summary of a run (see :meth:`TrackingLoop.run`)."""
+
+    summary: dict
+    t_s: np.ndarray
+    est_states: np.ndarray
+    true_poses: np.ndarray
+    ref_states: np.ndarray
+    inputs: np.ndarray
+    aborted: LoopAbort | None = None
+    extra: dict = field(default_factory=dict)
+
+
+class TrackingLoop:
+    """Run a :class:`TrackingLaw` on real (or emulated) wheels.
+
+    Parameters
+    ----------
+    wheels : WheelSet-like
+        ``read_state() -> state`` with ``drive_radps`` (4,), ``steer_rad`` (4,),
+        ``drive_current_a``/``steer_current_a`` (4,) and ``t_s`` (monotonic s);
+        ``write_goals(drive_radps, steer_rad)``; ``stop()``.
+    law : TrackingLaw
+    geom : Geometry
+        Wheel layout and radius.
+    time_scale : float
+        Robot seconds per wall second (1 on hardware; the emulator's ``--time-scale``).
+    max_failed_reads : int
+        Consecutive failed reads tolerated (then :class:`LoopAbort`, cause ``"no reply"``).
+    watchdog_s : float
+        The servos' Bus Watchdog, robot seconds: a gap in bus traffic this long aborts the loop.
+    true_pose : callable, optional
+        ``() -> (x, y, theta)`` ground truth (emulator only), logged beside the estimate.
+    on_cycle : callable, optional
+        Called each cycle with a dict whose keys are :class:`tools.logs.record.CycleRecord`
+        fields (SI; NaN where unknown), e.g. to write the log.
+    """
+
+    def __init__(self, wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
+                 max_failed_reads: int = 3, watchdog_s: float = 0.1,
+                 true_pose: Callable[[], tuple] | None = None,
+                 on_cycle: Callable[[dict], None] | None = None,
+                 clock=time.monotonic, sleep=time.sleep):
+        if not time_scale > 0:
+            raise ValueError(f"time scale must be positive, got {time_scale}")
+        self.wheels, self.law, self.geom = wheels, law, geom
+        self.tau_s = law.reference.tau_s
+        self.time_scale = float(time_scale)
+        self.max_failed_reads = int(max_failed_reads)
+        self.watchdog_s = float(watchdog_s)
+        self.true_pose = true_pose
+        self.on_cycle = on_cycle
+        self._clock, self._sleep = clock, sleep
+        self.failed_reads = 0
+        self.retried_cycles = 0
+
+    # --- helpers -----------------------------------------------------------------------------
+
+    def _read(self):
+        """One state read; None (counted) on a timeout or corrupt reply; aborts on an alert."""
+        try:
+            st = self.wheels.read_state()
+        except ServoError as exc:
+            if exc.alert:
+                raise LoopAbort(f"servo ID {exc.id} reports a hardware error"
+                                f"{': ' + str(exc.hardware_error) if exc.hardware_error else ''};"
+                                " stopping", "hardware error", [exc.id]) from exc
+            raise LoopAbort(f"servo ID {exc.id} refused the read: {exc}", "servo error", [exc.id]) from exc
+        except (DxlTimeoutError, CorruptPacketError) as exc:
+            self.failed_reads += 1
+            self._consecutive += 1
+            if self._consecutive > self.max_failed_reads:
+                ids = getattr(exc, "ids", ())
+                who = f"servo ID {', '.join(map(str, ids))}" if ids else "the bus"
+                raise LoopAbort(f"{who} stopped answering ({self._consecutive} failed reads in a row: "
+                                f"{exc}); stopping", "no reply", ids) from exc
+            return None
+        self._consecutive = 0
+        return st
+
+    def _touch_bus(self) -> None:
+        """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
+        (the servos have then stopped and ignore goals; a Bulk Write would not tell us)."""
+        now = self._clock()
+        if self._last_tx is not None and (now - self._last_tx) * self.time_scale > self.watchdog_s:
+            raise LoopAbort(f"the loop stalled for {(now - self._last_tx) * 1e3:.0f} ms wall, longer "
+                            f"than the servos' Bus Watchdog ({self.watchdog_s} s): they have stopped",
+                            "stalled")
+        self._last_tx = now
+
+    def _pose_truth(self) -> np.ndarray:
+        if self.true_pose is None:
+            return np.full(3, np.nan)
+        return np.asarray(self.true_pose(), dtype=float)
+
+    def move_to_start(self, delta1: float, delta2: float, timeout_s: float = 5.0,
+                      tolerance_rad: float = 0.03) -> None:
+        """Steer to the start angles with the wheels stopped; wait until measured within
+        ``tolerance_rad`` (robot time ``timeout_s``), keeping the bus (and watchdog) busy."""
+        ticker = Ticker(self.tau_s / self.time_scale, self._clock, self._sleep)
+        ticker.start()
+        self._consecutive = 0
+        goal = [delta1, delta2, delta2, delta1]
+        for _ in range(int(np.ceil(timeout_s / self.tau_s))):
+            self.wheels.write_goals([0.0] * 4, goal)
+            st = self._read()
+            if st is not None and np.max(np.abs(np.subtract(st.steer_rad, goal))) < tolerance_rad:
+                return
+            ticker.wait()
+        raise LoopAbort(f"steering did not reach the start angles ({delta1:.3f}, {delta2:.3f}) rad "
+                        f"within {timeout_s} s", "start")
+
+    # --- the loop ----------------------------------------------------------------------------
+
+    def run(self, start_state) -> RunResult:
+        """Track the law's reference from ``start_state`` (5,); stops the wheels at the end.
+
+        Returns a :class:`RunResult`; on a :class:`LoopAbort` the wheels are stopped and the
+        result carries it in ``aborted`` (the caller decides the exit status). Ctrl-C stops
+        the wheels and propagates.
+        """
+        law, geom, tau = self.law, self.geom, self.tau_s
+        s0 = np.asarray(start_state, dtype=float)
+        odo = Odometry(geom, s0[:3])
+        delta_cmd = s0[3:5].copy()
+        law.reset()
+        ticker = Ticker(tau / self.time_scale, self._clock, self._sleep)
+        self._consecutive = 0
+        rows: list[tuple] = []
+        aborted = None
+        self._last_tx = None
+        t_prev_meas = None
+        meas = None
+        k = 0
+        ticker.start()
+        try:
+            while True:
+                t = k * tau
+                self._touch_bus()
+                st = self._read()
+                flags = 0
+                if st is None:
+                    flags |= FLAG_STALE
+                else:
+                    dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
+                    t_prev_meas = st.t_s
+                    odo.update(dt, st.drive_radps, st.steer_rad)
+                    meas = st
+                state = np.array([*odo.pose, *delta_cmd])
+                v1, w1, w2 = law.command(t, state)
+                if law.last.get("finished"):
+                    break
+                L = law.last
+                delta_cmd = np.clip(delta_cmd + np.array([w1, w2]) * tau,
+                                    -law.limits.steer_angle_max_rad, law.limits.steer_angle_max_rad)
+                steer = [delta_cmd[0], delta_cmd[1], delta_cmd[1], delta_cmd[0]]
+                drive = [v1 / geom.wheel_radius_m] * 4
+                self._touch_bus()
+                self.wheels.write_goals(drive, steer)
+                truth = self._pose_truth()
+                period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
+                if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
+                    flags |= FLAG_OVERRUN
+                rows.append((t, state, truth, L["desired_state"], np.array([v1, w1, w2]), L["raw"],
+                             L["s"], L["error"], L["u"] - L["ud"], ticker.stats.overruns))
+                if self.on_cycle is not None:
+                    self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, odo.pose,
+                                              L["desired_state"], truth, flags))
+                k = ticker.wait()
+        except LoopAbort as exc:
+            aborted = exc
+            log.error("%s", exc)
+        finally:
+            self._stop_quietly()
+        return self._result(rows, ticker, aborted)
+
+    def _stop_quietly(self) -> None:
+        try:
+            self.wheels.stop()
+        except Exception as exc:  # noqa: BLE001 - the bus may be the thing that failed
+            log.warning("could not command zero wheel speed: %s", exc)
+
+    @staticmethod
+    def _cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose, sd, truth, flags) -> dict:
+        nan4 = np.full(4, np.nan)
+        return dict(
+            cycle=k, t_s=t, stamp_ns=time.time_ns(), period_s=period,
+            cmd_drive_radps=np.asarray(drive, float), cmd_steer_rad=np.asarray(steer, float),
+            cmd_v1_mps=float(v1), cmd_omega_radps=np.array([w1, w2]),
+            meas_drive_radps=np.asarray(meas.drive_radps) if meas is not None else nan4,
+            meas_steer_rad=np.asarray(meas.steer_rad) if meas is not None else nan4,
+            meas_current_a=(np.concatenate([meas.drive_current_a, meas.steer_current_a])
+                            if meas is not None else np.full(8, np.nan)),
+            est_pose=np.asarray(pose, float).copy(), ref_pose=np.asarray(sd[:3], float),
+            ref_delta=np.asarray(sd[3:5], float), true_pose=truth, flags=flags)
+
+    def _result(self, rows, ticker: Ticker, aborted) -> RunResult:
+        law = self.law
+        traj = law.reference.trajectory
+        timing = ticker.stats.summary()
+        timing["loop_period_target_ms"] = self.tau_s * 1e3 / self.time_scale
+        extra = dict(failed_reads=self.failed_reads, time_scale=self.time_scale, **timing)
+        if not rows:
+            summary = dict(extra, completed=False, cycles=0)
+            if aborted is not None:
+                summary["abort_cause"] = aborted.cause
+            return RunResult(summary, *(np.empty((0,)) for _ in range(5)), aborted=aborted)
+        cols = list(zip(*rows))
+        t = np.array(cols[0])
+        est = np.array(cols[1])
+        truth = np.array(cols[2])
+        use_truth = np.all(np.isfinite(truth))
+        states = est.copy()
+        if use_truth:
+            states[:, :3] = truth
+        res = SimResult(t, states, np.array(cols[4]), np.array(cols[5]), np.array(cols[6]),
+                        np.array(cols[3]), np.array(cols[7]), np.array(cols[8]), traj.tf_s)
+        settled = bool(np.any(t >= traj.tf_s / 4))
+        if not settled:  # stopped before tf/4: the settled-error keys are undefined, not 0
+            res.tf_s = 0.0
+        summary = metrics(res, traj.Q, traj.R, self.tau_s)
+        if not settled:
+            summary["rms_position_error_m"] = summary["max_position_error_m"] = float("nan")
+        summary["error_source"] = "true_pose" if use_truth else "odometry"
+        if use_truth:
+            odo_err = np.hypot(*(est[:, :2] - truth[:, :2]).T)
+            summary["odometry_vs_true_max_m"] = float(odo_err.max())
+            summary["odometry_vs_true_final_m"] = float(odo_err[-1])
+        summary.update(extra)
+        summary["completed"] = aborted is None
+        summary["cycles"] = len(rows)
+        if aborted is not None:
+            summary["abort_cause"] = aborted.cause
+            summary["abort_message"] = str(aborted)
+        return RunResult(summary, t, est, truth, np.array(cols[3]), np.array(cols[4]), aborted=aborted)
