@@ -43,6 +43,9 @@ DEFAULT_BAUD = 1_000_000
 BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
 MAX_CLOCK_CATCHUP_STEPS = 20
+#: A reply that is not the last of an exchange may go out this early instead of sleeping
+#: for it (timer slack would otherwise add up over 8 replies); the last one is never early.
+EARLY_WRITE_S = 300e-6
 SYNC_READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
 BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
 BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
@@ -444,6 +447,7 @@ class Emulator:
         t = start_t
         byte_t = self._byte_time_s()
         fast_dropped = fast_drawn = False
+        last = replies[-1]
         for r in replies:
             frame = r.frame
             if r.fast:
@@ -462,7 +466,8 @@ class Emulator:
             due = t + r.delay_s + faults.delay_s
             if self.wire_timing:
                 due += len(frame) * byte_t     # the last byte reaches the host then
-            self._sleep_until(due)
+            if r is last or due - time.monotonic() > EARLY_WRITE_S:
+                self._sleep_until(due)      # never early for the reply that ends the exchange
             sent = self._pty.write(frame)
             self.stats.tx_overflow_bytes += len(frame) - sent
             self.stats.replies_sent += 1
