@@ -1,0 +1,135 @@
+"""One tracking run, end to end: config → trajectory → gains → bus → loop → log.
+
+Shared by ``swerve run`` and ``swerve demo``. The emulator, when asked for, is started here and
+is only ever a port: the driver, the wheel set and the loop are the same code as on the robot.
+"""
+from __future__ import annotations
+
+import contextlib
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class RunRequest:
+    """What to run. Paths may be ``None`` for the defaults."""
+
+    trajectory: str
+    gains: str | Path | None = None
+    config: str | Path | None = None
+    port: str | None = None
+    emulate: bool = False
+    time_scale: float = 1.0
+    log: Path | None = None
+    fast_read: bool = False
+    faults: str | None = None
+    progress: bool = False
+    start_timeout_s: float = 5.0
+
+
+def robot_models(cfg):
+    """``(Geometry, Limits)`` of the controller from a validated :class:`RobotConfig`."""
+    from controller.kinematics import Geometry, Limits
+
+    return (Geometry(cfg.a_m, cfg.b_m, cfg.wheel_radius_m),
+            Limits(cfg.v1_max_mps, cfg.steer_rate_max_radps, cfg.steer_angle_max_rad))
+
+
+def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
+    """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
+    from controller.design import synthesize
+    from controller.gains_io import load_gains
+    from controller.reference import build_reference, load_trajectory
+    from controller.tracking import TrackingLaw
+
+    traj = load_trajectory(trajectory, geom)
+    if gains_path is not None:
+        ref = build_reference(traj, geom, limits)
+        gains = load_gains(gains_path)
+    else:
+        ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
+    return traj, TrackingLaw(ref, gains, limits)
+
+
+def simulated_poses(law, start) -> np.ndarray:
+    """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
+    from controller.simulate import simulate
+
+    poses = simulate(law, start).states[:, :3]
+    law.reset()
+    return poses
+
+
+def run_tracking(req: RunRequest):
+    """Run one trajectory; returns :class:`controller.online.RunResult` (``aborted`` set on a stop)."""
+    from controller.online import TrackingLoop
+    from driver.bus import Bus
+    from driver.robot_config import DEFAULT_PATH, load_robot_config
+    from driver.wheelset import WheelSet
+
+    cfg_path = Path(req.config) if req.config else DEFAULT_PATH
+    cfg = load_robot_config(cfg_path)
+    geom, limits = robot_models(cfg)
+    traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
+    start = traj.start_state(geom)
+    sim = simulated_poses(law, start)
+
+    with contextlib.ExitStack() as stack:
+        true_pose = None
+        if req.emulate:
+            from emulator.robot_emulator import robot_emulator, true_pose as emu_pose
+
+            emu = stack.enter_context(robot_emulator(cfg_path, time_scale=req.time_scale,
+                                                     faults=req.faults, start_pose=start[:3]))
+            port = emu.port
+            true_pose = lambda: emu_pose(emu)  # noqa: E731
+        else:
+            port = req.port or cfg.link.port
+        bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model,
+                                      return_delay_us=cfg.link.return_delay_us))
+        wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
+        wheels.configure()
+        on_cycle = None
+        if req.log is not None:
+            on_cycle = _log_writer(stack, req, cfg, traj, sim, cfg_path)
+        loop = TrackingLoop(wheels, law, geom, time_scale=req.time_scale,
+                            max_failed_reads=cfg.max_consecutive_timeouts,
+                            watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=on_cycle)
+        wheels.enable()
+        loop.move_to_start(start[3], start[4], timeout_s=req.start_timeout_s)
+        result = loop.run(start)
+        result.summary["trajectory"] = traj.name
+        result.summary["port"] = "emulator" if req.emulate else port
+        result.summary["bus_stray_replies"] = bus.stray_replies
+        result.summary["bus_corrupt_frames"] = bus.corrupt_frames
+        if req.emulate:
+            result.summary["emulator_dropped_replies"] = int(emu.stats.as_dict().get("dropped_replies", 0))
+        if req.log is not None:
+            result.summary["log"] = str(req.log)
+    return result
+
+
+def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, cfg_path: Path):
+    """Open the run log and return the loop's ``on_cycle`` callback."""
+    from tools.logs.bag import RunLogWriter
+    from tools.logs.record import CycleRecord
+
+    meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
+                time_scale=req.time_scale, port="emulator" if req.emulate else (req.port or cfg.link.port),
+                config=str(cfg_path), started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
+                tf_s=traj.tf_s)
+    req.log.parent.mkdir(parents=True, exist_ok=True)
+    writer = stack.enter_context(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels]))
+
+    def on_cycle(fields: dict) -> None:
+        k = fields["cycle"]
+        sim_pose = sim[k] if k < len(sim) else np.full(3, np.nan)
+        writer.write(CycleRecord(sim_pose=sim_pose, **fields))
+
+    return on_cycle
