@@ -13,9 +13,6 @@ import math
 NAME = "tune"
 HELP = "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec"
 
-NOISE_POSITION_PULSE = 0.5      # --noise: encoder noise before quantisation, pulse (std)
-NOISE_CURRENT_A = 0.004         # --noise: current sensor noise, A (std, ~1.5 LSB)
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
@@ -42,42 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--emulator-config", default="configs/emulator.yaml",
                         help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia)")
     parser.add_argument("--noise", action="store_true",
-                        help=f"--emulate: sensor noise on ({NOISE_POSITION_PULSE} pulse, {NOISE_CURRENT_A * 1e3:g} mA std)")
+                        help="--emulate: sensor noise on (0.5 pulse encoder, 4 mA current, std)")
     parser.add_argument("--seed", type=int, default=None, help="--emulate: noise seed")
     parser.add_argument("--write-config", action="store_true",
                         help="store the gains in --robot-config (drive.gains or steering.gains)")
     parser.add_argument("--out", default="out/tune", help="directory for PNG/JSON/YAML results")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-
-
-def _emulator(args, cfg, rc):
-    """An in-process emulator whose servos run :class:`ServoModel` with ``cfg``'s physics."""
-    from dataclasses import replace
-
-    import numpy as np
-
-    from emulator import Emulator
-    from emulator.physics import units as u
-    from emulator.physics.servo_model import ServoModel
-
-    sensors = cfg.sensors
-    if args.noise:
-        sensors = replace(sensors, position_noise_std_pulse=NOISE_POSITION_PULSE,
-                          current_noise_std_a=NOISE_CURRENT_A)
-    rng = np.random.default_rng(args.seed)
-    gear = cfg.gear_ratio(rc.model)
-    centers = {w.steer_id: w.center_pulse for w in rc.wheels}
-
-    def dynamics(servo):
-        steering = servo.id in centers
-        model = ServoModel(cfg.steering_motor if steering else cfg.drive_motor, gear, cfg.supply_voltage_v,
-                           cfg.firmware, sensors, cfg.thermal, rng)
-        if steering:
-            model.set_shaft_angle(centers[servo.id] * u.RAD_PER_PULSE)
-        return model
-
-    ids = sorted(set(rc.drive_ids) | set(rc.steer_ids))
-    return Emulator(ids, rc.model, args.baud or rc.link.baud, dynamics=dynamics)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -119,7 +86,10 @@ def run(args: argparse.Namespace) -> int:
 
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            emu = stack.enter_context(_emulator(args, load_config(args.emulator_config), rc))
+            from tools.tune.emulated import make_emulator
+
+            emu = stack.enter_context(make_emulator(rc, load_config(args.emulator_config), noise=args.noise,
+                                                    seed=args.seed, baud=args.baud))
             port, margin = emu.port, 0.05
         else:
             port, margin = args.port, 0.002

@@ -219,7 +219,7 @@ class Experimenter:
         if np.ptp(pos) < self.limits.stall_move_rad:
             raise NotMovingError(
                 f"servo ID {self.id} did not move under {max(abs(d) for _, d in plan):.0%} PWM (travel "
-                f"{np.ptp(pos):.4f} rad, peak current {np.max(np.abs(cur)):.3f} A): is it powered and free to turn?")
+                f"{np.ptp(pos):.4f} rad, peak current {np.max(np.abs(cur)):.3f} A): is it powered and free to turn? Torque is off")
         t, t_w, t_w_std, _ = trace.times()
         keep = _distinct(trace)
         duties = np.array([w[2] for w in trace.writes], float) * pwm_reg.scale

@@ -13,7 +13,7 @@ import numpy as np
 from driver.control_table import Reg
 from emulator.physics.params import FirmwareParams, MotorParams
 from emulator.physics.steptest import StepMetrics, step_metrics
-from tools.tune.design import Design, Plant, Prediction, Spec, design_position, design_velocity
+from tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
 from tools.tune.design import predict_position, predict_velocity
 from tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
 from tools.tune.identify import Identification, PwmRecord, identify
@@ -51,6 +51,10 @@ class TuneResult:
     after: Loop = field(repr=False)
     meets_spec: bool
     spec_notes: list[str]
+
+
+def _ignore(seconds: float) -> None:
+    """A progress callback that shows nothing."""
 
 
 def no_load_speed_radps(p: MotorParams, gear_ratio: float, volts: float) -> float:
@@ -126,7 +130,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     """
     if group not in ("drive", "steering"):
         raise ValueError(f"group must be 'drive' or 'steering', got {group!r}")
-    progress = progress or (lambda phase: None)
+    progress = progress or (lambda phase: _ignore)
     table = bus.table(id_)
     gear = float(table.gear_ratio)
     exp = Experimenter(bus, id_, limits)
@@ -134,7 +138,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
         names = VELOCITY_GAINS if group == "drive" else POSITION_GAINS
         original = {n: int(state[n]) for n in names}
         supply = bus.read_si(id_, Reg.PRESENT_INPUT_VOLTAGE)
-        exp.progress = progress("experiments")
+        exp.progress = progress("experiments") or _ignore
         start = bus.read_si(id_, Reg.PRESENT_POSITION)
         if group == "steering":
             if center_rad is None:
@@ -150,7 +154,10 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
                          current_lsb_a=table[Reg.PRESENT_CURRENT].scale)
         plant = Plant(ident.params, gear, supply, firmware)
         progress("design")
-        design = design_velocity(plant, spec) if group == "drive" else design_position(plant, spec)
+        try:
+            design = design_velocity(plant, spec) if group == "drive" else design_position(plant, spec)
+        except DesignError as exc:
+            raise DesignError(f"{exc}; torque is off and the original gains are kept") from None
         progress("verify")
         after_rec = _closed_loop(exp, group, design.gains, spec, center_rad)
         state["new_gains"] = dict(design.gains)

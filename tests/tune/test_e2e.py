@@ -1,0 +1,120 @@
+"""``swerve tune`` end to end on the emulator: experiments over the pty through driver.bus.Bus,
+identification, design and verification; bad input leaves the torque off."""
+import json
+import math
+import shutil
+from pathlib import Path
+
+import pytest
+import yaml
+
+from driver.bus import Bus
+from driver.control_table import Reg
+from driver.robot_config import load_robot_config
+from emulator.physics.params import load_config
+from tools import cli
+from tools.tune.design import DesignError, Spec
+from tools.tune.emulated import make_emulator
+from tools.tune.experiments import Limits, NotMovingError, StallError
+from tools.tune.pipeline import tune_servo
+
+pytestmark = pytest.mark.slow
+ROBOT, EMULATOR = Path("configs/robot.yaml"), Path("configs/emulator.yaml")
+FITTED = ("resistance_ohm", "back_emf_v_s_per_rad", "inertia_kg_m2", "friction_nm_s_per_rad")
+
+
+def _tune(tmp_path, *extra):
+    out = tmp_path / "out"
+    code = cli.main(["tune", "--emulate", "--noise", "--seed", "7", "--out", str(out), "--no-progress", *extra])
+    return code, out
+
+
+def test_drive_servo_recovers_table1_and_meets_the_spec(tmp_path, capsys):
+    robot = tmp_path / "robot.yaml"
+    shutil.copy(ROBOT, robot)
+    code, out = _tune(tmp_path, "--id", "1", "--robot-config", str(robot), "--write-config")
+    assert code == 0, capsys.readouterr().err
+    res = json.loads((out / "tune_1.json").read_text())
+    truth = load_config(EMULATOR).drive_motor
+    for name in FITTED:
+        p = res["identification"]["parameters"][name]
+        assert p["value"] == pytest.approx(getattr(truth, name), rel=0.05), name
+        assert p["identified"]
+    for name in ("inductance_h", "torque_nm_per_a"):
+        assert not res["identification"]["parameters"][name]["identified"]
+    assert res["meets_spec"]
+    assert res["steps"]["after"]["measured"]["overshoot_pct"] <= 2.0 + 1.0    # + 1 LSB of 100 units
+    assert (out / "pwm_1.png").stat().st_size > 0 and (out / "step_1.png").stat().st_size > 0
+    assert yaml.safe_load((out / "tune_1.yaml").read_text())["gains"] == res["gains"]
+    assert dict(load_robot_config(robot).drive.gains) == res["gains"]
+
+
+def test_thirty_percent_more_inertia_is_identified(tmp_path, capsys):
+    doc = yaml.safe_load(EMULATOR.read_text())
+    j0 = doc["motors"]["steering"]["inertia_kg_m2"]
+    doc["motors"]["steering"]["inertia_kg_m2"] = 1.3 * j0
+    heavy = tmp_path / "emulator.yaml"
+    heavy.write_text(yaml.safe_dump(doc))
+    code, out = _tune(tmp_path, "--id", "5", "--emulator-config", str(heavy))
+    assert code == 0, capsys.readouterr().err
+    res = json.loads((out / "tune_5.json").read_text())
+    j = res["identification"]["parameters"]["inertia_kg_m2"]
+    assert j["value"] == pytest.approx(1.3 * j0, rel=0.05)
+    assert j["ci_low"] > 1.15 * j0                     # clearly not the Table 1 value
+    assert res["meets_spec"]
+
+
+def test_missing_id_is_one_clear_line(tmp_path, capsys):
+    code, _ = _tune(tmp_path, "--id", "9", "--mode", "drive")
+    assert code == 2
+    assert "servo ID 9 does not answer" in capsys.readouterr().err
+
+
+@pytest.fixture
+def rc():
+    return load_robot_config(ROBOT)
+
+
+def _bus(emu):
+    return Bus(emu.port, emu.baud, retries=1, timeout_margin_s=0.05)
+
+
+def test_servo_that_does_not_move_leaves_torque_off(rc):
+    with make_emulator(rc, None) as emu, _bus(emu) as bus:     # no physics: a dead motor
+        mode = emu.servo(1).read("operating_mode")
+        with pytest.raises(NotMovingError, match="servo ID 1 did not move"):
+            tune_servo(bus, 1, "drive", Spec(), load_config(EMULATOR).drive_motor,
+                       limits=Limits(speed_max_radps=rc.drive_max_radps))
+        assert emu.servo(1).read("torque_enable") == 0
+        assert emu.servo(1).read("operating_mode") == mode       # put back
+
+
+def test_stall_is_detected_and_torque_left_off(rc):
+    cfg = load_config(EMULATOR)
+    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:
+        emu.servo(1).dynamics.external_load(0.0, 10.0)         # a blocked wheel: huge load inertia
+        with pytest.raises(StallError, match="servo ID 1 stalled"):
+            tune_servo(bus, 1, "drive", Spec(), cfg.drive_motor, limits=Limits(speed_max_radps=rc.drive_max_radps))
+        assert emu.servo(1).read("torque_enable") == 0
+
+
+def test_unreachable_spec_keeps_original_gains_and_torque_off(rc):
+    cfg = load_config(EMULATOR)
+    with make_emulator(rc, cfg, noise=True, seed=1) as emu, _bus(emu) as bus:
+        before = {g: emu.servo(1).read(g) for g in ("velocity_p_gain", "velocity_i_gain")}
+        with pytest.raises(DesignError, match="no velocity gains meet the spec.*torque is off"):
+            tune_servo(bus, 1, "drive", Spec(velocity_settle_max_s=0.005), cfg.drive_motor,
+                       limits=Limits(speed_max_radps=rc.drive_max_radps))
+        assert emu.servo(1).read("torque_enable") == 0
+        assert {g: emu.servo(1).read(g) for g in before} == before
+        assert bus.read(1, Reg.BUS_WATCHDOG) == 0
+
+
+def test_range_limit_stops_the_experiment(rc):
+    cfg = load_config(EMULATOR)
+    center = 2048 * 2 * math.pi / 4096
+    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:
+        with pytest.raises(Exception, match="safe range|no room"):
+            tune_servo(bus, 5, "steering", Spec(), cfg.steering_motor, center_rad=center,
+                       limits=Limits(position_min_rad=center - 0.01, position_max_rad=center + 0.01))
+        assert emu.servo(5).read("torque_enable") == 0
