@@ -283,3 +283,67 @@ def test_return_delay_really_delays(client, emulator):
     assert fastest(1) >= 0.5e-3
     emulator.faults.delay_s = 0.02
     assert fastest(2, 3) >= 0.02
+
+
+def test_baud_change_takes_effect_after_reply(client, emulator):
+    from .conftest import CLIENTS
+
+    baud = TABLE[Reg.BAUD_RATE].address
+    assert client.write(2, baud, b"\x04") == 0               # 2 Mbps; the reply comes at 1 Mbps
+    assert client.ping(2) == TIMEOUT
+    assert client.ping(1) == (XH430_W210, 0)
+    client.close()
+    fast = CLIENTS[client.name](emulator.port, 2_000_000)
+    try:
+        assert fast.ping(2) == (XH430_W210, 0)
+        assert fast.ping(1) == TIMEOUT
+    finally:
+        fast.close()
+    client.__init__(emulator.port)                           # reopen for the fixture's close()
+
+
+def test_bus_watchdog_over_the_bus(client, emulator):
+    te, wd = TABLE[Reg.TORQUE_ENABLE].address, TABLE[Reg.BUS_WATCHDOG].address
+    gv = TABLE[Reg.GOAL_VELOCITY]
+    assert client.write(6, TABLE[Reg.OPERATING_MODE].address, b"\x01") == 0    # velocity mode
+    assert client.write(6, te, b"\x01") == 0
+    assert client.write(6, gv.address, gv.encode(50)) == 0
+    assert client.write(6, wd, b"\x01") == 0                                  # 20 ms
+    servo = emulator.servo(6)
+    deadline = time.monotonic() + 10.0
+    while servo.read(Reg.BUS_WATCHDOG) != -1:                # silence on the bus until it trips
+        assert time.monotonic() < deadline, "bus watchdog never tripped"
+        time.sleep(0.01)
+    assert client.read(6, wd, 1) == (b"\xff", 0)             # reads -1
+    assert servo.read(Reg.GOAL_VELOCITY) == 0                # stopped
+    assert client.write(6, gv.address, gv.encode(50)) == ErrorNumber.DATA_RANGE
+    assert client.write(6, wd, b"\x00") == 0
+    assert client.write(6, gv.address, gv.encode(50)) == 0
+    assert servo.read(Reg.TORQUE_ENABLE) == 1
+
+
+def test_sdk_error_texts_and_unknown_instruction(sdk_client):
+    sdk, port, ph = sdk_client.sdk, sdk_client.port, sdk_client.ph
+    result, err = ph.write1ByteTxRx(port, 1, TABLE[Reg.PRESENT_TEMPERATURE].address, 1)
+    assert result == sdk.COMM_SUCCESS
+    assert ph.getRxPacketError(err) == "[RxPacketError] Writing or Reading is not available to target address!"
+    result, err = ph.write4ByteTxRx(port, 1, TABLE[Reg.GOAL_VELOCITY].address, 1000)
+    assert ph.getRxPacketError(err) == "[RxPacketError] The data value exceeds the limit value!"
+    txpacket = [0xFF, 0xFF, 0xFD, 0x00, 1, 3, 0, 0x30, 0, 0]        # instruction 0x30 does not exist
+    _, result, err = ph.txRxPacket(port, txpacket)
+    assert (result, err) == (sdk.COMM_SUCCESS, ErrorNumber.INSTRUCTION)
+    assert ph.getRxPacketError(err) == "[RxPacketError] Undefined instruction or incorrect instruction!"
+
+
+def test_swerve_scan_finds_all_eight(emulator):
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    proc = subprocess.run([sys.executable, "-m", "tools.cli", "scan", "--port", emulator.port,
+                           "--ids", "0-20", "--timeout-margin-ms", "100"],
+                          cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True,
+                          timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in proc.stdout.splitlines() if "XH430-W210" in ln]
+    assert len(lines) == 8, proc.stdout
