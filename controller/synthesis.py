@@ -109,8 +109,10 @@ def _preconditioner(K, Ad, Bd, Q, R, tau, X0):
     S = X @ np.swapaxes(X, 1, 2)                                  # (N, 5, 5)
     tr = np.trace(S, axis1=1, axis2=2)
     eps = REG * np.maximum(tr, 1e-300) + 1e-300
-    Sinv = np.linalg.inv(S + eps[:, None, None] * np.eye(5))
-    Hinv = np.linalg.inv(H)
+    if not (np.all(np.isfinite(H)) and np.all(np.isfinite(S))):
+        return lambda G: G                     # overflowed gains: plain gradient this step
+    Sinv = np.linalg.pinv(S + eps[:, None, None] * np.eye(5), hermitian=True)
+    Hinv = np.linalg.pinv(H, hermitian=True)
     return lambda G: 0.5 * Hinv @ G @ Sinv
 
 
@@ -134,7 +136,8 @@ class SynthesisResult:
 def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                        precondition: bool = True, max_iter: int = 2000,
                        target_cost: float | None = None, rtol: float = 1e-10,
-                       c2: float = 0.1, progress: bool = False) -> SynthesisResult:
+                       c2: float = 0.1, refresh: int = 1,
+                       progress: bool = False) -> SynthesisResult:
     """Minimise J over all K(i) by nonlinear CG with a strong-Wolfe line search.
 
     Parameters
@@ -157,6 +160,8 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
         Stop when an iteration lowers J by less than ``rtol * J`` three times in a row.
     c2 : float
         Curvature constant of the strong Wolfe conditions (< 1/2 for FR/DY theory).
+    refresh : int
+        Recompute the preconditioner every ``refresh`` iterations (and restart CG then).
     progress : bool
         Show a tqdm progress bar.
     """
@@ -189,11 +194,14 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
     def grad(x):
         return evaluate(x)[1]
 
-    def precond(x, g):
+    pre = {"apply": None}
+
+    def precond(x, g, renew=False):
         if not precondition:
             return g
-        return _preconditioner(x.reshape(shape), Ad, Bd, Q, R, tau, X0)(
-            g.reshape(shape)).reshape(-1)
+        if renew or pre["apply"] is None:
+            pre["apply"] = _preconditioner(x.reshape(shape), Ad, Bd, Q, R, tau, X0)
+        return pre["apply"](g.reshape(shape)).reshape(-1)
 
     f, g = evaluate(k)
     if not np.isfinite(f):
@@ -223,18 +231,22 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                 alpha, *_ = line_search(fun, grad, k, s, gfk=g, old_fval=f, old_old_fval=f_old,
                                         c1=1e-4, c2=c2, maxiter=30)
             if alpha is None:
-                if np.array_equal(s, -z):
-                    message = "line search failed along the (preconditioned) gradient"
+                if np.array_equal(s, -g):
+                    message = "line search failed along the gradient"
                     break
-                s = -z                # restart with steepest descent
+                # restart: preconditioned steepest descent, then plain steepest descent
+                s = -g if (np.array_equal(s, -z) or not precondition) else -z
+                if np.array_equal(s, -g):
+                    z = g
                 continue
             k_new = k + alpha * s
             f_new, g_new = evaluate(k_new)
-            z_new = precond(k_new, g_new)
+            renew = precondition and it % refresh == 0
+            z_new = precond(k_new, g_new, renew)
             y = g_new - g
             num = mu * (g_new @ z_new) + (1 - mu) * (z_new @ y)
             den = nu * (g @ z) + (1 - nu) * (s @ y)
-            b = num / den if den != 0 else 0.0
+            b = num / den if (den != 0 and not (renew and refresh > 1)) else 0.0
             s = -z_new + b * s
             stalls = stalls + 1 if f - f_new <= rtol * abs(f) else 0
             f_old, f, g, z, k = f, f_new, g_new, z_new, k_new
@@ -253,3 +265,30 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
             bar.close()
     return SynthesisResult(k.reshape(shape), float(f), count[0], it,
                            time.perf_counter() - t0, message, history)
+
+
+def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 62):
+    """Initial gains for :func:`conjugate_gradient`: the stationary (infinite-horizon) discrete
+    LQR gain of the error system frozen at knots every ``knot_every`` steps, held between knots.
+
+    Uses :func:`scipy.linalg.solve_discrete_are`; at knots where the frozen system has no
+    stabilising solution the previous knot's gain is kept (zero before the first).
+    Returns K (N, 3, 5) with the sign convention ``ũ = K x~``.
+    """
+    from scipy.linalg import solve_discrete_are
+
+    N = Ad.shape[0]
+    K = np.zeros((N, 3, 5))
+    Kk = np.zeros((3, 5))
+    I5 = np.eye(5)
+    for i in range(0, N, knot_every):
+        A, B = Ad[i], Bd[i]
+        if not np.allclose(np.delete(A, (2, 4), axis=0), np.delete(I5, (2, 4), axis=0)):
+            A, B = Ad[max(i - 1, 0)], Bd[max(i - 1, 0)]   # a frame switch: use a neighbour
+        try:
+            P = solve_discrete_are(A, B, tau * Q, tau * R)
+            Kk = -np.linalg.solve(tau * R + B.T @ P @ B, B.T @ P @ A)
+        except (np.linalg.LinAlgError, ValueError):
+            pass
+        K[i:i + knot_every] = Kk
+    return K

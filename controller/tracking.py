@@ -39,8 +39,13 @@ STATE_MARGIN = 0.1
 PLAIN_MIN_MARGIN = 0.02
 
 
-def _chained_terms(state, phi, geom, floor):
-    """Chained coordinates and the pieces of the inverse input map, with |cos sigma'| floored."""
+def _chained_terms(state, phi, geom, floor, sign_hint=0.0):
+    """Chained coordinates and the pieces of the inverse input map, with |cos sigma'| floored.
+
+    Inside the floored band the sign of cos(sigma') is taken from ``sign_hint`` (the previous
+    step's) when given, so that the law does not flip between travelling forwards and
+    backwards across the singular direction.
+    """
     x, y, th, d1, d2 = (float(v) for v in state)
     c, s = np.cos(phi), np.sin(phi)
     xr, yr, thr = c * x + s * y, -s * x + c * y, th - phi
@@ -51,13 +56,14 @@ def _chained_terms(state, phi, geom, floor):
     B1, B2 = a * np.cos(d1) / r2, -a * np.cos(d2) / r2
     sig = 0.5 * (d1 + d2) + thr
     cs = np.cos(sig)
-    cs_f = np.copysign(max(abs(cs), floor), cs)
+    sgn = np.sign(sign_hint) if (abs(cs) < floor and sign_hint != 0) else np.copysign(1.0, cs)
+    cs_f = sgn * max(abs(cs), floor)
     C = c1 + c2
     if abs(cs) < floor:         # scale the travel term as if |cos sigma'| were the floor
-        C = C * cs_f / cs if cs != 0 else 2 * cs_f * np.cos(0.5 * (d1 - d2))
+        C = 2 * cs_f * np.cos(0.5 * (d1 - d2))
     Kden = 2 * cs_f ** 2
     chained = np.array([xr, D / C, thr, np.sin(sig) / cs_f, yr])
-    return chained, (C, D, B1, B2, s1, s2, Kden)
+    return chained, (C, D, B1, B2, s1, s2, Kden), sgn
 
 
 class TrackingLaw:
@@ -102,6 +108,8 @@ class TrackingLaw:
         self._t_prev = None
         self._s = 0.0
         self._rate = 1.0
+        self._sign = 0.0
+        self._phi_prev = None
         self.last: dict = {}
 
     @property
@@ -153,7 +161,9 @@ class TrackingLaw:
                 f"(sigma = {np.degrees(wrap_angle(sig)):.1f} deg): the paper's plain "
                 "chained-form law is singular there; use the rotating-frame law",
                 t_s=float(t_s))
-        x, (C, D, B1, B2, s1, s2, Kden) = _chained_terms(s_vec, phi, ref.geom, floor)
+        x, (C, D, B1, B2, s1, s2, Kden), self._sign = _chained_terms(
+            s_vec, phi, ref.geom, floor, self._sign if phi == self._phi_prev else 0.0)
+        self._phi_prev = phi
         e = chained_error(x, xd)
         r = self._rate if self.governor else 1.0
         u = r * ud + self.gains.K[i] @ e
@@ -172,9 +182,10 @@ class TrackingLaw:
         raw = np.array([v1, w1, w2])
         v1s = float(np.clip(v1, -lim.v1_max_mps, lim.v1_max_mps))
         ws = np.clip([w1, w2], -lim.steer_rate_max_radps, lim.steer_rate_max_radps)
-        for k, d in enumerate(s_vec[3:]):      # do not push a wheel past its angle limit
-            if abs(d) >= lim.steer_angle_max_rad and np.sign(ws[k]) == np.sign(d):
-                ws[k] = 0.0
+        # do not steer a wheel past its angle limit within this step
+        tau, amax = ref.tau_s, lim.steer_angle_max_rad
+        ws = np.clip(ws, np.minimum(0.0, (-amax - s_vec[3:]) / tau),
+                     np.maximum(0.0, (amax - s_vec[3:]) / tau))
         self._rate = min(1.0, lim.v1_max_mps / abs(v1)) if v1 != 0 else 1.0
         self.last = dict(finished=False, s=self._s, index=i, phi=phi, error=e, u=u, ud=ud,
                          raw=raw, desired_state=sd,

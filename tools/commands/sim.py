@@ -1,0 +1,83 @@
+"""``swerve sim``: closed-loop simulation of the tracking law on the nonlinear model (1)-(5)."""
+from __future__ import annotations
+
+NAME = "sim"
+HELP = "simulate LQ trajectory tracking on the kinematic model and report tracking errors"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
+                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+    parser.add_argument("--gains", metavar="FILE",
+                        help="gain schedule from 'swerve synth' (.npz/.dat); default: "
+                             "synthesise with --method now")
+    parser.add_argument("--method", choices=("riccati", "paper"), default="riccati",
+                        help="synthesis method when --gains is not given (default riccati)")
+    parser.add_argument("--law", choices=("rotating", "fixed"), default="rotating",
+                        help="rotating chained frames (default) or the paper's fixed frame")
+    parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
+                        help="start state in m and rad (default: the trajectory's)")
+    parser.add_argument("--no-governor", action="store_true",
+                        help="do not slow the reference while the wheel speed saturates")
+    parser.add_argument("--json", action="store_true", help="print the results as JSON")
+    parser.add_argument("--plot", metavar="DIR", help="write PNG figures (paper Figs. 4-9)")
+    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _parse_x0(text: str):
+    import numpy as np
+
+    from controller.errors import ControllerError
+
+    try:
+        vals = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise ControllerError(f"--x0 must be 5 comma-separated numbers x,y,θ,δ1,δ2, "
+                              f"got {text!r}") from None
+    if len(vals) != 5 or not np.all(np.isfinite(vals)):
+        raise ControllerError(f"--x0 must be 5 finite numbers x,y,θ,δ1,δ2, got {text!r}")
+    return np.array(vals)
+
+
+def run(args) -> int:
+    import json
+    import sys
+
+    import numpy as np
+
+    from controller.design import synthesize
+    from controller.errors import ControllerError
+    from controller.gains_io import load_gains
+    from controller.kinematics import ROBOT_YAML, load_robot
+    from controller.reference import build_reference, load_trajectory
+    from controller.simulate import metrics, simulate
+    from controller.tracking import TrackingLaw
+
+    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    traj = load_trajectory(args.trajectory, geom)
+    x0 = _parse_x0(args.x0) if args.x0 else traj.start_state(geom)
+    if args.gains:
+        gains = load_gains(args.gains)
+        frames = "fixed" if np.all(gains.phi_rad == 0) and args.law == "fixed" else args.law
+        ref = build_reference(traj, geom, limits, frames)
+    else:
+        ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law,
+                                progress=not args.quiet and sys.stderr.isatty())
+    law = TrackingLaw(ref, gains, limits, governor=not args.no_governor)
+    res = simulate(law, x0)
+    m = metrics(res, traj.Q, traj.R, traj.tau_s)
+    if not all(np.isfinite(v) for v in m.values()):
+        raise ControllerError(f"simulation of {traj.name!r} produced non-finite values")
+    out = dict(trajectory=traj.name, method=gains.method, law=args.law,
+               x0=x0.tolist(), synthesis_cost=gains.cost, **m)
+    if args.plot:
+        from controller.plots import plot_run
+
+        out["figures"] = [str(p) for p in plot_run(res, ref, gains, args.plot, traj.name)]
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        for k, v in out.items():
+            print(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")
+    return 0

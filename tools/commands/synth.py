@@ -1,0 +1,71 @@
+"""``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
+from __future__ import annotations
+
+NAME = "synth"
+HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz + .dat)"
+
+
+def add_arguments(parser) -> None:
+    parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
+                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+    parser.add_argument("--method", choices=("riccati", "paper"), default="riccati",
+                        help="riccati: exact finite-horizon optimum (default); "
+                             "paper: nonlinear conjugate gradient (42)-(59)")
+    parser.add_argument("--out", metavar="FILE",
+                        help="output .npz (a .dat table is written beside it); "
+                             "default out/gains/NAME_METHOD.npz")
+    parser.add_argument("--law", choices=("rotating", "fixed"), default="rotating",
+                        help="chained frame: rotating (re-anchored, default) or fixed "
+                             "(the paper's plain chained form)")
+    parser.add_argument("--beta", default="dai-yuan",
+                        help="paper method: dai-yuan (default), fletcher-reeves, "
+                             "polak-ribiere, hestenes-stiefel")
+    parser.add_argument("--no-precondition", action="store_true",
+                        help="paper method: plain CG exactly as printed (slow)")
+    parser.add_argument("--initial-errors", choices=("auto", "start", "basis"), default="auto",
+                        help="paper method: optimise for the start error, a basis of unit "
+                             "errors, or auto (basis when the start error is zero)")
+    parser.add_argument("--init", choices=("frozen-lqr", "zero"), default="frozen-lqr",
+                        help="paper method: initial gains, frozen-time LQR (default) or zero")
+    parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
+    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def run(args) -> int:
+    import sys
+    from pathlib import Path
+
+    from controller.design import synthesize
+    from controller.errors import ControllerError
+    from controller.gains_io import save_gains
+    from controller.kinematics import ROBOT_YAML, load_robot
+    from controller.reference import load_trajectory
+
+    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    traj = load_trajectory(args.trajectory, geom)
+    if args.max_iter < 1:
+        raise ControllerError("--max-iter must be at least 1")
+    ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law, beta=args.beta,
+                            precondition=not args.no_precondition,
+                            initial_errors=args.initial_errors, max_iter=args.max_iter,
+                            init=args.init,
+                            progress=not args.quiet and sys.stderr.isatty())
+    out = Path(args.out) if args.out else Path("out/gains") / f"{traj.name}_{args.method}.npz"
+    if out.suffix != ".npz":
+        raise ControllerError(f"--out must end in .npz, got {out}")
+    save_gains(out, gains)
+    dat = save_gains(out.with_suffix(".dat"), gains)
+    m = gains.meta
+    print(f"trajectory: {traj.name}  (N = {traj.n_steps}, tau = {traj.tau_s} s, "
+          f"tf = {traj.tf_s:g} s, frames = {args.law}, "
+          f"{len(set(gains.phi_rad.round(9)))} chained frame(s))")
+    print(f"method: {args.method}  cost J = {gains.cost:.6g}  J* = {m['J_star']:.6g}"
+          + (f"  J/J* = {gains.cost / m['J_star']:.4f}" if m["J_star"] > 0 else ""))
+    if args.method == "paper":
+        print(f"CG ({m['beta']}{', preconditioned' if m['precondition'] else ''}, "
+              f"init {m['init']}): "
+              f"{m['iterations']} iterations, {m['evaluations']} evaluations, "
+              f"{m['seconds']:.2f} s: {m['message']}")
+    print(f"wrote {out} and {dat}")
+    return 0
