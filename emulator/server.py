@@ -33,7 +33,7 @@ from driver.parser import PacketParser
 
 from emulator.faults import Faults
 from emulator.pty_link import PtyLink
-from emulator.servo import BAUD_RATES, Dynamics, VirtualServo, baud_index
+from emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
 
@@ -177,7 +177,10 @@ class Emulator:
                 s.dynamics = dynamics(s)
             elif dynamics is not None:
                 s.dynamics = dynamics.get(s.id)
-        self.faults.attach(self._raise_hardware_error)
+        try:
+            self.faults.attach(self._raise_hardware_error)
+        except KeyError as exc:
+            raise ConfigError(f"fault for a servo that is not on the bus: {exc.args[0]}") from None
         self._link_path = link
         self._pty: PtyLink | None = None
         self._parser = PacketParser()
@@ -474,8 +477,11 @@ class Emulator:
             t = max(due, time.monotonic()) if not self.wire_timing else due
 
     def _sleep_until(self, deadline: float) -> None:
+        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
         remaining = deadline - time.monotonic()
-        if remaining > 0:
+        if remaining > 2e-3:
+            self._stop.wait(remaining)
+        elif remaining > 0:
             time.sleep(remaining)
 
     # --- clock thread ----------------------------------------------------------------------------
@@ -511,7 +517,3 @@ class Emulator:
             steps = max(1, round(dt_s * self.clock_hz))
             for _ in range(steps):
                 self._tick(dt_s / steps)
-
-    def set_baud_index(self, bps: int) -> int:
-        """Index of ``bps`` in the Baud Rate item (convenience for tests)."""
-        return baud_index(bps)

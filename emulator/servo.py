@@ -12,7 +12,7 @@ import logging
 from typing import Mapping, Protocol
 
 from driver.control_table import ControlTable, HardwareError, OperatingMode, Reg
-from driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, MAX_ID, ErrorNumber,
+from driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
                             Instruction, InstructionPacket, StatusPacket, parse_address_length)
 
 from emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
@@ -351,4 +351,4 @@ def hardware_error_bits(spec: str | int) -> int:
     return bits
 
 
-__all__ = ["VirtualServo", "Dynamics", "BAUD_RATES", "baud_index", "hardware_error_bits", "MAX_ID"]
+__all__ = ["VirtualServo", "Dynamics", "BAUD_RATES", "baud_index", "hardware_error_bits"]
