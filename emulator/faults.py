@@ -13,7 +13,6 @@ electrical_shock, overload, or an integer); ``seed`` makes drop/corrupt reproduc
 from __future__ import annotations
 
 import random
-import threading
 from typing import Callable
 
 from driver.errors import ConfigError
@@ -35,7 +34,6 @@ class Faults:
         self.vanished: set[int] = set()
         self.pending_hw_errors: dict[int, int] = {}
         self._rng = random.Random(seed)
-        self._rng_lock = threading.Lock()
         self._raise_hook: Callable[[int, int], None] | None = None
         self._check()
 
@@ -79,16 +77,14 @@ class Faults:
         """``(frame, corrupted?)``: flips one bit of a random byte with ``corrupt_rate``."""
         if self.corrupt_rate <= 0 or self._draw() >= self.corrupt_rate:
             return frame, False
-        with self._rng_lock:
-            i = self._rng.randrange(len(frame))
-            bit = 1 << self._rng.randrange(8)
+        i = self._rng.randrange(len(frame))
+        bit = 1 << self._rng.randrange(8)
         out = bytearray(frame)
         out[i] ^= bit
         return bytes(out), True
 
     def _draw(self) -> float:
-        with self._rng_lock:
-            return self._rng.random()
+        return self._rng.random()      # only the bus thread draws (no lock needed)
 
     @classmethod
     def parse(cls, text: str | None) -> "Faults":

@@ -128,6 +128,13 @@ class ServoMemory:
         """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
         return _MemoryView(self)
 
+    def copy(self) -> "ServoMemory":
+        """An independent copy (bytes and watchdog state), e.g. to try a write without applying it."""
+        other = ServoMemory(self.table, limit_error=self.limit_error)
+        other._bytes[:] = self._bytes
+        other.watchdog_tripped = self.watchdog_tripped
+        return other
+
     def eeprom_bytes(self) -> bytes:
         return bytes(self._bytes[:EEPROM_END])
 

@@ -206,11 +206,8 @@ class VirtualServo:
 
     def _reg_write(self, address: int, data: bytes) -> ErrorNumber:
         # Checked now against the current memory so the host learns of a bad value at once.
-        probe = ServoMemory(self.table, limit_error=self.memory.limit_error)
-        probe._bytes[:] = self.memory._bytes
-        probe.watchdog_tripped = self.memory.watchdog_tripped
         try:
-            probe.write(address, data)
+            self.memory.copy().write(address, data)
         except WriteRejected as exc:
             return exc.number
         self._registered = (address, bytes(data))
