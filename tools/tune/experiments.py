@@ -31,7 +31,7 @@ STATE_FIRST, STATE_LAST = Reg.REALTIME_TICK, Reg.PRESENT_INPUT_VOLTAGE
 TICK_WRAP_MS = 32768
 GAIN_REGS = (Reg.VELOCITY_P_GAIN, Reg.VELOCITY_I_GAIN, Reg.POSITION_P_GAIN, Reg.POSITION_I_GAIN,
              Reg.POSITION_D_GAIN, Reg.FEEDFORWARD_1ST_GAIN, Reg.FEEDFORWARD_2ND_GAIN)
-WATCHDOG_RAW = 25                       # 0.5 s: the servo stops if this host goes silent
+WATCHDOG_RAW = 50                       # 1 s: the servo stops if this host goes silent
 
 
 class SafetyError(SwerveError):

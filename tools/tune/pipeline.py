@@ -44,7 +44,7 @@ class TuneResult:
     gear_ratio: float
     supply_voltage_v: float
     clock: str
-    pwm: PwmRecord = field(repr=False)
+    pwm: list[PwmRecord] = field(repr=False)
     identification: Identification = field(repr=False)
     design: Design = field(repr=False)
     before: Loop = field(repr=False)
@@ -95,8 +95,8 @@ def _measured(record: dict) -> StepMetrics:
 
 def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, limits: Limits,
                firmware: FirmwareParams = FirmwareParams(), center_rad: float | None = None,
-               duty_max: float = 0.5, progress: Callable[[str], Callable[[float], None]] | None = None
-               ) -> TuneResult:
+               duty_max: float = 0.5, ci_target: float = 0.02, max_pwm_runs: int = 4,
+               progress: Callable[[str], Callable[[float], None]] | None = None) -> TuneResult:
     """Run the experiments on servo ``id_``, identify its motor, design and verify gains.
 
     Parameters
@@ -120,6 +120,10 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
         Steering: where the experiments start (the wheel's straight-ahead angle).
     duty_max : float
         Largest PWM duty for the open-loop steps (0..1).
+    ci_target, max_pwm_runs : float, int
+        The PWM experiment is repeated (all runs fitted together, at most ``max_pwm_runs``)
+        until every fitted parameter's 95 % interval half-width is within ``ci_target`` of
+        its value: a slow or busy bus gives sparse samples.
     progress : callable, optional
         ``progress(phase)`` returns an ``update(seconds)`` callback.
 
@@ -139,19 +143,24 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
         original = {n: int(state[n]) for n in names}
         supply = bus.read_si(id_, Reg.PRESENT_INPUT_VOLTAGE)
         exp.progress = progress("experiments") or _ignore
-        start = bus.read_si(id_, Reg.PRESENT_POSITION)
-        if group == "steering":
-            if center_rad is None:
-                raise ValueError("steering servos need center_rad")
-            exp.move_to(center_rad)
+        if group == "steering" and center_rad is None:
+            raise ValueError("steering servos need center_rad")
+        records, ident = [], None
+        for _ in range(max_pwm_runs):       # repeat until every fitted parameter is tight enough
+            if group == "steering":
+                exp.move_to(center_rad)
             start = bus.read_si(id_, Reg.PRESENT_POSITION)
-        plan = pwm_plan(prior, gear, supply, limits, duty_max, start)
-        record, trace = exp.pwm_steps(plan, prior, gear)
-        supply = float(np.mean(trace.raw(Reg.PRESENT_INPUT_VOLTAGE)) * table[Reg.PRESENT_INPUT_VOLTAGE].scale)
+            plan = pwm_plan(prior, gear, supply, limits, duty_max, start)
+            record, trace = exp.pwm_steps(plan, prior, gear)
+            records.append(record)
+            supply = float(np.mean(trace.raw(Reg.PRESENT_INPUT_VOLTAGE)) * table[Reg.PRESENT_INPUT_VOLTAGE].scale)
+            progress("identify")
+            ident = identify(records, gear, prior, position_lsb_rad=table[Reg.PRESENT_POSITION].scale,
+                             current_lsb_a=table[Reg.PRESENT_CURRENT].scale)
+            if worst_ci(ident) <= ci_target:
+                break
+            exp.progress = progress("experiments (again: 95 % interval too wide)") or _ignore
         before_rec = _closed_loop(exp, group, original, spec, center_rad)
-        progress("identify")
-        ident = identify([record], gear, prior, position_lsb_rad=table[Reg.PRESENT_POSITION].scale,
-                         current_lsb_a=table[Reg.PRESENT_CURRENT].scale)
         plant = Plant(ident.params, gear, supply, firmware)
         progress("design")
         try:
@@ -166,8 +175,13 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     ok, notes = check_spec(group, spec, after, ident, table[Reg.PRESENT_VELOCITY].scale,
                            table[Reg.PRESENT_POSITION].scale)
     clock = trace.times()[3]
-    return TuneResult(id_, group, table.model, gear, supply, clock, record, ident, design, before, after,
-                      ok, notes)
+    return TuneResult(id_, group, table.model, gear, supply, clock, records, ident, design, before, after,
+                      ok, notes + [f"{len(records)} PWM run(s), widest 95 % interval +-{100 * worst_ci(ident):.1f} %"])
+
+
+def worst_ci(ident: Identification) -> float:
+    """Largest relative 95 % half-width among the identified parameters."""
+    return max(e.rel_halfwidth for e in ident.estimates.values() if e.identified)
 
 
 def _closed_loop(exp: Experimenter, group: str, gains: dict[str, int], spec: Spec,

@@ -48,7 +48,8 @@ def summary(res: TuneResult) -> dict:
                        "predicted_true": asdict(loop.predicted.true)}
     return _clean({
         "servo": {"id": res.id, "model": res.model, "group": res.group, "gear_ratio": res.gear_ratio,
-                  "supply_voltage_v": res.supply_voltage_v, "sample_clock": res.clock},
+                  "supply_voltage_v": res.supply_voltage_v, "sample_clock": res.clock,
+                  "pwm_runs": len(res.pwm)},
         "identification": {
             "parameters": {k: asdict(e) for k, e in ident.estimates.items()},
             "derived": ident.derived, "input_delay_s": ident.delay_s,
@@ -76,20 +77,25 @@ def write_report(res: TuneResult, out_dir: str | Path) -> list[Path]:
 
 
 def _plot_pwm(res: TuneResult, path: Path) -> None:
-    rec, ident = res.pwm, res.identification
-    t = np.linspace(rec.t_s[0], rec.t_s[-1], 2000)
-    sim = simulate_open_loop(ident.params, res.gear_ratio, t, rec.switch_t_s + ident.delay_s, rec.voltage_v)
-    fit_at = simulate_open_loop(ident.params, res.gear_ratio, rec.t_s - ident.position_skew_s,
-                                rec.switch_t_s + ident.delay_s, rec.voltage_v)
-    offset = float(np.mean(rec.position_rad - fit_at["angle_rad"]))
+    ident = res.identification
     fig, ax = plt.subplots(2, 1, sharex=True, figsize=(8, 6))
-    ax[0].plot(rec.t_s, rec.position_rad, ".", ms=2, label="measured (Present Position)")
-    ax[0].plot(t + ident.position_skew_s, sim["angle_rad"] + offset, "-", lw=1, label="model fit")
-    ax[0].set_ylabel("angle, rad")
-    ax[1].plot(rec.t_s, rec.current_a, ".", ms=2, label="measured (Present Current)")
-    ax[1].plot(t, sim["current_a"], "-", lw=1, label="model fit")
-    ax[1].set_ylabel("current, A")
-    ax[1].set_xlabel("time, s (servo clock)")
+    end = 0.0
+    for k, rec in enumerate(res.pwm):                  # runs side by side on one time axis
+        t = np.linspace(rec.t_s[0], rec.t_s[-1], 2000)
+        sim = simulate_open_loop(ident.params, res.gear_ratio, t, rec.switch_t_s + ident.delay_s, rec.voltage_v)
+        fit_at = simulate_open_loop(ident.params, res.gear_ratio, rec.t_s - ident.position_skew_s,
+                                    rec.switch_t_s + ident.delay_s, rec.voltage_v)
+        offset = float(np.mean(rec.position_rad - fit_at["angle_rad"]))
+        label = {} if k else {"m": "measured", "f": "model fit"}
+        ax[0].plot(end + rec.t_s, rec.position_rad, ".", ms=2, color="C0", label=label.get("m"))
+        ax[0].plot(end + t + ident.position_skew_s, sim["angle_rad"] + offset, "-", lw=1, color="C1",
+                   label=label.get("f"))
+        ax[1].plot(end + rec.t_s, rec.current_a, ".", ms=2, color="C0", label=label.get("m"))
+        ax[1].plot(end + t, sim["current_a"], "-", lw=1, color="C1", label=label.get("f"))
+        end += rec.t_s[-1] + 0.05
+    ax[0].set_ylabel("Present Position, rad")
+    ax[1].set_ylabel("Present Current, A")
+    ax[1].set_xlabel("time, s (servo clock; runs back to back)")
     for a in ax:
         a.grid(alpha=0.3)
         a.legend(loc="best", fontsize=8)
