@@ -1,0 +1,106 @@
+import dataclasses
+
+import numpy as np
+import pytest
+
+from controller.design import synthesize
+from controller.errors import ControllerError, SingularityError
+from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from controller.simulate import metrics, simulate
+from controller.tracking import TrackingLaw
+
+
+
+def short(traj, n_steps):
+    """The first ``n_steps`` of a trajectory."""
+    return dataclasses.replace(traj, n_steps=n_steps, tf_s=n_steps * traj.tau_s)
+
+
+def run(name, robot, x0=None, frames="rotating", governor=True, n_steps=None):
+    geom, limits = robot
+    traj = load_trajectory(name if not name.endswith(".csv") else TRAJECTORY_DIR / name, geom)
+    if n_steps:
+        traj = short(traj, n_steps)
+    ref, gains = synthesize(traj, "riccati", geom, limits, frames=frames)
+    law = TrackingLaw(ref, gains, limits, governor=governor)
+    res = simulate(law, traj.start_state(geom) if x0 is None else np.asarray(x0, float))
+    return res, metrics(res, traj.Q, traj.R, traj.tau_s), law
+
+
+# (trajectory, start state or None for the file's, bound on max error over t >= tf/4 [m])
+CASES = [
+    ("line", None, 1e-4),
+    ("circle", None, 1e-6),
+    ("circle", [0.0, -0.1, 0.3, 0.0, 0.0], 1e-3),
+    ("curvilinear", None, 1e-3),
+    ("line_y.csv", [0.0, 0.0, 0.0, 0.0, 0.0], 1e-3),
+    ("line_neg_x.csv", [0.0, 0.05, 2.8, 0.0, 0.0], 1e-3),
+    ("figure8.csv", [0.0, -0.05, 0.5, 0.0, 0.0], 1e-3),
+]
+
+
+@pytest.mark.parametrize("name,x0,bound", CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(CASES)])
+def test_tracks_in_simulation(name, x0, bound, robot):
+    _, limits = robot
+    res, m, law = run(name, robot, x0)
+    assert m["max_position_error_m"] < bound
+    assert m["final_position_error_m"] < bound
+    assert np.all(np.isfinite(res.states))
+    assert m["max_abs_v1_mps"] <= limits.v1_max_mps + 1e-12
+    assert m["max_abs_steer_rate_radps"] <= limits.steer_rate_max_radps + 1e-12
+    assert np.abs(res.states[:, 3:]).max() <= limits.steer_angle_max_rad + 1e-9
+    assert res.ref_time_s[-1] >= law.reference.tf_s - 0.02   # reached the end of the path
+
+
+def test_crosses_the_singular_set(robot):
+    """The circle passes travel direction +-y at tf/4 and 3tf/4: rotating law is fine there."""
+    res, m, law = run("circle", robot, [0.0, -0.05, 0.2, 0.0, 0.0])
+    k = np.searchsorted(res.ref_time_s, [14.0, 42.0])
+    assert np.all(res.position_error_m[k] < 1e-4)
+    assert len(set(law.gains.phi_rad)) >= 4
+
+
+def test_plain_law_tracks_the_line_like_the_paper(robot):
+    res, m, _ = run("line", robot, frames="fixed")
+    res2, m2, _ = run("line", robot)
+    assert m["max_position_error_m"] < 1e-4
+    np.testing.assert_allclose(res.states, res2.states, atol=1e-12)   # same frame there
+
+
+def test_plain_law_refuses_singular_paths_and_states(robot):
+    with pytest.raises(SingularityError, match="singular set"):
+        run("circle", robot, frames="fixed")
+    with pytest.raises(SingularityError, match="parallel to the world y-axis"):
+        run("line", robot, x0=[0, 0, np.pi / 2, 0, 0], frames="fixed", n_steps=200)
+
+
+def test_governor_prevents_wind_up(robot):
+    x0 = [0.0, 0.0, 1.5708 - 1.3, 0.0, 0.0]
+    _, m_gov, _ = run("line_y.csv", robot, x0, n_steps=1500)
+    _, m_raw, _ = run("line_y.csv", robot, x0, governor=False, n_steps=1500)
+    assert m_gov["max_position_error_m"] < 1e-2
+    assert m_gov["max_reference_lag_s"] > 0
+    assert m_raw["max_position_error_m"] > 100 * m_gov["max_position_error_m"]
+
+
+def test_law_api(robot):
+    geom, limits = robot
+    traj = short(load_trajectory("line", geom), 300)
+    ref, gains = synthesize(traj, "riccati", geom, limits)
+    law = TrackingLaw(ref, gains, limits)
+    v1, w1, w2 = law.command(0.0, ref.start_state())
+    assert abs(v1) <= limits.v1_max_mps and max(abs(w1), abs(w2)) <= limits.steer_rate_max_radps
+    goals = law.wheel_goals(0.016, ref.start_state())
+    assert goals.shape == (8,)
+    np.testing.assert_allclose(goals[:4], goals[0])
+    np.testing.assert_allclose(goals[[4, 5]], goals[[7, 6]])
+    with pytest.raises(ControllerError, match="time went backwards"):
+        law.command(0.0, ref.start_state())
+    with pytest.raises(ControllerError, match="5 finite numbers"):
+        law.command(0.1, [0, 0, np.nan, 0, 0])
+    with pytest.raises(ControllerError, match="5 finite numbers"):
+        law.command(0.1, [0, 0, 0])
+    assert law.command(10.0, ref.start_state()) == (0.0, 0.0, 0.0)   # after tf: stop
+    other = build_reference(short(load_trajectory("line", geom), 200), geom, limits)
+    with pytest.raises(ControllerError, match="does not fit"):
+        TrackingLaw(other, gains, limits)
