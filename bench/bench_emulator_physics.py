@@ -1,0 +1,243 @@
+"""Benchmark: the emulator with physics (issue 4) — physics cost inside the running emulator,
+the largest time scale at which the bus still answers a 62.5 Hz cycle, and the step tests
+through the bus.
+
+Usage::
+
+    python bench/bench_emulator_physics.py [--scales 1,1.5,2,3] [--sim-seconds 10] [--rate HZ]
+    python bench/bench_emulator_physics.py --serve --time-scale S [--rate HZ]   # emulator process
+
+1. **Cost.** ``robot_emulator(time_scale=0)``; all eight loops busy (4 drives at 0.1 m/s, 4
+   steering servos tracking ±0.3 rad, set through the bus with WheelSet); ``emu.advance`` over
+   10 s; CPU (``process_time``) per simulated second; real-time factor = simulated s / CPU s.
+   Then the same with the clock thread at time scale 1 while a client runs the 62.5 Hz cycle in
+   another process (the clock thread's own ``thread_time``).
+2. **Max time scale.** The emulator runs in a child process (``--serve``), the client
+   (WheelSet.read_state + write_goals) in this one, one cycle every 16 ms / S of wall time for
+   ``--sim-seconds`` of simulated time. A cycle misses its deadline if it ends after the next
+   cycle was due. Also reported: the simulated time the physics clock delivered per wall second
+   and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
+3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
+Prints a markdown section for BENCHMARKS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from driver.bus import Bus  # noqa: E402
+from driver.control_table import Reg  # noqa: E402
+from driver.robot_config import load_robot_config  # noqa: E402
+from driver.wheelset import WheelSet  # noqa: E402
+from emulator.physics import units as u  # noqa: E402
+from emulator.physics.params import load_config  # noqa: E402
+from emulator.physics.steptest import step_metrics  # noqa: E402
+from emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
+
+ROBOT = ROOT / "configs" / "robot.yaml"
+PHYSICS = ROOT / "configs" / "emulator.yaml"
+CYCLE_S = 0.016
+V1_MPS = 0.1
+
+
+def goals(cfg, t_s: float):
+    """Busy goals: 0.1 m/s on every wheel, steering sweeping ±0.3 rad (every loop works)."""
+    d = 0.3 * math.sin(2 * math.pi * 0.5 * t_s)
+    return [V1_MPS / cfg.wheel_radius_m] * 4, [d, -d, -d, d]
+
+
+# --- 1. cost --------------------------------------------------------------------------------------
+def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
+    cfg = load_robot_config(ROBOT)
+    with robot_emulator(ROBOT, PHYSICS, time_scale=0, rate_hz=rate_hz) as emu, \
+            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
+        wheels.configure()
+        wheels.enable()
+        wheels.write_goals([V1_MPS / cfg.wheel_radius_m] * 4, [0.3, -0.3, -0.3, 0.3])
+        emu.advance(0.2)
+        c0, w0 = time.process_time(), time.perf_counter()
+        emu.advance(seconds)
+        cpu, wall = time.process_time() - c0, time.perf_counter() - w0
+        return {"rate_hz": emu.rate_hz, "cpu_per_sim_s": cpu / seconds, "rtf": seconds / cpu,
+                "wall_rtf": seconds / wall}
+
+
+# --- 2. served emulator + client cycle -------------------------------------------------------------
+def serve(time_scale: float, rate_hz: float | None, status_file: str | None) -> int:
+    emu = robot_emulator(ROBOT, PHYSICS, time_scale=time_scale, rate_hz=rate_hz, status_file=status_file,
+                         status_hz=5.0)
+    stop = []
+    signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
+    with emu:
+        print(f"PORT {emu.port}", flush=True)
+        while not stop:
+            time.sleep(0.05)
+    return 0
+
+
+def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> dict:
+    cfg = load_robot_config(ROBOT)
+    with tempfile.TemporaryDirectory() as tmp:
+        status = os.path.join(tmp, "status.json")
+        cmd = [sys.executable, __file__, "--serve", "--time-scale", str(time_scale), "--status-file", status]
+        if rate_hz:
+            cmd += ["--rate", str(rate_hz)]
+        proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
+        try:
+            line = proc.stdout.readline().split()
+            assert line and line[0] == "PORT", line
+            period = CYCLE_S / time_scale
+            n = round(sim_seconds / CYCLE_S)
+            lat, missed, errors = [], 0, 0
+            with Bus(line[1], 1_000_000, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
+                wheels.configure()
+                wheels.enable()
+                bus.timeout_margin_s = 0.05           # a reply later than this is a missed cycle anyway
+                before = read_status(status)
+                t0 = time.monotonic()
+                for k in range(n):
+                    due = t0 + k * period
+                    now = time.monotonic()
+                    if now < due:
+                        time.sleep(due - now)
+                    start = time.monotonic()
+                    try:
+                        wheels.read_state()
+                        wheels.write_goals(*goals(cfg, k * CYCLE_S))
+                    except Exception:  # noqa: BLE001 - a timeout is a missed cycle
+                        errors += 1
+                    end = time.monotonic()
+                    lat.append(end - start)
+                    if end > due + period:
+                        missed += 1
+                wall = time.monotonic() - t0
+                time.sleep(0.5)                       # > 2 status periods
+                after = read_status(status)
+        finally:
+            proc.send_signal(signal.SIGTERM)
+            proc.wait(timeout=10)
+    sim = after["t_s"] - before["t_s"]
+    lat_ms = np.array(lat) * 1e3
+    ck = after["clock"]
+    return {"scale": time_scale, "cycles": n, "missed": missed, "errors": errors, "wall_s": wall,
+            "period_ms": period * 1e3, "median_ms": float(np.median(lat_ms)),
+            "p99_ms": float(np.percentile(lat_ms, 99)), "max_ms": float(lat_ms.max()),
+            "achieved_scale": ck["achieved_scale"], "lost_sim_s": ck["lost_sim_s"],
+            "clock_rtf": ck["real_time_factor"], "sim_s": sim}
+
+
+# --- 3. step tests through the bus ------------------------------------------------------------------
+def step_table() -> list[str]:
+    spec = load_config(PHYSICS).paper_spec_gains
+    rows = []
+    with robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=False) as emu, \
+            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus:
+        def setup(id_, mode, **gains):
+            bus.write(id_, Reg.TORQUE_ENABLE, 0)
+            bus.write(id_, Reg.OPERATING_MODE, mode)
+            for k, v in gains.items():
+                bus.write(id_, k, v)
+            bus.write(id_, Reg.TORQUE_ENABLE, 1)
+
+        setup(1, u.MODE_PWM)
+        bus.write(1, Reg.GOAL_PWM, 885)
+        emu.advance(0.6)
+        w = bus.read(1, Reg.PRESENT_VELOCITY) * u.RADPS_PER_VEL_UNIT
+        rows.append(f"No-load speed at 100 % PWM read over the bus: {w:.3f} rad/s "
+                    f"(V/Ke/gear = 5.480 rad/s; with Table 1 friction 5.228 rad/s).")
+        rows += ["", "| step (over the bus) | gains | overshoot % true / Present | 2 % settle s true / Present "
+                 "| 10–90 % rise s |", "|---|---|---|---|---|"]
+        for kp, ki in ((spec["velocity_p_gain"], spec["velocity_i_gain"]), (100, 1920),
+                       (250, 2 * spec["velocity_i_gain"])):
+            setup(1, u.MODE_VELOCITY, velocity_p_gain=kp, velocity_i_gain=ki)
+            bus.write(1, Reg.GOAL_VELOCITY, 0)
+            emu.advance(1.0)
+            bus.write(1, Reg.GOAL_VELOCITY, 100)
+            t, p, tr = [], [], []
+            for k in range(800):
+                emu.advance(1e-3)
+                p.append(bus.read(1, Reg.PRESENT_VELOCITY))
+                tr.append(emu.physics.servos[1].velocity_radps / u.RADPS_PER_VEL_UNIT)
+                t.append((k + 1) * 1e-3)
+            mp = step_metrics(np.array(t), np.array(p), 0, 100)
+            mt = step_metrics(np.array(t), np.array(tr), 0, 100)
+            rows.append(f"| velocity 0→100 (drive ID 1) | P {kp}, I {ki} | {mt.overshoot_pct:.2f} / "
+                        f"{mp.overshoot_pct:.0f} | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
+        for kp in (spec["position_p_gain"], 900, 300):
+            setup(5, u.MODE_POSITION, position_p_gain=kp, position_i_gain=0, position_d_gain=0)
+            bus.write(5, Reg.GOAL_POSITION, 2048)
+            emu.advance(0.6)
+            y0 = bus.read(5, Reg.PRESENT_POSITION)
+            bus.write(5, Reg.GOAL_POSITION, 2048 + 512)
+            t, p, tr = [], [], []
+            for k in range(800):
+                emu.advance(1e-3)
+                p.append(bus.read(5, Reg.PRESENT_POSITION))
+                tr.append(emu.physics.servos[5].shaft_angle_rad / u.RAD_PER_PULSE)
+                t.append((k + 1) * 1e-3)
+            mp = step_metrics(np.array(t), np.array(p), y0, 2560)
+            mt = step_metrics(np.array(t), np.array(tr), y0, 2560)
+            rows.append(f"| position +512 pulse (steering ID 5) | P {kp} | {mt.overshoot_pct:.2f} / "
+                        f"{max(p) - 2560:+d} pulse | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
+    return rows
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--serve", action="store_true", help="(internal) run the emulator and print PORT")
+    ap.add_argument("--time-scale", type=float, default=1.0)
+    ap.add_argument("--status-file", default=None)
+    ap.add_argument("--rate", type=float, default=None, help="physics rate, Hz (default: configs/emulator.yaml)")
+    ap.add_argument("--scales", default="1,1.5,2,2.5,3,4", help="time scales to try")
+    ap.add_argument("--sim-seconds", type=float, default=10.0)
+    ap.add_argument("--cost-seconds", type=float, default=10.0)
+    ap.add_argument("--skip-steps", action="store_true")
+    args = ap.parse_args(argv)
+    if args.serve:
+        return serve(args.time_scale, args.rate, args.status_file)
+
+    print(f"date {time.strftime('%Y-%m-%d')}, nproc {os.cpu_count()}, CPU {cpu_model()!r}, "
+          f"Python {platform.python_version()}, load {os.getloadavg()}")
+    c = cost_in_process(args.cost_seconds, args.rate)
+    print(f"\ncost inside the emulator (emu.advance, {c['rate_hz']:.0f} Hz): {c['cpu_per_sim_s']:.3f} CPU s "
+          f"per physics s, real-time factor {c['rtf']:.2f} (wall {c['wall_rtf']:.2f})")
+    print("\n| time scale | cycle period ms | cycles | missed | errors | cycle median / p99 / max ms "
+          "| achieved scale | dropped sim s | clock RTF |")
+    print("|---|---|---|---|---|---|---|---|---|")
+    for s in (float(x) for x in args.scales.split(",")):
+        r = run_cycles(s, args.sim_seconds, args.rate)
+        print(f"| {s:g} | {r['period_ms']:.2f} | {r['cycles']} | {r['missed']} | {r['errors']} | "
+              f"{r['median_ms']:.2f} / {r['p99_ms']:.2f} / {r['max_ms']:.2f} | {r['achieved_scale']:.2f} | "
+              f"{r['lost_sim_s']:.2f} | {r['clock_rtf']:.2f} |", flush=True)
+    if not args.skip_steps:
+        print()
+        print("\n".join(step_table()))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
