@@ -135,16 +135,22 @@ def test_fast_sync_read(client, emulator):
 
 
 def test_bulk_write_and_bulk_read(client, emulator):
-    led, gv = TABLE[Reg.LED], TABLE[Reg.GOAL_VELOCITY]
-    client.bulk_write([(1, led.address, b"\x01"), (2, gv.address, gv.encode(-50)),
-                       (3, gv.address, gv.encode(77))])
+    led, gv, gp = TABLE[Reg.LED], TABLE[Reg.GOAL_VELOCITY], TABLE[Reg.GOAL_POSITION]
+    writes = {i: ((led, 1) if i % 3 == 0 else (gv, -10 * i) if i % 3 == 1 else (gp, 300 * i))
+              for i in IDS}
+    client.bulk_write([(i, reg.address, reg.encode(v)) for i, (reg, v) in writes.items()])
     client.ping(1)                           # no reply to a bulk write: a round trip orders it
-    assert emulator.servo(1).read(Reg.LED) == 1
-    assert emulator.servo(2).read(Reg.GOAL_VELOCITY) == -50
-    items = [(1, led.address, 1), (2, gv.address, 4), (3, gv.address, 4),
-             (8, TABLE[Reg.PRESENT_TEMPERATURE].address, 1)]
-    expect = {1: 1, 2: (-50) & 0xFFFFFFFF, 3: 77, 8: 30}
+    for i, (reg, v) in writes.items():
+        assert emulator.servo(i).read(reg.name) == v, i
+    items = [(i, reg.address, reg.size) for i, (reg, _) in writes.items()]
+    expect = {i: v & 0xFFFFFFFF for i, (_, v) in writes.items()}
     assert client.bulk_read(items) == expect
+    if client.name == "sdk":
+        # dynamixel-sdk 4.1 fastBulkReadRx finds each ID with param.index(id) in the flat
+        # [id, addr_l, addr_h, len_l, len_h, ...] list, so ID 4 matches the length byte 4 of
+        # ID 1's entry and the reply is misparsed. Keep to IDs that appear in no earlier byte.
+        items = items[:3]
+        expect = {i: expect[i] for i, _, _ in items}
     assert client.bulk_read(items, fast=True) == expect
 
 
