@@ -17,7 +17,7 @@ from __future__ import annotations
 import math
 import time
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -174,18 +174,36 @@ class Experimenter:
             self.write(Reg.OPERATING_MODE, mode)
 
     # ---- experiments ---------------------------------------------------------------------------
-    def move_to(self, goal_rad: float, timeout_s: float = 2.0, tolerance_rad: float = 0.02) -> None:
-        """Position mode to ``goal_rad`` with the servo's current gains, then torque off."""
+    def move_to(self, goal_rad: float, timeout_s: float = 3.0, tolerance_rad: float = 0.02) -> None:
+        """Position mode to ``goal_rad`` with the servo's own gains, then torque off.
+
+        The range check is not applied on the way (the servo may start outside the range it is
+        being brought into); the speed and current limits are.
+
+        Raises
+        ------
+        SafetyError
+            If the goal is not reached within ``timeout_s``.
+        """
         self.set_mode(OperatingMode.POSITION)
         goal = self.table[Reg.GOAL_POSITION].from_si(goal_rad)
         self.write(Reg.PROFILE_VELOCITY, 0)
         self.write(Reg.TORQUE_ENABLE, 1)
         self.write(Reg.GOAL_POSITION, goal)
-        trace, start = Trace(), time.monotonic()
-        while time.monotonic() - start < timeout_s:
-            row = self.sample(trace)
-            if abs(row[Reg.PRESENT_POSITION] - goal) * self.table[Reg.PRESENT_POSITION].scale < tolerance_rad:
-                break
+        scale = self.table[Reg.PRESENT_POSITION].scale
+        saved, self.limits = self.limits, replace(self.limits, position_min_rad=-math.inf,
+                                                   position_max_rad=math.inf)
+        try:
+            trace, start = Trace(), time.monotonic()
+            while time.monotonic() - start < timeout_s:
+                row = self.sample(trace)
+                if abs(row[Reg.PRESENT_POSITION] - goal) * scale < tolerance_rad:
+                    break
+            else:
+                raise SafetyError(f"servo ID {self.id} did not reach {goal_rad:.3f} rad within {timeout_s:g} s "
+                                  f"(at {row[Reg.PRESENT_POSITION] * scale:.3f} rad); torque turned off")
+        finally:
+            self.limits = saved
         self.write(Reg.TORQUE_ENABLE, 0)
 
     def pwm_steps(self, plan: list[tuple[float, float]], prior: MotorParams, gear_ratio: float,
@@ -302,7 +320,8 @@ class Experimenter:
         y = _si(self.table, reg, trace.raw(reg))
         keep = _distinct(trace)
         t_rel = t[keep] - t_w[0]
-        sel = (t_rel >= 0) & (t_rel <= duration_s)
+        end = min(duration_s, t_w[1] - t_w[0] if t_w.size > 1 else math.inf)   # until the next write
+        sel = (t_rel >= 0) & (t_rel < end)
         return {"kind": kind, "t_s": t_rel[sel], "y": y[keep][sel], "goal": goal, "y0": y0,
                 "t_all_s": t_rel, "y_all": y[keep], "clock": clock}
 
