@@ -52,11 +52,14 @@ class PacketParser:
         """Give up on a partial frame at the front (its sender went silent) and rescan.
 
         Call when the line has been idle longer than an inter-byte gap allows; returns any
-        complete packets found after the abandoned header.
+        complete packets found after the abandoned header. Afterwards nothing is pending: a
+        partial frame or header prefix left over is stale once the line has gone idle.
         """
-        if self._buf.startswith(HEADER):
+        out: list[Packet] = []
+        while self._buf:
             self._drop(1)
-        return self._drain()
+            out += self._drain()
+        return out
 
     def _drop(self, n: int) -> None:
         del self._buf[:n]

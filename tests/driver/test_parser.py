@@ -75,3 +75,12 @@ def test_parser_keeps_split_header():
     parser = PacketParser()
     assert parser.feed(b"\x11\x22" + pkt.encode()[:2]) == []
     assert parser.feed(pkt.encode()[2:]) == [pkt]
+
+
+def test_flush_leaves_nothing_pending():
+    parser = PacketParser()
+    good = P.ping(3)
+    assert parser.feed(b"\xff\xff\xfd\x00\x01\x20\x00" + good.encode() + b"\xff\xff") == []
+    assert parser.flush() == [good]
+    assert parser.pending == 0
+    assert parser.feed(P.ping(4).encode()) == [P.ping(4)]
