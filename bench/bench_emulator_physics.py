@@ -141,58 +141,70 @@ def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> 
 
 
 # --- 3. step tests through the bus ------------------------------------------------------------------
+class _Bench:
+    """A fresh unloaded robot (no clock) and a bus to it, per step test."""
+
+    def __enter__(self):
+        self.emu = robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=False).start()
+        self.bus = Bus(self.emu.port, self.emu.baud, timeout_margin_s=0.3).__enter__()
+        return self
+
+    def __exit__(self, *exc):
+        self.bus.__exit__(*exc)
+        self.emu.close()
+
+    def setup(self, id_, mode, **gains):
+        self.bus.write(id_, Reg.TORQUE_ENABLE, 0)
+        self.bus.write(id_, Reg.OPERATING_MODE, mode)
+        for k, v in gains.items():
+            self.bus.write(id_, k, v)
+        self.bus.write(id_, Reg.TORQUE_ENABLE, 1)
+
+    def sample(self, id_, reg, truth, seconds=0.8):
+        t, p, tr = [], [], []
+        for k in range(round(seconds / 1e-3)):
+            self.emu.advance(1e-3)
+            p.append(self.bus.read(id_, reg))
+            tr.append(truth())
+            t.append((k + 1) * 1e-3)
+        return np.array(t), np.array(p, float), np.array(tr)
+
+
 def step_table() -> list[str]:
     spec = load_config(PHYSICS).paper_spec_gains
     rows = []
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=False) as emu, \
-            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus:
-        def setup(id_, mode, **gains):
-            bus.write(id_, Reg.TORQUE_ENABLE, 0)
-            bus.write(id_, Reg.OPERATING_MODE, mode)
-            for k, v in gains.items():
-                bus.write(id_, k, v)
-            bus.write(id_, Reg.TORQUE_ENABLE, 1)
-
-        setup(1, u.MODE_PWM)
-        bus.write(1, Reg.GOAL_PWM, 885)
-        emu.advance(0.6)
-        w = bus.read(1, Reg.PRESENT_VELOCITY) * u.RADPS_PER_VEL_UNIT
-        rows.append(f"No-load speed at 100 % PWM read over the bus: {w:.3f} rad/s "
-                    f"(V/Ke/gear = 5.480 rad/s; with Table 1 friction 5.228 rad/s).")
-        rows += ["", "| step (over the bus) | gains | overshoot % true / Present | 2 % settle s true / Present "
-                 "| 10–90 % rise s |", "|---|---|---|---|---|"]
-        for kp, ki in ((spec["velocity_p_gain"], spec["velocity_i_gain"]), (100, 1920),
-                       (250, 2 * spec["velocity_i_gain"])):
-            setup(1, u.MODE_VELOCITY, velocity_p_gain=kp, velocity_i_gain=ki)
-            bus.write(1, Reg.GOAL_VELOCITY, 0)
-            emu.advance(1.0)
-            bus.write(1, Reg.GOAL_VELOCITY, 100)
-            t, p, tr = [], [], []
-            for k in range(800):
-                emu.advance(1e-3)
-                p.append(bus.read(1, Reg.PRESENT_VELOCITY))
-                tr.append(emu.physics.servos[1].velocity_radps / u.RADPS_PER_VEL_UNIT)
-                t.append((k + 1) * 1e-3)
-            mp = step_metrics(np.array(t), np.array(p), 0, 100)
-            mt = step_metrics(np.array(t), np.array(tr), 0, 100)
-            rows.append(f"| velocity 0→100 (drive ID 1) | P {kp}, I {ki} | {mt.overshoot_pct:.2f} / "
-                        f"{mp.overshoot_pct:.0f} | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
-        for kp in (spec["position_p_gain"], 900, 300):
-            setup(5, u.MODE_POSITION, position_p_gain=kp, position_i_gain=0, position_d_gain=0)
-            bus.write(5, Reg.GOAL_POSITION, 2048)
-            emu.advance(0.6)
-            y0 = bus.read(5, Reg.PRESENT_POSITION)
-            bus.write(5, Reg.GOAL_POSITION, 2048 + 512)
-            t, p, tr = [], [], []
-            for k in range(800):
-                emu.advance(1e-3)
-                p.append(bus.read(5, Reg.PRESENT_POSITION))
-                tr.append(emu.physics.servos[5].shaft_angle_rad / u.RAD_PER_PULSE)
-                t.append((k + 1) * 1e-3)
-            mp = step_metrics(np.array(t), np.array(p), y0, 2560)
-            mt = step_metrics(np.array(t), np.array(tr), y0, 2560)
-            rows.append(f"| position +512 pulse (steering ID 5) | P {kp} | {mt.overshoot_pct:.2f} / "
-                        f"{max(p) - 2560:+d} pulse | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
+    with _Bench() as b:
+        b.setup(1, u.MODE_PWM)
+        b.bus.write(1, Reg.GOAL_PWM, 885)
+        b.emu.advance(0.6)
+        w = b.bus.read(1, Reg.PRESENT_VELOCITY) * u.RADPS_PER_VEL_UNIT
+    rows.append(f"No-load speed at 100 % PWM read over the bus: {w:.3f} rad/s "
+                f"(V/Ke/gear = 5.480 rad/s; with Table 1 friction 5.228 rad/s).")
+    rows += ["", "| step (over the bus) | gains | overshoot % true / Present | 2 % settle s true / Present "
+             "| 10–90 % rise s |", "|---|---|---|---|---|"]
+    for kp, ki in ((spec["velocity_p_gain"], spec["velocity_i_gain"]), (100, 1920),
+                   (250, 2 * spec["velocity_i_gain"])):
+        with _Bench() as b:
+            b.setup(1, u.MODE_VELOCITY, velocity_p_gain=kp, velocity_i_gain=ki)
+            b.emu.advance(0.1)
+            b.bus.write(1, Reg.GOAL_VELOCITY, 100)
+            servo = b.emu.physics.servos[1]
+            t, p, tr = b.sample(1, Reg.PRESENT_VELOCITY, lambda: servo.velocity_radps / u.RADPS_PER_VEL_UNIT)
+        mp, mt = step_metrics(t, p, 0, 100), step_metrics(t, tr, 0, 100)
+        rows.append(f"| velocity 0→100 (drive ID 1) | P {kp}, I {ki} | {mt.overshoot_pct:.2f} / "
+                    f"{mp.overshoot_pct:.0f} | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
+    for kp in (spec["position_p_gain"], 900, 300):
+        with _Bench() as b:
+            b.setup(5, u.MODE_POSITION, position_p_gain=kp, position_i_gain=0, position_d_gain=0)
+            b.bus.write(5, Reg.GOAL_POSITION, 2048)
+            b.emu.advance(0.5)
+            y0 = b.bus.read(5, Reg.PRESENT_POSITION)
+            b.bus.write(5, Reg.GOAL_POSITION, 2048 + 512)
+            servo = b.emu.physics.servos[5]
+            t, p, tr = b.sample(5, Reg.PRESENT_POSITION, lambda: servo.shaft_angle_rad / u.RAD_PER_PULSE)
+        mp, mt = step_metrics(t, p, y0, 2560), step_metrics(t, tr, y0, 2560)
+        rows.append(f"| position +512 pulse (steering ID 5) | P {kp} | {mt.overshoot_pct:.2f} / "
+                    f"{int(p.max()) - 2560:+d} pulse | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
     return rows
 
 

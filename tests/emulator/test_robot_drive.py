@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from driver.bus import Bus
+from driver.control_table import Reg
 from driver.errors import ConfigError
 from driver.robot_config import load_robot_config
 from driver.wheelset import WheelSet
@@ -93,7 +94,8 @@ def test_start_pose_is_honoured():
 
 def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
     """Clock thread on: the robot drives, the status file follows, the clock accounts for every
-    demanded simulated second (delivered or reported lost). Generous bounds only."""
+    demanded simulated second (delivered or reported lost). Generous bounds only: on a loaded
+    machine the physics may not reach 5x (it then reports the dropped time)."""
     status_path = tmp_path / "status.json"
     scale = 5.0
     with robot_emulator(ROBOT, PHYSICS, time_scale=scale, status_file=status_path) as emu, \
@@ -101,8 +103,12 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
         wall0 = time.monotonic()
         sim0 = emu.sim_time_s
         wheels.configure()
+        # 100 ms of simulated watchdog is 20 ms of wall time here: a descheduled test process
+        # would trip it. This test is about the clock, so the watchdog is off.
+        bus.sync_write(Reg.BUS_WATCHDOG, {i: 0 for i in wheels.ids})
         wheels.enable()
         first = read_status(status_path)
+        drive_t0, (x0, _, _) = emu.sim_time_s, emu.pose
         deadline = time.monotonic() + 2.0
         while time.monotonic() < deadline:
             wheels.write_goals([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4)
@@ -110,15 +116,17 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
             time.sleep(PERIOD_S / scale)
         wall = time.monotonic() - wall0
         sim = emu.sim_time_s - sim0
+        driven_s = emu.sim_time_s - drive_t0
         stats = emu.clock_stats
         x, y, _ = emu.pose
         time.sleep(0.2)                                   # > 2 status periods (20 Hz)
         last = read_status(status_path)
     final = read_status(status_path)                      # written again at close
-    assert sim > 1.0 * wall                               # faster than real time
+    assert sim > 0.5 * wall                               # the clock ran (5x if the CPU allows)
     assert sim + stats.lost_sim_s == pytest.approx(scale * wall, rel=0.3)
     assert (stats.lost_sim_s > 0) == (stats.fell_behind > 0)
-    assert x > 0.5 * V1_MPS * sim * 0.5 and abs(y) < 0.01 * x + 1e-3
+    assert x - x0 > 0.5 * V1_MPS * (driven_s - 0.5)       # PI settles in 0.43 s, then 0.1 m/s
+    assert abs(y) < 0.01 * (x - x0) + 1e-3
     assert state.drive_radps[0] > 0
     assert last["t_s"] > first["t_s"] and last["pose"][0] > first["pose"][0]
     assert final["t_s"] >= last["t_s"]
