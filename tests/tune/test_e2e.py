@@ -76,7 +76,7 @@ def rc():
 
 
 def _bus(emu):
-    return Bus(emu.port, emu.baud, retries=2, timeout_margin_s=0.5)
+    return Bus(emu.port, emu.baud, retries=3, timeout_margin_s=0.2)
 
 
 def test_servo_that_does_not_move_leaves_torque_off(rc):

@@ -90,10 +90,10 @@ def run(args: argparse.Namespace) -> int:
 
             emu = stack.enter_context(make_emulator(rc, load_config(args.emulator_config), noise=args.noise,
                                                     seed=args.seed, baud=args.baud))
-            port, margin = emu.port, 0.5     # a software servo on a loaded machine may answer late
+            port, margin = emu.port, 0.2     # a software servo on a loaded machine may answer late
         else:
             port, margin = args.port, 0.002
-        bus = stack.enter_context(Bus(port, args.baud or rc.link.baud, retries=2, timeout_margin_s=margin))
+        bus = stack.enter_context(Bus(port, args.baud or rc.link.baud, retries=3, timeout_margin_s=margin))
         try:
             found = bus.ping(args.id)
         except DxlTimeoutError:
