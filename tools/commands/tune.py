@@ -117,11 +117,12 @@ def run(args: argparse.Namespace) -> int:
                          center_rad=center_rad, duty_max=args.pwm, progress=progress)
     paths = write_report(res, args.out)
     _print(res, paths)
+    if not res.meets_spec:
+        raise SwerveError("the designed gains do not meet the spec when measured ("
+                          + "; ".join(res.spec_notes) + "); original gains kept, torque off, config untouched")
     if args.write_config:
         write_gains(args.robot_config, group, res.design.gains)
         print(f"gains written to {args.robot_config} ({group}.gains)")
-    if not res.meets_spec:
-        raise SwerveError("the tuned gains do not meet the spec when measured: " + "; ".join(res.spec_notes))
     return 0
 
 

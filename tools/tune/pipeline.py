@@ -130,7 +130,8 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     Returns
     -------
     TuneResult
-        The new gains are left in the servo's RAM, torque off, operating mode restored.
+        Torque off, operating mode restored; the new gains are left in the servo's RAM if the
+        verification step met ``spec`` (``meets_spec``), else the original gains are back.
     """
     if group not in ("drive", "steering"):
         raise ValueError(f"group must be 'drive' or 'steering', got {group!r}")
@@ -169,11 +170,12 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
             raise DesignError(f"{exc}; torque is off and the original gains are kept") from None
         progress("verify")
         after_rec = _closed_loop(exp, group, design.gains, spec, center_rad)
-        state["new_gains"] = dict(design.gains)
+        after = Loop(dict(design.gains), after_rec, _measured(after_rec), _predict(plant, group, design.gains, spec))
+        ok, notes = check_spec(group, spec, after, ident, table[Reg.PRESENT_VELOCITY].scale,
+                               table[Reg.PRESENT_POSITION].scale)
+        if ok:                          # otherwise the session puts the original gains back
+            state["new_gains"] = dict(design.gains)
     before = Loop(original, before_rec, _measured(before_rec), _predict(plant, group, original, spec))
-    after = Loop(dict(design.gains), after_rec, _measured(after_rec), _predict(plant, group, design.gains, spec))
-    ok, notes = check_spec(group, spec, after, ident, table[Reg.PRESENT_VELOCITY].scale,
-                           table[Reg.PRESENT_POSITION].scale)
     clock = trace.times()[3]
     return TuneResult(id_, group, table.model, gear, supply, clock, records, ident, design, before, after,
                       ok, notes + [f"{len(records)} PWM run(s), widest 95 % interval +-{100 * worst_ci(ident):.1f} %"])
