@@ -96,6 +96,8 @@ class Bus:
         #: Replies from IDs that were not addressed (ignored), and frames dropped as corrupt.
         self.stray_replies = 0
         self.corrupt_frames = 0
+        self.drained_bytes = 0      # late bytes discarded after a failed exchange
+        self._unsettled = False     # last exchange failed: drain before the next one
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -155,6 +157,9 @@ class Bus:
         frame = pkt.encode()
         timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
                                                                       len(expect))
+        if self._unsettled:  # the last exchange failed: let late replies land before sending
+            self.drained_bytes += self._transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
+            self._unsettled = False
         self._transport.write(frame)
         if not expect:
             return {}
@@ -177,6 +182,8 @@ class Bus:
                 else:
                     self.stray_replies += 1
         missing = [i for i in expect if i not in got]
+        if (missing and until_all) or corrupt:
+            self._unsettled = True
         if missing and until_all:
             if corrupt:
                 err = corrupt[-1]

@@ -161,6 +161,28 @@ class Transport:
         port.timeout = remaining_s
         return port.read(max(1, port.in_waiting))
 
+    def drain_quiet(self, quiet_s: float, max_s: float) -> int:
+        """Discard input until the line has been silent for ``quiet_s`` (at most ``max_s``).
+
+        After a timeout a late reply may still be on its way; draining it keeps it from being
+        taken as the answer to the next request. Returns the number of bytes discarded.
+        """
+        dropped = 0
+        end = time.monotonic() + max_s
+        try:
+            while True:
+                remaining = end - time.monotonic()
+                if remaining <= 0:
+                    break
+                chunk = self._read_chunk(min(quiet_s, remaining))
+                if not chunk:
+                    break
+                dropped += len(chunk)
+        except (OSError, serial.SerialException, TypeError, ValueError) as exc:
+            raise TransportError(f"read from {self.url} failed: {exc}") from None
+        self.parser.reset()
+        return dropped
+
     def read_packets(self, deadline: float) -> list[Packet]:
         """Packets completed by bytes arriving before ``deadline`` (monotonic s).
 
