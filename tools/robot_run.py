@@ -15,6 +15,9 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
+#: Bus timeout slack when the other end is the emulator (a Python process on a shared CPU), s.
+EMULATOR_TIMEOUT_MARGIN_S = 0.02
+
 
 @dataclass(frozen=True)
 class RunRequest:
@@ -83,16 +86,18 @@ def run_tracking(req: RunRequest):
     with contextlib.ExitStack() as stack:
         true_pose = None
         if req.emulate:
-            from emulator.robot_emulator import robot_emulator, true_pose as emu_pose
+            from emulator.process import EmulatorProcess
 
-            emu = stack.enter_context(robot_emulator(cfg_path, time_scale=req.time_scale,
-                                                     faults=req.faults, start_pose=start[:3]))
+            emu = stack.enter_context(EmulatorProcess(cfg_path, time_scale=req.time_scale,
+                                                      faults=req.faults, start_pose=tuple(start[:3])))
             port = emu.port
-            true_pose = lambda: emu_pose(emu)  # noqa: E731
+            true_pose = lambda: emu.pose  # noqa: E731
         else:
             port = req.port or cfg.link.port
-        bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model,
-                                      return_delay_us=cfg.link.return_delay_us))
+        # Return Delay starts at the servos' factory value; WheelSet.configure() sets the bus's.
+        # The emulator is a Python process on a possibly loaded machine: give its replies slack.
+        margin = {"timeout_margin_s": EMULATOR_TIMEOUT_MARGIN_S} if req.emulate else {}
+        bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
         wheels.configure()
         on_cycle = None
@@ -108,10 +113,13 @@ def run_tracking(req: RunRequest):
         result.summary["port"] = "emulator" if req.emulate else port
         result.summary["bus_stray_replies"] = bus.stray_replies
         result.summary["bus_corrupt_frames"] = bus.corrupt_frames
-        if req.emulate:
-            result.summary["emulator_dropped_replies"] = int(emu.stats.as_dict().get("dropped_replies", 0))
         if req.log is not None:
             result.summary["log"] = str(req.log)
+    if req.emulate and emu.final_stats:
+        bus_stats, clock = emu.final_stats["bus"], emu.final_stats["clock"]
+        result.summary["emulator_replies_dropped"] = bus_stats.get("replies_dropped", 0)
+        result.summary["emulator_achieved_time_scale"] = clock.get("achieved_scale")
+        result.summary["emulator_lost_sim_s"] = clock.get("lost_sim_s")
     return result
 
 

@@ -1,0 +1,149 @@
+"""The emulated robot in a child process, as a separate device is on the robot.
+
+``swerve run --emulate`` and ``swerve demo`` drive the emulator through its pty exactly as
+they drive a U2D2; running the emulator (its physics clock at 2 kHz, its bus thread) in its own
+process keeps it from competing with the control loop for one interpreter lock, so the loop's
+timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
+shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]`` that the child refreshes every
+``pose_period_s`` of wall time (default 1 ms).
+
+::
+
+    with EmulatorProcess("configs/robot.yaml", time_scale=5) as emu:
+        bus = Bus(emu.port, 1_000_000)
+        ...
+        t_sim, (x, y, theta) = emu.sim_time_s, emu.pose
+    print(emu.final_stats)      # bus and clock counters, sent back when the child stops
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+import threading
+from pathlib import Path
+
+from driver.errors import ConfigError, SwerveError
+
+_START_TIMEOUT_S = 60.0
+
+
+def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
+    """Child process: start the robot emulator, publish the pose, stop on request."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
+    from emulator.robot_emulator import robot_emulator
+
+    try:
+        emu = robot_emulator(**kwargs).start()
+    except Exception as exc:  # noqa: BLE001 - reported to the parent as text
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    stop = threading.Event()
+
+    def publish() -> None:
+        while not stop.wait(pose_period_s):
+            with emu.lock:
+                t = emu._body.t_s
+                x, y, th = emu.physics.body.pose
+            shared[1], shared[2], shared[3] = x, y, th
+            shared[0] = t
+
+    pub = threading.Thread(target=publish, name="pose-publisher", daemon=True)
+    pub.start()
+    conn.send(("port", emu.port))
+    try:
+        conn.recv()                    # any message (or EOF: the parent died) means stop
+    except EOFError:
+        pass
+    stop.set()
+    pub.join(timeout=2.0)
+    emu.close()
+    try:
+        conn.send(("stats", dict(bus=emu.stats.as_dict(), clock=emu.clock_stats.as_dict(),
+                                 pose=list(emu.physics.body.pose), sim_time_s=emu._body.t_s)))
+    except (BrokenPipeError, OSError):
+        pass
+
+
+class EmulatorProcess:
+    """:func:`emulator.robot_emulator.robot_emulator` in a child process.
+
+    Parameters are those of ``robot_emulator`` (``robot_config`` path, ``time_scale``,
+    ``faults``, ``noise``, ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
+    path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
+    after :meth:`close`, :attr:`final_stats`.
+    """
+
+    def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", *,
+                 pose_period_s: float = 1e-3, **kwargs):
+        self._kwargs = dict(kwargs, robot_config=str(Path(robot_config)))
+        self._pose_period_s = float(pose_period_s)
+        self._ctx = mp.get_context("spawn")
+        self._shared = self._ctx.RawArray("d", 4)
+        self._proc = None
+        self._conn = None
+        self.port: str | None = None
+        self.final_stats: dict | None = None
+
+    def start(self) -> "EmulatorProcess":
+        parent, child = self._ctx.Pipe()
+        self._proc = self._ctx.Process(target=_child, name="swerve-emulator", daemon=True,
+                                       args=(child, self._shared, self._kwargs, self._pose_period_s))
+        self._proc.start()
+        child.close()
+        self._conn = parent
+        if not parent.poll(_START_TIMEOUT_S):
+            self.close()
+            raise SwerveError(f"the emulator process did not start within {_START_TIMEOUT_S:.0f} s")
+        try:
+            kind, value = parent.recv()
+        except EOFError:
+            self.close()
+            raise SwerveError("the emulator process died while starting") from None
+        if kind == "error":
+            self.close()
+            raise ConfigError(f"emulator: {value}")
+        self.port = value
+        return self
+
+    @property
+    def pid(self) -> int | None:
+        return None if self._proc is None else self._proc.pid
+
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """True body pose ``(x_m, y_m, theta_rad)`` (at most ``pose_period_s`` wall old)."""
+        s = self._shared
+        return s[1], s[2], s[3]
+
+    @property
+    def sim_time_s(self) -> float:
+        """Simulated seconds of the emulator's clock at the last pose update."""
+        return self._shared[0]
+
+    def close(self) -> None:
+        """Stop the child (politely, then by force) and collect its final counters."""
+        if self._proc is None:
+            return
+        try:
+            if self._conn is not None and self._proc.is_alive():
+                self._conn.send("stop")
+                if self._conn.poll(10.0):
+                    kind, value = self._conn.recv()
+                    if kind == "stats":
+                        self.final_stats = value
+        except (EOFError, BrokenPipeError, OSError):
+            pass
+        self._proc.join(timeout=5.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(timeout=5.0)
+        if self._conn is not None:
+            self._conn.close()
+        self._proc = self._conn = None
+
+    def __enter__(self) -> "EmulatorProcess":
+        return self.start()
+
+    def __exit__(self, *exc) -> None:
+        self.close()
