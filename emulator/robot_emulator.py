@@ -14,8 +14,8 @@
 
 The physics (:mod:`emulator.physics`) advances in fixed steps of ``1 / physics.rate_hz``
 simulated seconds. With ``time_scale = S > 0`` a clock thread runs the steps that wall time
-demands (``S * rate_hz`` steps per wall second) in batches, releasing the bus lock between
-batches; if the CPU cannot keep up it catches up without sleeping, and beyond
+demands (``S * rate_hz`` steps per wall second), taking the bus lock per step and stepping
+aside when a bus transaction waits for it; if the CPU cannot keep up it catches up without sleeping, and beyond
 :data:`MAX_BACKLOG_WALL_S` of backlog it drops simulated time and counts it in
 :class:`ClockStats` (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
 
@@ -48,10 +48,10 @@ from emulator.servo import DYNAMICS_OUTPUTS, VirtualServo
 
 log = logging.getLogger(__name__)
 
-#: Longest a clock batch holds the bus lock before letting a bus transaction in, wall s.
-MAX_BATCH_WALL_S = 1e-3
-#: Pause after a batch that did not catch up, so a waiting bus transaction gets the lock, s.
-BATCH_GAP_S = 1e-4
+#: Longest the clock runs steps before re-reading the wall clock and its backlog, s.
+MAX_BATCH_WALL_S = 2e-3
+#: Pause after a step when a bus transaction waits for the lock, s.
+HAND_OVER_S = 5e-5
 #: Shortest sleep of the clock thread when it is ahead (batches steps at high time scales), s.
 MIN_SLEEP_S = 1e-3
 #: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
@@ -138,6 +138,43 @@ class _ServoDynamics:
         self.invalidate()
 
 
+class _HandOverLock:
+    """The emulator's one lock, plus who is waiting for it (so the clock can step aside).
+
+    A plain :class:`threading.Lock` is not fair: a clock thread that releases it and takes it
+    again at once starves a bus transaction waiting for it (replies 50 ms late at time scale
+    2 on a loaded machine). The clock checks :attr:`waiting` after each physics step and
+    pauses only then, so it loses no time when nobody waits. ``set.add``/``discard`` are atomic.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.waiting: set[int] = set()
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        if self._lock.acquire(False):
+            return True
+        if not blocking:
+            return False
+        me = threading.get_ident()
+        self.waiting.add(me)
+        try:
+            return self._lock.acquire(True, timeout)
+        finally:
+            self.waiting.discard(me)
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def locked(self) -> bool:
+        return self._lock.locked()
+
+    __enter__ = acquire
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()
+
+
 @dataclass
 class ClockStats:
     """How the physics clock kept up with wall time (written by the clock thread)."""
@@ -201,6 +238,7 @@ class RobotEmulator(Emulator):
         super().__init__(dynamics=lambda s: (_ServoDynamics(physics.servos[s.id], s)
                                             if s.id in physics.servos else None), world=self._body,
                          clock_hz=rate_hz, **kwargs)
+        self._lock = _HandOverLock()      # before any thread starts: every user sees this one
         missing = set(physics.servos) - {s.id for s in self.servos}
         if missing:
             raise ConfigError(f"the robot's servos {sorted(missing)} are not on the emulated bus")
@@ -325,13 +363,16 @@ class RobotEmulator(Emulator):
             st.max_backlog_s = max(st.max_backlog_s, backlog * dt)
             n = 0
             deadline = time.monotonic() + MAX_BATCH_WALL_S
+            lock = self._lock
             try:
-                with self.lock:
-                    while n < backlog:
+                while n < backlog:
+                    with lock:                # per step: a bus transaction waits one step at most
                         self._tick(dt)
-                        n += 1
-                        if n & 3 == 0 and time.monotonic() > deadline:
-                            break
+                    n += 1
+                    if lock.waiting:
+                        time.sleep(HAND_OVER_S)   # let the waiting thread take the lock
+                    if n & 7 == 0 and time.monotonic() > deadline:
+                        break
             except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
                 self.stats.dispatch_errors += 1
                 log.debug("error in physics tick", exc_info=True)
@@ -339,9 +380,6 @@ class RobotEmulator(Emulator):
             done += n
             st.steps = done
             st.batches += 1
-            # Still behind: a Python Lock is not fair, and a clock thread that re-acquires it at
-            # once would starve the bus thread (replies 50 ms late at scale 2). Step aside briefly.
-            time.sleep(BATCH_GAP_S if n < backlog else 0.0)
 
 
 def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> tuple[SensorParams, int | None]:
