@@ -196,7 +196,7 @@ class TrackingLoop:
                 else:
                     dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
                     t_prev_meas = st.t_s
-                    odo.update(dt, st.drive_radps, st.steer_rad)
+                    odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
                     meas = st
                 state = np.array([*odo.pose, *delta_cmd])
                 v1, w1, w2 = law.command(t, state)

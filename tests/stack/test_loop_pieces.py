@@ -63,3 +63,18 @@ def test_model_inputs_average_front_and_rear():
     assert (v1, d1, d2) == (1.0, pytest.approx(0.3), pytest.approx(-0.2))
     with pytest.raises(ValueError):
         model_inputs([1, 1, 1], [0, 0, 0, 0])
+
+
+def test_odometry_uses_wheel_angles_over_quantised_speeds():
+    g = Geometry()
+    step = 0.229 * 2 * np.pi / 60                   # Present Velocity LSB, rad/s
+    true_w = 2.0                                    # wheel speed, rad/s (not a multiple of the LSB)
+    quantised = np.floor(true_w / step) * step      # what the servo reports
+    dt, n = 0.016, 1000
+    by_speed, by_angle = Odometry(g), Odometry(g)
+    for k in range(n + 1):
+        by_speed.update(dt, [quantised] * 4, [0] * 4)
+        by_angle.update(dt, [quantised] * 4, [0] * 4, wheel_angles_rad=[true_w * k * dt] * 4)
+    distance = true_w * g.wheel_radius_m * n * dt
+    assert by_angle.pose[0] == pytest.approx(distance, rel=1e-9)
+    assert abs(by_speed.pose[0] - distance) > 1e-3  # the speed LSB biases the distance by mm
