@@ -51,10 +51,20 @@ def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
     pub = threading.Thread(target=publish, name="pose-publisher", daemon=True)
     pub.start()
     conn.send(("port", emu.port))
-    try:
-        conn.recv()                    # any message (or EOF: the parent died) means stop
-    except EOFError:
-        pass
+    while True:                        # "stop" (or EOF: the parent died) ends the loop
+        try:
+            msg = conn.recv()
+        except EOFError:
+            break
+        if msg == "stop":
+            break
+        try:                           # ("fault", method, args): e.g. ("fault", "vanish", (3,))
+            _, method, fargs = msg
+            with emu.lock:
+                getattr(emu.faults, method)(*fargs)
+            conn.send(("ok", None))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
     stop.set()
     pub.join(timeout=2.0)
     emu.close()
@@ -120,6 +130,17 @@ class EmulatorProcess:
     def sim_time_s(self) -> float:
         """Simulated seconds of the emulator's clock at the last pose update."""
         return self._shared[0]
+
+    def fault(self, method: str, *args) -> None:
+        """Call ``emu.faults.<method>(*args)`` in the child, e.g. ``fault("vanish", 3)``."""
+        if self._conn is None:
+            raise SwerveError("the emulator process is not running")
+        self._conn.send(("fault", method, args))
+        if not self._conn.poll(10.0):
+            raise SwerveError(f"the emulator process did not answer fault {method}{args}")
+        kind, value = self._conn.recv()
+        if kind == "error":
+            raise ConfigError(f"emulator fault {method}{args}: {value}")
 
     def close(self) -> None:
         """Stop the child (politely, then by force) and collect its final counters."""
