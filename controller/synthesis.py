@@ -136,7 +136,7 @@ class SynthesisResult:
 def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                        precondition: bool = True, max_iter: int = 2000,
                        target_cost: float | None = None, rtol: float = 1e-10,
-                       c2: float = 0.1, refresh: int = 1,
+                       c2: float = 0.1, refresh: int = 1, max_seconds: float = np.inf,
                        progress: bool = False) -> SynthesisResult:
     """Minimise J over all K(i) by nonlinear CG with a strong-Wolfe line search.
 
@@ -162,6 +162,8 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
         Curvature constant of the strong Wolfe conditions (< 1/2 for FR/DY theory).
     refresh : int
         Recompute the preconditioner every ``refresh`` iterations (and restart CG then).
+    max_seconds : float
+        Stop after this much wall time.
     progress : bool
         Show a tqdm progress bar.
     """
@@ -256,6 +258,9 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                 bar.set_postfix(J=f"{f:.6g}", evals=count[0])
             if stalls >= 3:
                 message = "converged (relative decrease below rtol)"
+                break
+            if time.perf_counter() - t0 > max_seconds:
+                message = f"time limit {max_seconds:g} s reached"
                 break
         else:
             if target_cost is not None and f <= target_cost:

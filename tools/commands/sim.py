@@ -59,7 +59,10 @@ def run(args) -> int:
     x0 = _parse_x0(args.x0) if args.x0 else traj.start_state(geom)
     if args.gains:
         gains = load_gains(args.gains)
-        frames = "fixed" if np.all(gains.phi_rad == 0) and args.law == "fixed" else args.law
+        frames = gains.meta.get("frames", args.law)
+        if args.law == "fixed" and frames != "fixed":
+            raise ControllerError(f"{args.gains} was synthesised for the rotating-frame law; "
+                                  "run 'swerve synth --law fixed' for the plain law")
         ref = build_reference(traj, geom, limits, frames)
     else:
         ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law,

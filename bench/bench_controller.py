@@ -1,0 +1,212 @@
+"""Controller benchmarks (issue 5): Riccati synthesis, the paper's CG, gradient cost, tracking.
+
+Run ``.venv/bin/python bench/bench_controller.py`` from the repository root. Results are
+printed and written to the "## Controller (issue 5)" section of BENCHMARKS.md
+(``--no-write`` to leave it alone; ``--cg-seconds`` caps each cold-start CG run).
+"""
+from __future__ import annotations
+
+import argparse
+import datetime
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import numpy as np  # noqa: E402
+
+from controller.design import synthesize  # noqa: E402
+from controller.kinematics import load_robot  # noqa: E402
+from controller.ltv import error_system, initial_error  # noqa: E402
+from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
+from controller.riccati import finite_horizon_lqr  # noqa: E402
+from controller.simulate import metrics, simulate  # noqa: E402
+from controller.synthesis import (conjugate_gradient, cost_and_gradient,  # noqa: E402
+                                  frozen_time_lqr_gains)
+from controller.tracking import TrackingLaw  # noqa: E402
+
+SECTION = "## Controller (issue 5)"
+GEOM, LIMITS = load_robot()
+
+#: Tracking cases: (label, trajectory, start state or None = the trajectory's own).
+TRACK_CASES = [
+    ("line (paper start)", "line", None),
+    ("circle (paper start, on the path)", "circle", None),
+    ("circle, start 0.1 m off, θ = 0.3 rad", "circle", [0.0, -0.1, 0.3, 0.0, 0.0]),
+    ("curvilinear (paper start, 0.1 m off)", "curvilinear", None),
+    ("line along +y (CSV), on the path", "line_y.csv", None),
+    ("line along +y (CSV), start (0,0,0): facing +x", "line_y.csv", [0.0] * 5),
+    ("line along −x (CSV), start 5 cm off, θ = 2.8", "line_neg_x.csv",
+     [0.0, 0.05, 2.8, 0.0, 0.0]),
+    ("figure-eight (CSV), on the path", "figure8.csv", None),
+    ("figure-eight (CSV), start 5 cm off, θ = 0.5", "figure8.csv", [0.0, -0.05, 0.5, 0.0, 0.0]),
+]
+
+
+def problem(name):
+    traj = load_trajectory(name, GEOM)
+    ref = build_reference(traj, GEOM, LIMITS)
+    Ad, Bd = error_system(ref)
+    return traj, ref, Ad, Bd
+
+
+def timed(fn, repeat=3):
+    out, times = None, []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        out = fn()
+        times.append(time.perf_counter() - t0)
+    return out, statistics.median(times)
+
+
+def bench_riccati():
+    rows = []
+    for name in ("line", "circle", "curvilinear"):
+        traj, ref, Ad, Bd = problem(name)
+        (_, t_sys) = timed(lambda: error_system(ref))
+        (_, t_ric) = timed(lambda: finite_horizon_lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s))
+        rows.append((name, traj.n_steps, t_sys, t_ric))
+    return rows
+
+
+def bench_gradient():
+    rows = []
+    for name in ("line", "curvilinear"):
+        traj, ref, Ad, Bd = problem(name)
+        x0 = initial_error(ref, traj.start_state(GEOM))[:, None]
+        K = np.zeros((traj.n_steps, 3, 5))
+        _, t = timed(lambda: cost_and_gradient(K, Ad, Bd, traj.Q, traj.R, traj.tau_s, x0), 10)
+        rows.append((name, traj.n_steps, t))
+    return rows
+
+
+def bench_cg(cg_seconds, name="line", variants=None):
+    traj, ref, Ad, Bd = problem(name)
+    x0 = initial_error(ref, traj.start_state(GEOM))
+    _, P = finite_horizon_lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s)
+    J_star = float(x0 @ P[0] @ x0)
+    rows = []
+    variants = variants or [("K0 = 0, plain (the paper as printed)", False, False),
+                            ("K0 = 0, block-Hessian preconditioned", True, False),
+                            ("K0 = frozen-time LQR, preconditioned", True, True)]
+    for label, pre, warm in variants:
+        t0 = time.perf_counter()
+        K0 = frozen_time_lqr_gains(Ad, Bd, traj.Q, traj.R, traj.tau_s) if warm else None
+        t_init = time.perf_counter() - t0
+        res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, x0, K0=K0,
+                                 precondition=pre, target_cost=1.01 * J_star, max_iter=100000,
+                                 max_seconds=cg_seconds)
+        h = np.array(res.history)
+        at2 = h[h[:, 1] <= 2.0 - t_init][-1, 2] / J_star if np.any(h[:, 1] <= 2.0 - t_init) \
+            else np.nan
+        rows.append((label, res.cost / J_star, res.seconds + t_init, res.evaluations,
+                     res.message, at2, h[0, 2] / J_star))
+    return J_star, rows
+
+
+def bench_tracking():
+    rows = []
+    for label, name, x0 in TRACK_CASES:
+        src = name if not name.endswith(".csv") else str(TRAJECTORY_DIR / name)
+        traj = load_trajectory(src, GEOM)
+        ref, gains = synthesize(traj, "riccati", GEOM, LIMITS)
+        start = traj.start_state(GEOM) if x0 is None else np.array(x0, float)
+        t0 = time.perf_counter()
+        res = simulate(TrackingLaw(ref, gains, LIMITS), start)
+        wall = time.perf_counter() - t0
+        m = metrics(res, traj.Q, traj.R, traj.tau_s)
+        rows.append((label, m, len(set(gains.phi_rad)), wall))
+    return rows
+
+
+def machine():
+    cpu = "unknown"
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                cpu = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
+    return (f"Date {datetime.date.today().isoformat()}, `nproc` = {os.cpu_count()}, CPU "
+            f"\"{cpu}\", Python {platform.python_version()}, numpy {np.__version__}; "
+            f"load average {load:.1f} at the start (shared machine).")
+
+
+def render(ric, grad, cg, cg_curvy, track, cg_seconds):
+    J_star, cg_rows = cg
+    out = [SECTION, "", machine(),
+           "Command: `.venv/bin/python bench/bench_controller.py` (one run; medians of 3 "
+           "(synthesis) or 10 (gradient) repetitions).", "",
+           "Riccati synthesis (finite-horizon discrete recursion, exact J*):", "",
+           "| trajectory | N | error system (A, B, frame switches) s | Riccati s |",
+           "|---|---|---|---|"]
+    out += [f"| {n} | {N} | {ts:.3f} | {tr:.3f} |" for n, N, ts, tr in ric]
+    out += ["", "One cost + exact adjoint gradient evaluation (K = 0, one initial error):", "",
+            "| trajectory | N | seconds |", "|---|---|---|"]
+    out += [f"| {n} | {N} | {t * 1e3:.1f} ms |" for n, N, t in grad]
+    out += ["", f"The paper's method (nonlinear CG, Dai–Yuan β, SciPy strong-Wolfe line search, "
+            f"exact gradient) on the line case, N = 2500, target 1.01·J* (J* = {J_star:.4f}); "
+            f"cold starts capped at {cg_seconds:g} s:", "",
+            "| start / variant | J(K0)/J* | J/J* reached | seconds | evaluations | J/J* at 2 s | "
+            "stopped because |", "|---|---|---|---|---|---|---|"]
+    out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {a2:.4f} | {msg} |"
+            for lab, r, s, e, msg, a2, j0 in cg_rows]
+    J2, rows2 = cg_curvy
+    out += ["", f"Same target on the curvilinear case (N = 8750, J* = {J2:.4f}), where the "
+            "frozen-time LQR start is not already optimal:", "",
+            "| start / variant | J(K0)/J* | J/J* reached | seconds | evaluations | J/J* at 2 s | "
+            "stopped because |", "|---|---|---|---|---|---|---|"]
+    out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {a2:.4f} | {msg} |"
+            for lab, r, s, e, msg, a2, j0 in rows2]
+    out += ["", "Closed loop on the nonlinear model (1)–(5), Riccati gains, rotating chained "
+            "frames, limits from configs/robot.yaml, errors over t ≥ tf/4:", "",
+            "| case | frames | rms error m | max error m | final error m | max abs v1 m/s | "
+            "max abs ω rad/s | saturated | ref. lag s | sim wall s |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
+    for lab, m, nf, wall in track:
+        out.append(f"| {lab} | {nf} | {m['rms_position_error_m']:.2e} | "
+                   f"{m['max_position_error_m']:.2e} | {m['final_position_error_m']:.2e} | "
+                   f"{m['max_abs_v1_mps']:.3f} | {m['max_abs_steer_rate_radps']:.2f} | "
+                   f"{100 * m['saturated_fraction']:.1f} % | {m['max_reference_lag_s']:.2f} | "
+                   f"{wall:.1f} |")
+    return "\n".join(out) + "\n"
+
+
+def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
+    old = path.read_text() if path.exists() else "# Benchmarks\n"
+    start = old.find(SECTION)
+    if start < 0:
+        new = old.rstrip("\n") + "\n\n" + text
+    else:
+        nxt = old.find("\n## ", start + len(SECTION))
+        new = old[:start] + text + ("\n" + old[nxt + 1:] if nxt >= 0 else "")
+    path.write_text(new)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cg-seconds", type=float, default=60.0)
+    ap.add_argument("--no-write", action="store_true")
+    args = ap.parse_args()
+    ric = bench_riccati()
+    grad = bench_gradient()
+    cg = bench_cg(args.cg_seconds)
+    cg_curvy = bench_cg(args.cg_seconds, "curvilinear",
+                        [("K0 = frozen-time LQR, plain", False, True),
+                         ("K0 = frozen-time LQR, preconditioned", True, True)])
+    track = bench_tracking()
+    text = render(ric, grad, cg, cg_curvy, track, args.cg_seconds)
+    print(text)
+    if not args.no_write:
+        write_section(text)
+
+
+if __name__ == "__main__":
+    main()
