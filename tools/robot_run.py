@@ -34,6 +34,7 @@ class RunRequest:
     faults: str | None = None
     progress: bool = False
     start_timeout_s: float = 5.0
+    timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
 
 
 def robot_models(cfg):
@@ -96,7 +97,9 @@ def run_tracking(req: RunRequest):
             port = req.port or cfg.link.port
         # Return Delay starts at the servos' factory value; WheelSet.configure() sets the bus's.
         # The emulator is a Python process on a possibly loaded machine: give its replies slack.
-        margin = {"timeout_margin_s": EMULATOR_TIMEOUT_MARGIN_S} if req.emulate else {}
+        margin = req.timeout_margin_s if req.timeout_margin_s is not None else (
+            EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
+        margin = {} if margin is None else {"timeout_margin_s": margin}
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
         wheels.configure()

@@ -27,7 +27,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--emulate", action="store_true", help="start the servo emulator on a pty and drive it")
     parser.add_argument("--config", default=None, help="robot config (default configs/robot.yaml)")
     parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="with --emulate: robot seconds per wall second (default 1)")
+                        help="robot seconds per wall second: only for an emulator (--emulate, or --port "
+                             "on a `swerve emulate --time-scale S` pty); default 1")
+    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+                        help="slack on every bus reply deadline (default: 2 ms; 20 ms with --emulate)")
     parser.add_argument("--log", default=None,
                         help="run log (ROS 2 bag directory, MCAP); default out/runs/<trajectory>-<time>")
     parser.add_argument("--no-log", action="store_true", help="do not write a run log")
@@ -40,15 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from tools.robot_run import RunRequest, run_tracking
 
-    if not args.emulate and args.time_scale != 1.0:
+    if not args.time_scale > 0:
         from driver.errors import ConfigError
-        raise ConfigError("--time-scale only applies to --emulate (the real robot runs in real time)")
+        raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     log = None if args.no_log else (
         Path(args.log) if args.log else
         Path("out/runs") / f"{Path(args.trajectory).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
     req = RunRequest(trajectory=args.trajectory, gains=args.gains, config=args.config,
                      port=args.port, emulate=args.emulate, time_scale=args.time_scale, log=log,
                      fast_read=args.fast_read, faults=args.faults,
+                     timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty())
     result = run_tracking(req)
     s = result.summary
