@@ -118,3 +118,18 @@ def test_range_limit_stops_the_experiment(rc):
             tune_servo(bus, 5, "steering", Spec(), cfg.steering_motor, center_rad=center,
                        limits=Limits(position_min_rad=center - 0.01, position_max_rad=center + 0.01))
         assert emu.servo(5).read("torque_enable") == 0
+
+
+def test_gains_failing_verification_are_not_kept(rc, monkeypatch):
+    import tools.tune.pipeline as pipeline
+
+    monkeypatch.setattr(pipeline, "check_spec", lambda *a, **k: (False, ["forced failure"]))
+    cfg = load_config(EMULATOR)
+    center = 2048 * 2 * math.pi / 4096
+    with make_emulator(rc, cfg, noise=True, seed=2) as emu, _bus(emu) as bus:
+        before = emu.servo(5).read("position_p_gain")
+        res = tune_servo(bus, 5, "steering", Spec(), cfg.steering_motor, center_rad=center,
+                         limits=Limits(position_min_rad=center - 1.5, position_max_rad=center + 1.5))
+        assert not res.meets_spec and res.design.gains["position_p_gain"] != before
+        assert emu.servo(5).read("position_p_gain") == before
+        assert emu.servo(5).read("torque_enable") == 0

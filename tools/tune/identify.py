@@ -191,7 +191,7 @@ def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
             "current_a": out[2]}
 
 
-def _rest_std(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
+def _rest_samples(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
     """Samples taken before the first switch (motor at rest)."""
     return signal[rec.t_s < rec.switch_t_s[0]] / lsb
 
@@ -225,8 +225,8 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
         if rec.switch_t_s.size == 0 or not np.any(rec.t_s < rec.switch_t_s[0]):
             raise ValueError("each PWM record needs rest samples before its first switch")
     # Weights: quantisation (uniform, variance 1/12 LSB^2) plus the noise seen at rest.
-    pos_rest = np.concatenate([_rest_std(r, position_lsb_rad, r.position_rad) for r in records])
-    cur_rest = np.concatenate([_rest_std(r, current_lsb_a, r.current_a) for r in records])
+    pos_rest = np.concatenate([_rest_samples(r, position_lsb_rad, r.position_rad) for r in records])
+    cur_rest = np.concatenate([_rest_samples(r, current_lsb_a, r.current_a) for r in records])
     sig_p = np.sqrt(1.0 / 12.0 + np.var(pos_rest))          # pulses
     sig_i = np.sqrt(1.0 / 12.0 + np.var(cur_rest))          # current LSBs
     n_sw = [r.switch_t_s.size for r in records]
