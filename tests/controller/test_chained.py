@@ -79,3 +79,26 @@ def test_rotation_invariance_of_the_model():
     np.testing.assert_allclose(to_chained(s, G, phi), to_chained(s_rot, G, 0.0), atol=1e-14)
     u = np.array([0.1, 0.3, -0.2])
     np.testing.assert_allclose(rk4_step(s, u, 0.1, G)[3:], rk4_step(s_rot, u, 0.1, G)[3:])
+
+
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+
+@settings(max_examples=200, deadline=None)
+@given(x=st.floats(-5, 5), y=st.floats(-5, 5), th=st.floats(-3, 3),
+       d1=st.floats(-1.2, 1.2), d2=st.floats(-1.2, 1.2),
+       k=st.integers(-4, 4), v1=st.floats(-0.2, 0.2), w1=st.floats(-4, 4), w2=st.floats(-4, 4))
+def test_transforms_invert_property(x, y, th, d1, d2, k, v1, w1, w2):
+    s = np.array([x, y, th, d1, d2])
+    phi = k * np.pi / 2
+    if singularity_margin(s, phi) < 0.1 or abs(np.sin(d1) - np.sin(d2)) > 1.9:
+        return
+    xc = to_chained(s, G, phi)
+    back = from_chained(xc, G, phi)
+    np.testing.assert_allclose(back[:2], s[:2], atol=1e-9)
+    np.testing.assert_allclose(wrap_angle(back[2] - s[2]), 0, atol=1e-9)
+    np.testing.assert_allclose(back[3:], s[3:], atol=1e-7)
+    u = np.array([v1, w1, w2])
+    np.testing.assert_allclose(inputs_from_chained(s, chained_inputs(s, u, G, phi), G, phi), u,
+                               atol=1e-7)

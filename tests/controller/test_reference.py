@@ -157,3 +157,16 @@ def test_custom_limits_and_geometry_are_used():
     tr = load_trajectory("circle")
     with pytest.raises(ControllerError, match="above the limit v1_max = 0.1 m/s"):
         build_reference(tr, Geometry(), Limits(v1_max_mps=0.1))
+
+
+def test_curvilinear_closed_forms(robot):
+    """tan(xd3) = (cos wt - 2 sin 2wt) / (2 cos 2wt - sin wt), the paper's (68)."""
+    ref = build_reference(load_trajectory("curvilinear"), *robot)
+    w = 2 * np.pi / 140
+    t = ref.times_s
+    num, den = np.cos(w * t) - 2 * np.sin(2 * w * t), 2 * np.cos(2 * w * t) - np.sin(w * t)
+    ok = np.abs(den) > 0.1
+    np.testing.assert_allclose(np.tan(ref.states[ok, 2]), num[ok] / den[ok], rtol=1e-9,
+                               atol=1e-12)
+    frame0 = ref.phi_rad == 0
+    np.testing.assert_allclose(ref.xd[frame0, 3], (num / den)[frame0], rtol=1e-9)
