@@ -55,7 +55,7 @@ HAND_OVER_S = 5e-5
 #: Shortest sleep of the clock thread when it is ahead (batches steps at high time scales), s.
 MIN_SLEEP_S = 1e-3
 #: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
-MAX_BACKLOG_WALL_S = 0.1
+MAX_BACKLOG_WALL_S = 0.5
 #: Full rewrite of the outputs into the control table every this many steps (see _ServoDynamics).
 FULL_REFRESH_STEPS = 256
 #: GIL hand-over interval while the clock thread runs, s. CPython's default (5 ms) lets a busy
@@ -184,6 +184,7 @@ class ClockStats:
     wall_s: float = 0.0         # wall time since the clock started
     steps: int = 0              # physics steps run by the clock thread
     batches: int = 0            # lock acquisitions of the clock thread
+    backlog_s: float = 0.0      # simulated time owed right now (steps due but not yet run)
     max_backlog_s: float = 0.0  # largest simulated time the clock was behind wall time * scale
     fell_behind: int = 0        # times the backlog exceeded MAX_BACKLOG_WALL_S and time was dropped
     lost_sim_s: float = 0.0     # simulated time dropped then (the world ran slower than scale)
@@ -360,7 +361,8 @@ class RobotEmulator(Emulator):
                 if st.fell_behind == 1:
                     log.warning("physics clock fell behind at time scale %g; dropping simulated time "
                                 "(see clock_stats)", self.time_scale)
-            st.max_backlog_s = max(st.max_backlog_s, backlog * dt)
+            st.backlog_s = backlog * dt
+            st.max_backlog_s = max(st.max_backlog_s, st.backlog_s)
             n = 0
             deadline = time.monotonic() + MAX_BATCH_WALL_S
             lock = self._lock
@@ -380,6 +382,7 @@ class RobotEmulator(Emulator):
             done += n
             st.steps = done
             st.batches += 1
+            st.backlog_s = (backlog - n) * dt
 
 
 def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> tuple[SensorParams, int | None]:
