@@ -95,7 +95,12 @@ class Trace:
         ticks_s = np.concatenate([[0.0], np.cumsum(steps)]) * 1e-3
         span_host = host[-1] - host[0] if host.size > 1 else 0.0
         clock = "realtime_tick" if host.size > 10 and ticks_s[-1] > 0.5 * span_host else "host"
-        t = ticks_s if clock == "realtime_tick" else host - host[0]
+        if clock == "realtime_tick":
+            # reads within one tick: spread them by the host clock, never past the next tick
+            first = np.maximum.accumulate(np.where(np.concatenate([[True], steps > 0]), np.arange(host.size), 0))
+            t = ticks_s + np.clip(host - host[first], 0.0, 0.999e-3)
+        else:
+            t = host - host[0]
         after = np.clip(np.searchsorted(host, w_host), 1, max(host.size - 1, 1))
         t_w = np.interp(w_host, host, t)          # a write lands between the samples around it
         return t, t_w, 0.5 * (t[after] - t[after - 1]), clock
