@@ -133,3 +133,17 @@ def test_gains_failing_verification_are_not_kept(rc, monkeypatch):
         assert not res.meets_spec and res.design.gains["position_p_gain"] != before
         assert emu.servo(5).read("position_p_gain") == before
         assert emu.servo(5).read("torque_enable") == 0
+
+
+def test_leaving_the_range_mid_experiment_turns_the_torque_off(rc):
+    from dataclasses import replace
+
+    cfg = load_config(EMULATOR)
+    center = 2048 * 2 * math.pi / 4096
+    slow_prior = replace(cfg.steering_motor, back_emf_v_s_per_rad=3 * cfg.steering_motor.back_emf_v_s_per_rad)
+    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:   # the motor is 3x faster than the prior says
+        with pytest.raises(Exception, match="servo ID 5 left its safe range.*torque turned off"):
+            tune_servo(bus, 5, "steering", Spec(), slow_prior, center_rad=center,
+                       limits=Limits(position_min_rad=center - 0.45, position_max_rad=center + 0.45))
+        assert emu.servo(5).read("torque_enable") == 0
+        assert abs(emu.servo(5).read("present_position") - 2048) < 0.6 / (2 * math.pi / 4096)

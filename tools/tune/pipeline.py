@@ -136,6 +136,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     if group not in ("drive", "steering"):
         raise ValueError(f"group must be 'drive' or 'steering', got {group!r}")
     progress = progress or (lambda phase: _ignore)
+    _check_steps(group, spec, limits, center_rad)
     table = bus.table(id_)
     gear = float(table.gear_ratio)
     exp = Experimenter(bus, id_, limits)
@@ -144,8 +145,6 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
         original = {n: int(state[n]) for n in names}
         supply = bus.read_si(id_, Reg.PRESENT_INPUT_VOLTAGE)
         exp.progress = progress("experiments") or _ignore
-        if group == "steering" and center_rad is None:
-            raise ValueError("steering servos need center_rad")
         records, ident = [], None
         for _ in range(max_pwm_runs):       # repeat until every fitted parameter is tight enough
             if group == "steering":
@@ -179,6 +178,21 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     clock = trace.times()[3]
     return TuneResult(id_, group, table.model, gear, supply, clock, records, ident, design, before, after,
                       ok, notes + [f"{len(records)} PWM run(s), widest 95 % interval +-{100 * worst_ci(ident):.1f} %"])
+
+
+def _check_steps(group: str, spec: Spec, limits: Limits, center_rad: float | None) -> None:
+    """Refuse steps that would leave the safe envelope, before anything moves."""
+    if group == "drive" and not abs(spec.velocity_step_radps) < limits.speed_max_radps:
+        raise SafetyError(f"velocity step {spec.velocity_step_radps:.2f} rad/s is not below the speed limit "
+                          f"{limits.speed_max_radps:.2f} rad/s; nothing was moved")
+    if group == "steering":
+        if center_rad is None:
+            raise ValueError("steering servos need center_rad")
+        half = 0.5 * abs(spec.position_step_rad)
+        if not limits.position_min_rad <= center_rad - half and center_rad + half <= limits.position_max_rad:
+            raise SafetyError(f"position step of {spec.position_step_rad:.3f} rad about {center_rad:.3f} rad leaves "
+                              f"the safe range [{limits.position_min_rad:.3f}, {limits.position_max_rad:.3f}] rad; "
+                              "nothing was moved")
 
 
 def worst_ci(ident: Identification) -> float:
