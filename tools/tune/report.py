@@ -109,14 +109,15 @@ def _plot_pwm(res: TuneResult, path: Path) -> None:
 def _plot_steps(res: TuneResult, path: Path) -> None:
     unit = "rad/s" if res.group == "drive" else "rad"
     fig, ax = plt.subplots(1, 2, sharey=True, figsize=(10, 4))
-    for a, (name, loop) in zip(ax, (("before (original gains)", res.before), ("after (designed gains)", res.after))):
+    for a, (name, loop) in zip(ax, (("before", res.before), ("after", res.after))):
         rec, pr = loop.record, loop.predicted
         y0 = rec["y0"]
         a.plot(rec["t_s"], rec["y"], ".", ms=3, label="measured")
         a.plot(pr.t_s, pr.y_reported + y0, "-", lw=1, label="predicted (reported signal)")
         a.plot(pr.t_s, pr.y_true + y0, "--", lw=1, label="predicted (true shaft)")
         a.axhline(rec["goal"], color="k", lw=0.5)
-        a.set_title(f"{name}: {loop.gains}", fontsize=8)
+        short = ", ".join(f"{k.replace('_gain', '').replace('_', ' ')} {v}" for k, v in loop.gains.items())
+        a.set_title(f"ID {res.id} {name}: {short}", fontsize=9)
         a.set_xlabel("time from step, s")
         a.grid(alpha=0.3)
         a.legend(fontsize=7)
