@@ -16,7 +16,8 @@ METHODS = ("riccati", "paper")
 def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geometry(),
                limits: Limits = Limits(), frames: str = "rotating", beta: str = "dai-yuan",
                precondition: bool = True, initial_errors: str = "auto", max_iter: int = 500,
-               init: str = "frozen-lqr", progress: bool = False) -> tuple[Reference, GainSchedule]:
+               init: str = "frozen-lqr", target_ratio: float = 1.001,
+               progress: bool = False) -> tuple[Reference, GainSchedule]:
     """Build the reference of ``traj`` and synthesise its gain schedule.
 
     Parameters
@@ -27,6 +28,8 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     initial_errors : ``auto``, ``start`` or ``basis`` (:func:`.synthesis.initial_error_set`).
     init : initial gains of the paper's method: ``"zero"`` or ``"frozen-lqr"``
         (:func:`.synthesis.frozen_time_lqr_gains`, default).
+    target_ratio : the paper's method stops once ``J <= target_ratio * J*`` (J* from the
+        Riccati recursion of the same problem); 0 disables this stop.
 
     Returns
     -------
@@ -59,6 +62,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
         J_star = float(np.einsum("im,ij,jm->", X0, P[0], X0))
         res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, K0=K0, beta=beta,
                                  precondition=precondition, max_iter=max_iter,
+                                 target_cost=target_ratio * J_star if target_ratio > 0 else None,
                                  progress=progress)
         K, J = res.K, res.cost
         meta.update(J_star=J_star, evaluations=res.evaluations, iterations=res.iterations,

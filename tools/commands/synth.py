@@ -27,6 +27,9 @@ def add_arguments(parser) -> None:
                              "errors, or auto (basis when the start error is zero)")
     parser.add_argument("--init", choices=("frozen-lqr", "zero"), default="frozen-lqr",
                         help="paper method: initial gains, frozen-time LQR (default) or zero")
+    parser.add_argument("--target-ratio", type=float, default=1.001,
+                        help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
+                             "0 runs until converged or --max-iter (default 1.001)")
     parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
     parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -49,7 +52,7 @@ def run(args) -> int:
     ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law, beta=args.beta,
                             precondition=not args.no_precondition,
                             initial_errors=args.initial_errors, max_iter=args.max_iter,
-                            init=args.init,
+                            init=args.init, target_ratio=args.target_ratio,
                             progress=not args.quiet and sys.stderr.isatty())
     out = Path(args.out) if args.out else Path("out/gains") / f"{traj.name}_{args.method}.npz"
     if out.suffix != ".npz":
