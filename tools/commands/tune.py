@@ -67,6 +67,8 @@ def run(args: argparse.Namespace) -> int:
     prior_cfg = load_config(args.prior)
     if not 0.0 < args.pwm <= 1.0:
         raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
+    if args.current_max is not None and not args.current_max > 0:
+        raise ConfigError(f"--current-max {args.current_max} must be > 0 A")
     group = args.mode or ("drive" if args.id in rc.drive_ids else "steering" if args.id in rc.steer_ids else None)
     if group is None:
         raise ConfigError(f"servo ID {args.id} is neither a drive nor a steering servo in {args.robot_config}; "
@@ -99,7 +101,7 @@ def run(args: argparse.Namespace) -> int:
         except DxlTimeoutError:
             raise SwerveError(f"servo ID {args.id} does not answer on {port} (ping timed out): check the ID with "
                               "'swerve scan', the cable and the power; nothing was written") from None
-        current_max = args.current_max or bus.read_si(args.id, Reg.CURRENT_LIMIT)
+        current_max = args.current_max if args.current_max is not None else bus.read_si(args.id, Reg.CURRENT_LIMIT)
         if group == "steering":
             limits = Limits(position_min_rad=center_rad - rc.steer_angle_max_rad,
                             position_max_rad=center_rad + rc.steer_angle_max_rad, current_max_a=current_max)
