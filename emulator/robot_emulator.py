@@ -15,9 +15,9 @@
 The physics (:mod:`emulator.physics`) advances in fixed steps of ``1 / physics.rate_hz``
 simulated seconds. With ``time_scale = S > 0`` a clock thread runs the steps that wall time
 demands (``S * rate_hz`` steps per wall second), taking the bus lock per step and stepping
-aside when a bus transaction waits for it; if the CPU cannot keep up it catches up without sleeping, and beyond
-:data:`MAX_BACKLOG_WALL_S` of backlog it drops simulated time and counts it in
-:class:`ClockStats` (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
+aside when a bus transaction waits for it. If the CPU cannot keep up, it runs the owed steps
+back to back; beyond :data:`MAX_BACKLOG_WALL_S` of backlog it drops simulated time and counts
+it in :class:`ClockStats` (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
 
 The status file (JSON, rewritten atomically with ``os.replace`` at ``status_hz`` of wall time)
 lets another process read the true pose without touching the bus; see :meth:`RobotEmulator.status`.
@@ -44,7 +44,7 @@ from emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from emulator.physics.robot import RobotPhysics, load_robot_geometry
 from emulator.physics.servo_model import ServoModel
 from emulator.server import Emulator
-from emulator.servo import DYNAMICS_OUTPUTS, VirtualServo
+from emulator.servo import VirtualServo
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +65,7 @@ SWITCH_INTERVAL_S = 2e-4
 NOISE_KEYS = {"position": "position_noise_std_pulse", "current": "current_noise_std_a",
               "voltage": "voltage_noise_std_v"}
 
-#: Control-table items ServoModel.step reads (its docstring), plus what the firmware tick needs.
+#: Control-table items ServoModel.step reads (its docstring); all lie below address 120.
 _INPUTS = ("torque_enable", "operating_mode", "drive_mode", "goal_pwm", "goal_current", "goal_velocity",
            "goal_position", "profile_acceleration", "profile_velocity", "velocity_i_gain",
            "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain",
@@ -91,9 +91,6 @@ class _ServoDynamics:
         regs = [servo.table[n] for n in _INPUTS]
         self._end = max(r.address + r.size for r in regs)
         self._layout = [(r.name, r.address, r.address + r.size, r.signed) for r in regs]
-        first_output = min(servo.table[n].address for n in DYNAMICS_OUTPUTS)
-        if self._end > first_output:     # would never hit the cache; still correct
-            log.debug("input items overlap the outputs; the input cache is ineffective")
         self._raw = b""
         self._items: dict[str, int] = {}
         self._last: dict[str, int] = {}
