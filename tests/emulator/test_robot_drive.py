@@ -8,6 +8,8 @@ its status file, never from the bus. Deterministic tests step simulated time wit
 from __future__ import annotations
 
 import math
+import sys
+import threading
 import time
 from pathlib import Path
 
@@ -20,7 +22,7 @@ from driver.errors import ConfigError
 from driver.robot_config import load_robot_config
 from driver.wheelset import WheelSet
 from emulator.physics.params import SensorParams
-from emulator.robot_emulator import parse_noise, read_status, robot_emulator, true_pose
+from emulator.robot_emulator import _HandOverLock, parse_noise, read_status, robot_emulator, true_pose
 
 ROOT = Path(__file__).resolve().parents[2]
 ROBOT = ROOT / "configs" / "robot.yaml"
@@ -98,6 +100,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
     machine the physics may not reach 5x (it then reports the dropped time)."""
     status_path = tmp_path / "status.json"
     scale = 5.0
+    switch_before = sys.getswitchinterval()
     with robot_emulator(ROBOT, PHYSICS, time_scale=scale, status_file=status_path) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=0.5) as bus, WheelSet(bus, CFG) as wheels:
         wall0 = time.monotonic()
@@ -122,6 +125,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
         time.sleep(0.2)                                   # > 2 status periods (20 Hz)
         last = read_status(status_path)
     final = read_status(status_path)                      # written again at close
+    assert sys.getswitchinterval() == switch_before       # the process-wide setting is restored
     assert sim > 0.5 * wall                               # the clock ran (5x if the CPU allows)
     # every owed second is delivered, dropped (and counted) or still owed (the backlog)
     assert sim + stats["lost_sim_s"] + stats["backlog_s"] == pytest.approx(scale * wall, rel=0.2)
@@ -167,3 +171,27 @@ def test_position_noise_reaches_the_bus():
 def test_robot_config_ids_must_be_on_the_bus():
     with pytest.raises(ConfigError, match="not on the emulated bus"):
         robot_emulator(ROBOT, PHYSICS, time_scale=0, ids=[1, 2, 3, 4, 5, 6, 7])
+
+
+def test_hand_over_lock_shows_who_waits():
+    """The clock steps aside only when someone waits: the lock must report waiters, then forget them."""
+    lock = _HandOverLock()
+    got = threading.Event()
+
+    def contender():
+        with lock:
+            got.set()
+
+    with lock:
+        t = threading.Thread(target=contender)
+        t.start()
+        deadline = time.monotonic() + 5.0
+        while not lock.waiting and time.monotonic() < deadline:
+            time.sleep(0.001)
+        assert lock.waiting == {t.ident}
+        assert not got.is_set()
+    assert got.wait(5.0)
+    t.join(5.0)
+    assert lock.waiting == set() and not lock.locked()
+    assert lock.acquire(blocking=False) and not lock.acquire(blocking=False)
+    lock.release()
