@@ -139,6 +139,26 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
     assert [w["name"] for w in final["wheels"]] == [w.name for w in CFG.wheels]
 
 
+def test_status_file_holds_the_true_pose_at_close(tmp_path):
+    """Deterministic: without a clock the status thread still publishes; the last write is at close."""
+    path = tmp_path / "pose.json"
+    with robot_emulator(ROBOT, PHYSICS, time_scale=0, status_file=path, start_pose=(0.5, 0.0, 0.0)) as emu, \
+            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, CFG) as wheels:
+        assert read_status(path)["pose"] == [0.5, 0.0, 0.0] and read_status(path)["t_s"] == 0.0
+        wheels.configure()
+        wheels.enable()
+        for _ in range(40):
+            wheels.write_goals([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4)
+            emu.advance(PERIOD_S)
+        pose, t_s = emu.pose, emu.sim_time_s
+    doc = read_status(path)
+    assert doc["t_s"] == pytest.approx(t_s) and doc["t_s"] == pytest.approx(40 * PERIOD_S)
+    assert doc["pose"] == pytest.approx(list(pose))
+    assert doc["pose"][0] > 0.5 + 0.02
+    assert doc["wheels"][0]["speed_mps"] == pytest.approx(V1_MPS, rel=0.02)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["pose.json"]   # no temp file left
+
+
 def test_noise_spec_parses_and_rejects():
     base = SensorParams()
     params, seed = parse_noise("position=0.5, current=0.003,seed=7", base)
