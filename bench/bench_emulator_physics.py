@@ -139,7 +139,7 @@ def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> 
             "period_ms": period * 1e3, "median_ms": float(np.median(lat_ms)),
             "p99_ms": float(np.percentile(lat_ms, 99)), "max_ms": float(lat_ms.max()),
             "achieved_scale": ck["achieved_scale"], "lost_sim_s": ck["lost_sim_s"],
-            "clock_rtf": ck["real_time_factor"], "sim_s": sim}
+            "clock_rtf": ck["real_time_factor"] or math.nan, "sim_s": sim}
 
 
 # --- 3. step tests through the bus ------------------------------------------------------------------

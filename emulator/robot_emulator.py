@@ -180,7 +180,7 @@ class ClockStats:
     rate_hz: float = 0.0
     wall_s: float = 0.0         # wall time since the clock started
     steps: int = 0              # physics steps run by the clock thread
-    batches: int = 0            # lock acquisitions of the clock thread
+    batches: int = 0            # runs of back-to-back steps (one per wake-up or 2 ms of work)
     backlog_s: float = 0.0      # simulated time owed right now (steps due but not yet run)
     max_backlog_s: float = 0.0  # largest simulated time the clock was behind wall time * scale
     fell_behind: int = 0        # times the backlog exceeded MAX_BACKLOG_WALL_S and time was dropped
@@ -197,10 +197,11 @@ class ClockStats:
         """Simulated seconds per CPU second of the clock thread (physics + table upkeep)."""
         return self.steps / self.rate_hz / self.cpu_s if self.cpu_s > 0 else math.inf
 
-    def as_dict(self) -> dict[str, float]:
+    def as_dict(self) -> dict[str, float | None]:
+        """All fields plus the two ratios; a ratio without data (no CPU time yet) is ``None``."""
         d = dataclasses.asdict(self)
         d.update(achieved_scale=self.achieved_scale, real_time_factor=self.real_time_factor)
-        return d
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
 class _BodyClock:
@@ -260,6 +261,11 @@ class RobotEmulator(Emulator):
         """Simulated seconds since construction (clock thread and :meth:`advance` together)."""
         with self.lock:
             return self._body.t_s
+
+    def true_state(self) -> tuple[float, tuple[float, float, float]]:
+        """``(sim_time_s, (x_m, y_m, theta_rad))`` read under one lock (a coherent pair)."""
+        with self.lock:
+            return self._body.t_s, self.physics.body.pose
 
     def status(self) -> dict:
         """The status-file document: simulated time, pose, twist, wheels, slip, clock health.

@@ -150,7 +150,10 @@ def test_status_file_holds_the_true_pose_at_close(tmp_path):
         for _ in range(40):
             wheels.write_goals([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4)
             emu.advance(PERIOD_S)
-        pose, t_s = emu.pose, emu.sim_time_s
+        t_s, pose = emu.true_state()
+        assert (t_s, pose) == (emu.sim_time_s, true_pose(emu))
+    text = path.read_text()
+    assert "Infinity" not in text and "NaN" not in text        # strict JSON for any reader
     doc = read_status(path)
     assert doc["t_s"] == pytest.approx(t_s) and doc["t_s"] == pytest.approx(40 * PERIOD_S)
     assert doc["pose"] == pytest.approx(list(pose))
