@@ -16,7 +16,7 @@ METHODS = ("riccati", "paper")
 def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geometry(),
                limits: Limits = Limits(), frames: str = "rotating", beta: str = "dai-yuan",
                precondition: bool = True, initial_errors: str = "auto", max_iter: int = 500,
-               init: str = "frozen-lqr", target_ratio: float = 1.001,
+               init: str = "continuation", target_ratio: float = 1.001,
                progress: bool = False) -> tuple[Reference, GainSchedule]:
     """Build the reference of ``traj`` and synthesise its gain schedule.
 
@@ -26,8 +26,10 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     frames : ``"rotating"`` (re-anchored chained frames) or ``"fixed"`` (the paper's).
     beta, precondition, max_iter : options of :func:`controller.synthesis.conjugate_gradient`.
     initial_errors : ``auto``, ``start`` or ``basis`` (:func:`.synthesis.initial_error_set`).
-    init : initial gains of the paper's method: ``"zero"`` or ``"frozen-lqr"``
-        (:func:`.synthesis.frozen_time_lqr_gains`, default).
+    init : start of the paper's method: ``"continuation"`` (K = 0 with horizon continuation,
+        :func:`.synthesis.conjugate_gradient_continuation`, default), ``"zero"`` (K = 0 on the
+        full horizon, the paper as printed) or ``"frozen-lqr"``
+        (:func:`.synthesis.frozen_time_lqr_gains`).
     target_ratio : the paper's method stops once ``J <= target_ratio * J*`` (J* from the
         Riccati recursion of the same problem); 0 disables this stop.
 
@@ -51,19 +53,22 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
         meta.update(J_star=J)
         K = Kr
     else:
-        from controller.synthesis import (conjugate_gradient, frozen_time_lqr_gains,
-                                          initial_error_set)
+        from controller.synthesis import (conjugate_gradient, conjugate_gradient_continuation,
+                                          frozen_time_lqr_gains, initial_error_set)
 
-        if init not in ("zero", "frozen-lqr"):
-            raise ControllerError(f"init must be 'zero' or 'frozen-lqr', got {init!r}")
+        if init not in ("continuation", "zero", "frozen-lqr"):
+            raise ControllerError(f"init must be continuation, zero or frozen-lqr, got {init!r}")
         K0 = (frozen_time_lqr_gains(Ad, Bd, traj.Q, traj.R, traj.tau_s)
               if init == "frozen-lqr" else None)
         X0 = initial_error_set(x0, initial_errors)
         J_star = float(np.einsum("im,ij,jm->", X0, P[0], X0))
-        res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, K0=K0, beta=beta,
-                                 precondition=precondition, max_iter=max_iter,
-                                 target_cost=target_ratio * J_star if target_ratio > 0 else None,
-                                 progress=progress)
+        opts = dict(beta=beta, precondition=precondition, max_iter=max_iter,
+                    target_cost=target_ratio * J_star if target_ratio > 0 else None,
+                    progress=progress)
+        if init == "continuation":
+            res = conjugate_gradient_continuation(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, **opts)
+        else:
+            res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, K0=K0, **opts)
         K, J = res.K, res.cost
         meta.update(J_star=J_star, evaluations=res.evaluations, iterations=res.iterations,
                     seconds=res.seconds, message=res.message, beta=beta,

@@ -297,3 +297,55 @@ def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 62):
             pass
         K[i:i + knot_every] = Kk
     return K
+
+
+def conjugate_gradient_continuation(Ad, Bd, Q, R, tau, X0, n0: int = 64, growth: int = 2,
+                                    stage_iter: int = 20, stage_rtol: float = 1e-3,
+                                    **options) -> SynthesisResult:
+    """:func:`conjugate_gradient` from K = 0 with horizon continuation.
+
+    From K = 0 the error system is open loop and the cost grows polynomially with the
+    horizon, which makes J(K) extremely ill-conditioned for the full N. Solve the first
+    ``n0`` steps, then repeatedly extend the horizon by ``growth``: keep the gains of the
+    first half, hold the gain of the middle step over the rest (the second half still shows
+    the short horizon's end effect), and run at most ``stage_iter`` CG iterations; the last
+    stage is the full problem with ``options`` (``target_cost``, ``max_iter``, ``beta``,
+    ``precondition``...). Same method, same line search, no Riccati or DARE.
+
+    Returns the :class:`SynthesisResult` of the full problem with evaluations, iterations
+    and seconds summed over all stages; ``history`` holds the final stage only, with
+    evaluation counts and times offset by the earlier stages.
+    """
+    from controller.ltv import cost as exact_cost
+
+    N = Ad.shape[0]
+    n = min(int(n0), N)
+    K = np.zeros((n, 3, 5))
+    evals = iters = 0
+    t0 = time.perf_counter()
+    max_seconds = options.pop("max_seconds", np.inf)
+    while True:
+        last = n == N
+        opts = dict(options, max_seconds=max_seconds - (time.perf_counter() - t0))
+        if not last:
+            opts.update(max_iter=stage_iter, target_cost=None, rtol=stage_rtol, progress=False)
+        res = conjugate_gradient(Ad[:n], Bd[:n], Q, R, tau, X0, K0=K, **opts)
+        t_done = time.perf_counter() - t0
+        if last:
+            offset_t = t_done - res.seconds
+            hist = [(e + evals, s + offset_t, f) for e, s, f in res.history]
+            return SynthesisResult(res.K, res.cost, evals + res.evaluations,
+                                   iters + res.iterations, t_done,
+                                   f"{res.message} (horizon continuation from {min(n0, N)} "
+                                   "steps)", hist)
+        evals += res.evaluations
+        iters += res.iterations
+        m = min(N, growth * n)
+        Kn = np.zeros((m, 3, 5))
+        Kn[:n] = res.K
+        Kn[n // 2:] = res.K[n // 2]
+        with np.errstate(over="ignore", invalid="ignore"):
+            if not np.isfinite(exact_cost(Ad[:m], Bd[:m], Kn, Q, R, tau, X0)):
+                Kn[n // 2:] = 0.0
+                Kn[:n] = res.K
+        K, n = Kn, m

@@ -157,3 +157,24 @@ def test_warm_start_is_close_on_the_line(short_line_reference):
     K0 = frozen_time_lqr_gains(Ad, Bd, Q, R, tau)
     J0 = cost(Ad, Bd, K0, Q, R, tau, x0)
     assert x0 @ P[0] @ x0 <= J0 <= 1.2 * (x0 @ P[0] @ x0)
+
+
+def test_horizon_continuation_reaches_jstar(robot):
+    """Cold start K = 0 with horizon continuation: within 1 % of J* on a 600-step line."""
+    import dataclasses
+
+    from controller.reference import build_reference, load_trajectory
+    from controller.synthesis import conjugate_gradient_continuation
+
+    traj = load_trajectory("line")
+    traj = dataclasses.replace(traj, n_steps=600, tf_s=600 * traj.tau_s)
+    ref = build_reference(traj, *robot)
+    Ad, Bd, Q, R, tau = problem(ref)
+    x0 = initial_error(ref, ref.start_state())
+    _, P = finite_horizon_lqr(Ad, Bd, Q, R, tau)
+    J_star = x0 @ P[0] @ x0
+    res = conjugate_gradient_continuation(Ad, Bd, Q, R, tau, x0, target_cost=1.01 * J_star,
+                                          max_iter=400)
+    assert J_star * (1 - 1e-9) <= res.cost <= 1.01 * J_star
+    assert res.K.shape == (600, 3, 5) and "continuation" in res.message
+    assert res.cost == pytest.approx(cost(Ad, Bd, res.K, Q, R, tau, x0), rel=1e-10)

@@ -25,8 +25,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--initial-errors", choices=("auto", "start", "basis"), default="auto",
                         help="paper method: optimise for the start error, a basis of unit "
                              "errors, or auto (basis when the start error is zero)")
-    parser.add_argument("--init", choices=("frozen-lqr", "zero"), default="frozen-lqr",
-                        help="paper method: initial gains, frozen-time LQR (default) or zero")
+    parser.add_argument("--init", choices=("continuation", "zero", "frozen-lqr"),
+                        default="continuation",
+                        help="paper method: K = 0 with horizon continuation (default), K = 0 "
+                             "on the full horizon (as printed), or frozen-time LQR gains")
     parser.add_argument("--target-ratio", type=float, default=1.001,
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
