@@ -22,7 +22,7 @@ from driver.errors import SwerveError
 from emulator.physics import units as u
 from emulator.physics.params import FirmwareParams, MotorParams
 from emulator.physics.servo_model import ServoModel
-from emulator.physics.steptest import StepMetrics, position_step, step_metrics, velocity_step
+from emulator.physics.steptest import StepMetrics, simulate, step_metrics, table, velocity_step
 
 VELOCITY_P_GRID = (50, 100, 150, 200, 300, 400, 600, 800)
 GAIN_MAX = 16383
@@ -125,15 +125,20 @@ def predict_velocity(plant: Plant, gains: dict[str, int], step_radps: float,
 
 def predict_position(plant: Plant, gains: dict[str, int], step_rad: float, start_rad: float = math.pi,
                      duration_s: float = 0.8) -> Prediction:
-    """Simulate a position-mode step of ``step_rad`` after settling at ``start_rad``."""
+    """Simulate a position-mode step of ``step_rad`` from rest at ``start_rad``.
+
+    The model starts at rest on ``start_rad`` and gets the new goal on its first tick, which is
+    what a settled servo sees (no settling phase needs simulating).
+    """
     start, step = round(start_rad / u.RAD_PER_PULSE), round(step_rad / u.RAD_PER_PULSE)
     items = {k: gains[k] for k in ("position_p_gain", "position_i_gain", "position_d_gain") if k in gains}
     model = plant.model()
-    model.set_shaft_angle(start * u.RAD_PER_PULSE)
-    m, t, y, outs = position_step(model, start, step, plant.dt_s, duration_s, **items)
+    model.set_shaft_angle((start + 0.5) * u.RAD_PER_PULSE)          # mid-pulse: Present Position = start
+    t, y, outs = simulate(model, table(operating_mode=u.MODE_POSITION, goal_position=start + step, **items),
+                          duration_s, plant.dt_s, "angle")
     rep = np.array([o["present_position"] for o in outs], float)
-    return Prediction(m, step_metrics(t, rep, float(start), start + step), t,
-                      (y - start) * u.RAD_PER_PULSE, (rep - start) * u.RAD_PER_PULSE)
+    return Prediction(step_metrics(t, y, float(start), start + step), step_metrics(t, rep, float(start), start + step),
+                      t, (y - start) * u.RAD_PER_PULSE, (rep - start) * u.RAD_PER_PULSE)
 
 
 def design_velocity(plant: Plant, spec: Spec, p_grid=VELOCITY_P_GRID) -> Design:
@@ -147,9 +152,9 @@ def design_velocity(plant: Plant, spec: Spec, p_grid=VELOCITY_P_GRID) -> Design:
     """
     target = 100.0 * spec.velocity_overshoot_max * spec.margin          # percent
 
-    def overshoot(kp, ki):
+    def overshoot(kp, ki):                 # 0.6 s shows the peak; a slower settle loses anyway
         return predict_velocity(plant, {"velocity_p_gain": kp, "velocity_i_gain": int(round(ki))},
-                                spec.velocity_step_radps).true
+                                spec.velocity_step_radps, duration_s=0.6).true
 
     searched, best = [], None
     for kp in p_grid:

@@ -172,6 +172,26 @@ class Experimenter:
             self.progress(now - last)
             last = now
 
+    def wait_still(self, still_s: float = 0.05, timeout_s: float = 2.0) -> None:
+        """Sample until Present Position has not changed by more than 3 LSB for ``still_s``
+        (the model starts every record from rest).
+
+        Raises
+        ------
+        SafetyError
+            If the shaft is still moving after ``timeout_s``.
+        """
+        trace, start = Trace(), time.monotonic()
+        since, ref = start, None
+        while (now := time.monotonic()) - start < timeout_s:
+            pos = self.sample(trace)[Reg.PRESENT_POSITION]
+            if ref is None or abs(pos - ref) > 3:
+                since, ref = now, pos
+            elif now - since >= still_s:
+                return
+        raise SafetyError(f"servo ID {self.id} does not come to rest (torque on, PWM 0) within {timeout_s:g} s; "
+                          "torque turned off")
+
     def set_mode(self, mode: int) -> None:
         """Torque off, then Operating Mode (an EEPROM item)."""
         self.write(Reg.TORQUE_ENABLE, 0)
@@ -227,6 +247,7 @@ class Experimenter:
         trace = Trace()
         self.write(Reg.GOAL_PWM, 0)
         self.write(Reg.TORQUE_ENABLE, 1)
+        self.wait_still()
         self.hold(rest_s, trace)
         supply = np.mean(_si(self.table, Reg.PRESENT_INPUT_VOLTAGE, trace.raw(Reg.PRESENT_INPUT_VOLTAGE)))
         if supply <= 0:

@@ -192,8 +192,9 @@ def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
 
 
 def _rest_samples(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
-    """Samples taken before the first switch (motor at rest)."""
-    return signal[rec.t_s < rec.switch_t_s[0]] / lsb
+    """Samples taken before the first switch (motor at rest), in LSB, about their mean."""
+    rest = signal[rec.t_s < rec.switch_t_s[0]] / lsb
+    return rest - rest.mean()
 
 
 def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
