@@ -21,6 +21,9 @@ from emulator.physics.steptest import StepMetrics, step_metrics
 from emulator.robot_emulator import FULL_REFRESH_STEPS, _INPUTS, robot_emulator
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
+#: can stall for hundreds of ms; with time_scale=0 nothing is ever lost, so it costs nothing.
+MARGIN_S = 1.0
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"
 CFG = load_config(PHYSICS)
@@ -39,7 +42,7 @@ def emu():
 
 @pytest.fixture
 def bus(emu):
-    with Bus(emu.port, emu.baud, timeout_margin_s=0.3) as b:
+    with Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as b:
         yield b
 
 
@@ -153,7 +156,7 @@ def test_higher_position_p_gain_settles_faster(emu, bus):
 def test_drive_step_reaches_goal_under_wheel_load():
     """With the body's mass on the shaft the same gains overshoot more (more inertia, same PI)."""
     with robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=True) as emu, \
-            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus:
+            Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus:
         present, true = velocity_step(emu, bus, 100, velocity_p_gain=SPEC["velocity_p_gain"],
                                       velocity_i_gain=SPEC["velocity_i_gain"])
     assert present.final == 100

@@ -25,6 +25,9 @@ from emulator.physics.params import SensorParams
 from emulator.robot_emulator import _HandOverLock, parse_noise, read_status, robot_emulator, true_pose
 
 ROOT = Path(__file__).resolve().parents[2]
+#: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
+#: can stall for hundreds of ms; with time_scale=0 nothing is ever lost, so it costs nothing.
+MARGIN_S = 1.0
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"
 CFG = load_robot_config(ROBOT)
@@ -38,7 +41,7 @@ def drive(v_radps, steer_rad, seconds: float, **kwargs):
     """Drive the robot for ``seconds`` of simulated time; return the pose log (n, 4) of
     ``(t_s, x, y, theta)`` after each cycle, the last WheelState and the final status."""
     with robot_emulator(ROBOT, PHYSICS, time_scale=0, **kwargs) as emu, \
-            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, CFG) as wheels:
+            Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         wheels.configure()
         wheels.enable()
         log = []
@@ -143,7 +146,7 @@ def test_status_file_holds_the_true_pose_at_close(tmp_path):
     """Deterministic: without a clock the status thread still publishes; the last write is at close."""
     path = tmp_path / "pose.json"
     with robot_emulator(ROBOT, PHYSICS, time_scale=0, status_file=path, start_pose=(0.5, 0.0, 0.0)) as emu, \
-            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, CFG) as wheels:
+            Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         assert read_status(path)["pose"] == [0.5, 0.0, 0.0] and read_status(path)["t_s"] == 0.0
         wheels.configure()
         wheels.enable()
@@ -179,7 +182,7 @@ def test_noise_spec_parses_and_rejects():
 def test_position_noise_reaches_the_bus():
     """With encoder noise the steering servos' Present Position jitters around the goal."""
     with robot_emulator(ROBOT, PHYSICS, time_scale=0, noise="position=2,seed=3") as emu, \
-            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, CFG) as wheels:
+            Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         wheels.configure()
         wheels.enable()
         angles = []
