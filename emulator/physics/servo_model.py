@@ -65,6 +65,7 @@ class ServoModel:
         self._sign = 1
         self._homing = 0
         self._goal_pulse = 0.0          # goal after limits / watchdog hold, pulse
+        self._gains: dict[tuple, object] = {}   # raw gain items -> converted gains
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -179,7 +180,10 @@ class ServoModel:
             self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
         self.motor.step(dt_s, voltage)
         self._heat(dt_s)
-        self._prev = {k: table[k] for k in ("operating_mode", "torque_enable", "drive_mode", *GOAL_KEYS)}
+        self._prev = {"operating_mode": mode, "torque_enable": table["torque_enable"],
+                      "drive_mode": table["drive_mode"], "goal_velocity": table["goal_velocity"],
+                      "goal_position": table["goal_position"], "goal_pwm": table["goal_pwm"],
+                      "goal_current": table["goal_current"]}
         return self._outputs(table, mode, torque, present, v_meas, sign)
 
     def _control(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
@@ -204,7 +208,7 @@ class ServoModel:
             ref = self.profile.velocity
             if self.fw.bessel_placement == "reference":
                 ref = self.reference_filter.step(dt_s, ref)
-            g = VelocityGains.from_table(t["velocity_p_gain"], t["velocity_i_gain"])
+            g = self._cached_gains(("v", t["velocity_p_gain"], t["velocity_i_gain"]), VelocityGains.from_table)
             counts = self.loop.update(dt_s, ref - v_meas, g.kp, g.ki, 0.0, pwm_lim)
         elif mode in u.POSITION_MODES:
             counts = self._position_loop(dt_s, t, mode, present, v_meas, pwm_lim, tripped, switched)
@@ -248,14 +252,23 @@ class ServoModel:
         ref = self.profile.position
         if self.fw.bessel_placement == "reference":
             ref = self.reference_filter.step(dt_s, ref)
-        g = PositionGains.from_table(t["position_p_gain"], t["position_i_gain"], t["position_d_gain"],
-                                     t["feedforward_1st_gain"], t["feedforward_2nd_gain"])
+        g = self._cached_gains(("p", t["position_p_gain"], t["position_i_gain"], t["position_d_gain"],
+                                t["feedforward_1st_gain"], t["feedforward_2nd_gain"]), PositionGains.from_table)
         tick = self.fw.gain_time_base_s
         v_traj = self.profile.velocity * tick                  # pulse per tick
         a_traj = self.profile.acceleration * tick * tick       # pulse per tick²
         v_err = v_traj - v_meas * PULSE_PER_S_PER_VEL_UNIT * tick
         extra = g.kd * v_err + g.ff1 * v_traj + g.ff2 * a_traj
         return self.loop.update(dt_s, ref - present, g.kp, g.ki, extra, pwm_lim)
+
+    def _cached_gains(self, key: tuple, convert):
+        """Converted gains for raw gain items ``key[1:]`` (building the dataclass every tick is slow)."""
+        g = self._gains.get(key)
+        if g is None:
+            if len(self._gains) >= 64:  # a tuning sweep: keep the cache small
+                self._gains.clear()
+            g = self._gains[key] = convert(*key[1:])
+        return g
 
     def _heat(self, dt_s: float) -> None:
         th = self.thermal
