@@ -22,7 +22,7 @@ import numpy as np  # noqa: E402
 
 from controller.design import synthesize  # noqa: E402
 from controller.kinematics import load_robot  # noqa: E402
-from controller.ltv import error_system, initial_error  # noqa: E402
+from controller.ltv import cost, error_system, initial_error  # noqa: E402
 from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
 from controller.riccati import finite_horizon_lqr  # noqa: E402
 from controller.simulate import metrics, simulate  # noqa: E402
@@ -114,8 +114,13 @@ def bench_cg(cg_seconds, name="line", variants=CG_VARIANTS):
         h = np.array(res.history)
         at2 = h[h[:, 1] <= 2.0 - t_init][-1, 2] / J_star if np.any(h[:, 1] <= 2.0 - t_init) \
             else np.nan
+        J0 = cost(Ad, Bd, np.zeros((traj.n_steps, 3, 5)) if K0 is None else K0, traj.Q, traj.R,
+                  traj.tau_s, X0)
+        msg = res.message.replace(f"time limit {cg_seconds - 0:g}", "time limit")
+        if "time limit" in msg:
+            msg = "time limit reached" + (" (continuation)" if "continuation" in msg else "")
         rows.append((label, res.cost / J_star, res.seconds + t_init, res.evaluations,
-                     res.message, at2, h[0, 2] / J_star))
+                     msg, at2, J0 / J_star))
     return J_star, rows
 
 
@@ -149,6 +154,10 @@ def machine():
             f"load average {load:.1f} at the start (shared machine).")
 
 
+def _f(x):
+    return "–" if not np.isfinite(x) else f"{x:.4f}"
+
+
 def render(ric, grad, cg, cg_more, track, cg_seconds):
     J_star, cg_rows = cg
     out = [SECTION, "", machine(),
@@ -164,15 +173,15 @@ def render(ric, grad, cg, cg_more, track, cg_seconds):
     out += ["", f"The paper's method (nonlinear CG, Dai–Yuan β, SciPy strong-Wolfe line search, "
             f"exact gradient) on the line case, N = 2500, target 1.01·J* (J* = {J_star:.4f}); "
             f"runs capped at {cg_seconds:g} s; times include computing K0:", "",
-            "| start / variant | J(K0)/J* | J/J* reached | seconds | evaluations | J/J* at 2 s | "
+            "| start / variant | J(K0)/J* | J/J* reached | seconds | evaluations | J/J* at 2 s (– : still in a shorter stage or computing K0) | "
             "stopped because |", "|---|---|---|---|---|---|---|"]
-    out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {a2:.4f} | {msg} |"
+    out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {_f(a2)} | {msg} |"
             for lab, r, s, e, msg, a2, j0 in cg_rows]
     for title, (J2, rows2) in cg_more:
         out += ["", f"Same target, {title} (J* = {J2:.4f}):", "",
                 "| start / variant | J(K0)/J* | J/J* reached | seconds | evaluations | "
                 "J/J* at 2 s | stopped because |", "|---|---|---|---|---|---|---|"]
-        out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {a2:.4f} | {msg} |"
+        out += [f"| {lab} | {j0:.3g} | {r:.4f} | {s:.2f} | {e} | {_f(a2)} | {msg} |"
                 for lab, r, s, e, msg, a2, j0 in rows2]
     out += ["", "Closed loop on the nonlinear model (1)–(5), Riccati gains, rotating chained "
             "frames, limits from configs/robot.yaml, errors over t ≥ tf/4:", "",
