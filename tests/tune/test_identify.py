@@ -59,3 +59,16 @@ def test_a_record_without_rest_samples_is_refused(table1):
     bad = replace(rec, switch_t_s=rec.switch_t_s - 1.0)
     with pytest.raises(ValueError, match="rest samples"):
         identify([bad], GEAR, PRIOR, **LSB)
+
+
+@pytest.mark.parametrize("error_s", [0.02, 0.08, -0.05], ids=["20ms-late", "80ms-late", "50ms-early"])
+def test_a_mistimed_write_is_relocated_from_the_current_jump(table1, error_s):
+    truth = table1.steering_motor
+    rec = pwm_record(truth, GEAR, PLAN, seed=3)
+    logged = rec.switch_t_s.copy()
+    logged[2] += error_s                      # a late or retried reply put this write elsewhere
+    bad = replace(rec, switch_t_s=logged, switch_std_s=np.full(logged.shape, 1e-3))
+    ident = identify([bad], GEAR, PRIOR, **LSB)
+    for name in FITTED:
+        assert ident.estimates[name].value == pytest.approx(getattr(truth, name), rel=0.05), name
+    assert ident.switch_t_s[0][2] == pytest.approx(rec.switch_t_s[2], abs=2e-3)

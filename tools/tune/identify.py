@@ -40,6 +40,9 @@ FIXED_REASONS = {
 UNITS = {"resistance_ohm": "ohm", "back_emf_v_s_per_rad": "V s/rad", "inertia_kg_m2": "kg m^2",
          "friction_nm_s_per_rad": "N m s/rad", "inductance_h": "H", "torque_nm_per_a": "N m/A"}
 Z95 = 1.959963984540054
+#: Floor of the switch-time prior, s: wide enough for a write that took effect later than the
+#: samples around it suggest (a retried or late reply); the current spikes pin it down.
+SWITCH_STD_MIN_S = 0.01
 
 
 @dataclass(frozen=True)
@@ -74,8 +77,8 @@ class PwmRecord:
     def switch_std(self) -> np.ndarray:
         """Switch-time uncertainties, s, shape (m,)."""
         if self.switch_std_s is None:
-            return np.full(self.switch_t_s.shape, 1e-3)
-        return np.maximum(np.asarray(self.switch_std_s, float), 2e-4)
+            return np.full(self.switch_t_s.shape, SWITCH_STD_MIN_S)
+        return np.maximum(np.asarray(self.switch_std_s, float), SWITCH_STD_MIN_S)
 
 
 @dataclass(frozen=True)
@@ -111,7 +114,7 @@ class Identification:
         Combinations the data determine directly: mechanical time constant ``tau_m_s``,
         ``km_over_j`` (1/(A s^2)), ``b_over_km`` (A s/rad), no-load output speed at 12 V.
     delay_s : float
-        Mean fitted shift of the switch times (write to effect), s.
+        Mean fitted shift of the switch times from where the current jumps put them, s.
     position_skew_s : float
         Fitted age of Present Position relative to Present Current in one read, s (the
         emulator samples the encoder one physics tick before the current).
@@ -123,6 +126,8 @@ class Identification:
         Correlation of the fitted log-parameters, in :data:`FITTED` order.
     n_samples : int
         Samples used (both channels count once per bus read).
+    switch_t_s : list[ndarray]
+        Fitted switch times of each record, s (shape (m,) each).
     """
 
     params: MotorParams
@@ -136,6 +141,7 @@ class Identification:
     correlation: np.ndarray
     n_samples: int
     extra: dict = field(default_factory=dict)
+    switch_t_s: list = field(default_factory=list, repr=False)
 
 
 def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
@@ -197,6 +203,46 @@ def _rest_samples(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
     return rest - rest.mean()
 
 
+def locate_switches(rec: PwmRecord, noise_a: float) -> PwmRecord:
+    """Re-time each voltage switch from the current jump it causes.
+
+    A step ``dv`` in armature voltage moves the current by about ``dv / R`` within ``L/R``
+    (~0.3 ms), far above the sensor noise. Around each logged switch (between the midpoints to its
+    neighbours) the pair of consecutive samples with the largest current change in the sign of
+    ``dv`` brackets the switch; its midpoint and half-width become the switch time and its
+    uncertainty. A switch whose jump is not clearly (> 6 noise std) visible keeps its logged time.
+    This guards against write times that a late or retried bus reply has put in the wrong place.
+
+    Parameters
+    ----------
+    rec : PwmRecord
+        Record with logged switch times.
+    noise_a : float
+        Current noise standard deviation, A.
+
+    Returns
+    -------
+    PwmRecord
+        A copy with ``switch_t_s`` and ``switch_std_s`` from the data where possible.
+    """
+    sw = np.asarray(rec.switch_t_s, float).copy()
+    std = rec.switch_std().copy()
+    dv = np.diff(np.concatenate([[0.0], rec.voltage_v]))
+    edges = np.concatenate([[-np.inf], 0.5 * (sw[1:] + sw[:-1]), [np.inf]])
+    di = np.diff(rec.current_a)
+    for k in range(sw.size):
+        if dv[k] == 0.0:
+            continue
+        j = np.nonzero((rec.t_s[1:] > edges[k]) & (rec.t_s[:-1] < edges[k + 1]))[0]
+        if j.size == 0:
+            continue
+        best = j[np.argmax(np.sign(dv[k]) * di[j])]
+        if np.sign(dv[k]) * di[best] > 6.0 * max(noise_a, 1e-6) * np.sqrt(2.0):
+            t0, t1 = rec.t_s[best], rec.t_s[best + 1]
+            sw[k], std[k] = 0.5 * (t0 + t1), 0.5 * (t1 - t0)
+    return replace(rec, switch_t_s=sw, switch_std_s=std)
+
+
 def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
              position_lsb_rad: float, current_lsb_a: float) -> Identification:
     """Fit ``R, Ke, J, b`` (plus per-switch time shifts, a position/current time skew and
@@ -230,6 +276,7 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
     cur_rest = np.concatenate([_rest_samples(r, current_lsb_a, r.current_a) for r in records])
     sig_p = np.sqrt(1.0 / 12.0 + np.var(pos_rest))          # pulses
     sig_i = np.sqrt(1.0 / 12.0 + np.var(cur_rest))          # current LSBs
+    records = [locate_switches(r, sig_i * current_lsb_a) for r in records]
     n_sw = [r.switch_t_s.size for r in records]
     x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0], np.zeros(sum(n_sw)),
                          [np.mean(r.position_rad[r.t_s < r.switch_t_s[0]]) / position_lsb_rad + 0.5
@@ -281,7 +328,8 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
                       "current_a": float(np.sqrt(np.mean(r_cur ** 2))) * current_lsb_a},
         noise_std={"position_pulse": float(np.std(pos_rest)), "current_a": float(np.std(cur_rest)) * current_lsb_a},
         correlation=corr, n_samples=int(sum(r.t_s.size for r in records)),
-        extra={"nfev": int(sol.nfev), "status": int(sol.status), "reduced_chi2": float(s2)})
+        extra={"nfev": int(sol.nfev), "status": int(sol.status), "reduced_chi2": float(s2)},
+        switch_t_s=[r.switch_t_s + sh for r, sh in zip(records, shifts)])
 
 
 def _channel_slices(records: list[PwmRecord], channel: int) -> list[tuple[int, int]]:
