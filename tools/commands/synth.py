@@ -21,7 +21,8 @@ def add_arguments(parser) -> None:
                         help="paper method: dai-yuan (default), fletcher-reeves, "
                              "polak-ribiere, hestenes-stiefel")
     parser.add_argument("--no-precondition", action="store_true",
-                        help="paper method: plain CG exactly as printed (slow)")
+                        help="paper method: no block-Hessian preconditioner (with --init zero: "
+                             "the paper exactly as printed, slow)")
     parser.add_argument("--initial-errors", choices=("auto", "start", "basis"), default="auto",
                         help="paper method: optimise for the start error, a basis of unit "
                              "errors, or auto (basis when the start error is zero)")
