@@ -103,9 +103,10 @@ def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> 
             period = CYCLE_S / time_scale if time_scale > 0 else CYCLE_S   # 0: baseline, physics frozen
             n = round(sim_seconds / CYCLE_S)
             lat, missed, errors = [], 0, 0
-            with Bus(line[1], 1_000_000, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
-                wheels.configure()
+            with Bus(line[1], 1_000_000, timeout_margin_s=0.3, retries=3) as bus, WheelSet(bus, cfg) as wheels:
+                wheels.configure()                    # retries: setup is not what is measured
                 wheels.enable()
+                bus.retries = 0
                 bus.timeout_margin_s = 0.05           # a reply later than this is a missed cycle anyway
                 before = read_status(status)
                 t0 = time.monotonic()
