@@ -15,7 +15,7 @@ METHODS = ("riccati", "paper")
 
 def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geometry(),
                limits: Limits = Limits(), frames: str = "rotating", beta: str = "dai-yuan",
-               precondition: bool = True, initial_errors: str = "auto", max_iter: int = 500,
+               precondition: bool = True, initial_errors: str = "both", max_iter: int = 500,
                init: str = "continuation", target_ratio: float = 1.001,
                progress: bool = False) -> tuple[Reference, GainSchedule]:
     """Build the reference of ``traj`` and synthesise its gain schedule.
@@ -25,7 +25,8 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     method : ``"riccati"`` (exact optimum) or ``"paper"`` (nonlinear CG, :mod:`.synthesis`).
     frames : ``"rotating"`` (re-anchored chained frames) or ``"fixed"`` (the paper's).
     beta, precondition, max_iter : options of :func:`controller.synthesis.conjugate_gradient`.
-    initial_errors : ``auto``, ``start`` or ``basis`` (:func:`.synthesis.initial_error_set`).
+    initial_errors : ``both`` (default), ``auto``, ``start`` or ``basis``
+        (:func:`.synthesis.initial_error_set`).
     init : start of the paper's method: ``"continuation"`` (K = 0 with horizon continuation,
         :func:`.synthesis.conjugate_gradient_continuation`, default), ``"zero"`` (K = 0 on the
         full horizon, the paper as printed) or ``"frozen-lqr"``

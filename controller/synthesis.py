@@ -55,7 +55,9 @@ def initial_error_set(x0, mode: str = "auto") -> np.ndarray:
 
     ``"start"``: the start error ``x0`` alone. ``"basis"``: the scaled unit errors
     :data:`BASIS_ERROR_SCALES` (J is then a weighted trace of ``P_0``, meaningful for any start).
-    ``"auto"``: ``"start"`` unless ``x0`` is (numerically) zero, as in the paper's circle case.
+    ``"both"``: the start error and the basis (gains good in every direction: what the
+    nonlinear closed loop needs). ``"auto"``: ``"start"`` unless ``x0`` is (numerically)
+    zero, as in the paper's circle case.
     """
     x0 = np.asarray(x0, dtype=float).reshape(5)
     if mode == "auto":
@@ -64,7 +66,11 @@ def initial_error_set(x0, mode: str = "auto") -> np.ndarray:
         return x0[:, None].copy()
     if mode == "basis":
         return np.diag(BASIS_ERROR_SCALES)
-    raise ControllerError(f"initial-error mode must be auto, start or basis, got {mode!r}")
+    if mode == "both":
+        return np.column_stack([x0, np.diag(BASIS_ERROR_SCALES)]) if np.any(x0) \
+            else np.diag(BASIS_ERROR_SCALES)
+    raise ControllerError(f"initial-error mode must be auto, start, basis or both, "
+                          f"got {mode!r}")
 
 
 def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0):

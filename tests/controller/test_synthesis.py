@@ -178,3 +178,15 @@ def test_horizon_continuation_reaches_jstar(robot):
     assert J_star * (1 - 1e-9) <= res.cost <= 1.01 * J_star
     assert res.K.shape == (600, 3, 5) and "continuation" in res.message
     assert res.cost == pytest.approx(cost(Ad, Bd, res.K, Q, R, tau, x0), rel=1e-10)
+
+
+def test_initial_error_sets():
+    x0 = np.array([0.0, 0.0, -0.5, -1.0, 0.0])
+    np.testing.assert_allclose(initial_error_set(x0, "start"), x0[:, None])
+    both = initial_error_set(x0, "both")
+    assert both.shape == (5, 6)
+    np.testing.assert_allclose(both[:, 0], x0)
+    assert np.linalg.matrix_rank(both) == 5
+    assert initial_error_set(np.zeros(5), "both").shape == (5, 5)
+    with pytest.raises(ControllerError, match="initial-error mode"):
+        initial_error_set(x0, "all")

@@ -23,9 +23,11 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-precondition", action="store_true",
                         help="paper method: no block-Hessian preconditioner (with --init zero: "
                              "the paper exactly as printed, slow)")
-    parser.add_argument("--initial-errors", choices=("auto", "start", "basis"), default="auto",
-                        help="paper method: optimise for the start error, a basis of unit "
-                             "errors, or auto (basis when the start error is zero)")
+    parser.add_argument("--initial-errors", choices=("both", "auto", "start", "basis"),
+                        default="both",
+                        help="paper method: optimise for the start error and a basis of "
+                             "scaled unit errors (default), the start error alone, the basis "
+                             "alone, or auto (start, or basis when the start error is zero)")
     parser.add_argument("--init", choices=("continuation", "zero", "frozen-lqr"),
                         default="continuation",
                         help="paper method: K = 0 with horizon continuation (default), K = 0 "
