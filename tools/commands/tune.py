@@ -38,6 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="motor parameters to start from and to fix L, Km (paper Table 1)")
     parser.add_argument("--emulator-config", default="configs/emulator.yaml",
                         help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia)")
+    parser.add_argument("--emulator", choices=("servo", "robot"), default="servo",
+                        help="--emulate: 'servo' = each servo alone, unloaded, 1 kHz physics (default); "
+                             "'robot' = the project's robot emulator (2 kHz physics, robot mass on the "
+                             "drive shafts as in configs/emulator.yaml body.load_enabled)")
     parser.add_argument("--noise", action="store_true",
                         help="--emulate: sensor noise on (0.5 pulse encoder, 4 mA current, std)")
     parser.add_argument("--seed", type=int, default=None, help="--emulate: noise seed")
@@ -88,10 +92,18 @@ def run(args: argparse.Namespace) -> int:
 
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from tools.tune.emulated import make_emulator
+            from tools.tune.emulated import NOISE, make_emulator
 
-            emu = stack.enter_context(make_emulator(rc, load_config(args.emulator_config), noise=args.noise,
-                                                    seed=args.seed, baud=args.baud))
+            if args.emulator == "robot":
+                from emulator.robot_emulator import robot_emulator
+
+                noise = (f"position={NOISE.position_noise_std_pulse},current={NOISE.current_noise_std_a}"
+                         + (f",seed={args.seed}" if args.seed is not None else "")) if args.noise else None
+                emu = stack.enter_context(robot_emulator(args.robot_config, args.emulator_config, noise=noise,
+                                                         baud=args.baud))
+            else:
+                emu = stack.enter_context(make_emulator(rc, load_config(args.emulator_config), noise=args.noise,
+                                                        seed=args.seed, baud=args.baud))
             port, margin = emu.port, 0.2     # a software servo on a loaded machine may answer late
         else:
             port, margin = args.port, 0.002
