@@ -147,3 +147,16 @@ def test_leaving_the_range_mid_experiment_turns_the_torque_off(rc):
                        limits=Limits(position_min_rad=center - 0.45, position_max_rad=center + 0.45))
         assert emu.servo(5).read("torque_enable") == 0
         assert abs(emu.servo(5).read("present_position") - 2048) < 0.6 / (2 * math.pi / 4096)
+
+
+def test_robot_emulator_path_sees_the_reflected_wheel_load(tmp_path, capsys):
+    """Smoke test of ``--emulator robot``: the drive shaft carries the robot's mass, so J is the
+    rotor's plus m r^2 / N^2 per wheel (README: a few % timing bias at 2 kHz physics)."""
+    code, out = _tune(tmp_path, "--id", "1", "--emulator", "robot")
+    assert code == 0, capsys.readouterr().err
+    res = json.loads((out / "tune_1.json").read_text())
+    cfg, rc = load_config(EMULATOR), load_robot_config(ROBOT)
+    loaded = cfg.drive_motor.inertia_kg_m2 + (cfg.body.total_mass_kg / 4 * rc.wheel_radius_m ** 2
+                                              / cfg.gear_ratio(rc.model) ** 2)
+    assert res["identification"]["parameters"]["inertia_kg_m2"]["value"] == pytest.approx(loaded, rel=0.1)
+    assert res["meets_spec"]
