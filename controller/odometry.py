@@ -68,7 +68,7 @@ class Odometry:
                 v_bar = 0.5 * (v0 + v1)
             s = np.array([*self.pose, e1, e2])
             u = np.array([v_bar, (d1 - e1) / dt_s, (d2 - e2) / dt_s])
-            self.pose = rk4_step(s, u, dt_s, self.geom)[:3]
+            self.pose = rk4_step(s, u, dt_s, self.geom, substeps=1)[:3]  # 16 ms: one RK4 step suffices
         self._last = (v1, d1, d2)
         self._angles = angles
         return self.pose.copy()

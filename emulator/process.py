@@ -86,6 +86,9 @@ class EmulatorProcess:
 
     def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", *,
                  pose_period_s: float = 1e-3, **kwargs):
+        from driver.control_table import CONFIG_DIR
+
+        kwargs.setdefault("emulator_config", str(CONFIG_DIR / "emulator.yaml"))
         self._kwargs = dict(kwargs, robot_config=str(Path(robot_config)))
         self._pose_period_s = float(pose_period_s)
         self._ctx = mp.get_context("spawn")

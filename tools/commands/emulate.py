@@ -48,7 +48,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="simulated seconds per wall second (default 1)")
-    parser.add_argument("--clock-hz", type=float, default=1000.0, help="servo clock rate (default 1000)")
+    parser.add_argument("--clock-hz", type=float, default=None,
+                        help="servo clock rate, Hz (default 1000; with --physics: physics.rate_hz of "
+                             "configs/emulator.yaml)")
+    parser.add_argument("--physics", action="store_true",
+                        help="servos move: Table 1 motors, firmware loops and the robot body of --config "
+                             "(default configs/robot.yaml) with configs/emulator.yaml")
+    parser.add_argument("--emulator-config", default=None, help="physics config (default configs/emulator.yaml)")
+    parser.add_argument("--status-file", default=None,
+                        help="with --physics: JSON file with the true pose, rewritten 20 times a second")
+    parser.add_argument("--noise", default=None,
+                        help="with --physics: sensor noise, e.g. position=0.5,current=0.002,seed=1")
     parser.add_argument("--no-baud-check", action="store_true",
                         help="answer whatever line speed the client sets")
     parser.add_argument("-v", "--verbose", action="store_true", help="log dispatch errors (debug)")
@@ -62,10 +72,26 @@ def run(args: argparse.Namespace) -> int:
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
     ids = parse_ids(args.ids) if args.ids else None
+    if not args.physics and (args.status_file or args.noise or args.emulator_config):
+        raise ConfigError("--status-file, --noise and --emulator-config need --physics")
     try:
-        emu = Emulator(ids, args.model, args.baud, robot_config=args.config,
-                       wire_timing=args.wire_timing, faults=args.faults, time_scale=args.time_scale,
-                       clock_hz=args.clock_hz, link=args.link, baud_check=not args.no_baud_check)
+        if args.physics:
+            if ids is not None or args.model is not None:
+                raise ConfigError("with --physics the IDs and model come from --config")
+            from driver.control_table import CONFIG_DIR
+            from emulator.robot_emulator import robot_emulator
+
+            emu = robot_emulator(args.config or CONFIG_DIR / "robot.yaml",
+                                 args.emulator_config or CONFIG_DIR / "emulator.yaml",
+                                 time_scale=args.time_scale, status_file=args.status_file,
+                                 noise=args.noise, faults=args.faults, link=args.link,
+                                 wire_timing=args.wire_timing, baud=args.baud, rate_hz=args.clock_hz,
+                                 baud_check=not args.no_baud_check)
+        else:
+            emu = Emulator(ids, args.model, args.baud, robot_config=args.config,
+                           wire_timing=args.wire_timing, faults=args.faults, time_scale=args.time_scale,
+                           clock_hz=args.clock_hz or 1000.0, link=args.link,
+                           baud_check=not args.no_baud_check)
     except ValueError as exc:            # ConfigError is a ValueError too
         raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from None
     stop = threading.Event()
