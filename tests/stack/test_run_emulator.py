@@ -175,6 +175,7 @@ def test_ctrl_c_turns_torque_off_and_keeps_the_log(tmp_path, config):
                                 "--log", str(log)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
         assert _wait_for(lambda: max(map(abs, _wheel_speeds(status))) > 0.02, 120), "robot never moved"
+        time.sleep(1.0)                              # let the run log a few dozen cycles
         ctl.send_signal(signal.SIGINT)
         out, err = ctl.communicate(timeout=60)
         assert ctl.returncode == 130, err

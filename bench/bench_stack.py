@@ -1,0 +1,54 @@
+"""Full-stack benchmark (issue 6): the 62.5 Hz loop against the emulated robot.
+
+For each time scale: run the line trajectory (40 s robot time) through the driver against the
+emulator in its own process, and report the loop period p50/p99/max (wall), overruns, missed
+slots, the controller process's CPU share, the emulator's achieved time scale and tracking
+errors. Run: ``.venv/bin/python bench/bench_stack.py [--scales 1,2,3,4,5] [--trajectory line]``;
+prints a Markdown table to paste into BENCHMARKS.md.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+
+def cpu_model() -> str:
+    try:
+        for line in open("/proc/cpuinfo"):
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown"
+
+
+def main() -> None:
+    from tools.robot_run import RunRequest, run_tracking
+
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scales", default="1,1.5,2,3,4,5")
+    ap.add_argument("--trajectory", default="line")
+    args = ap.parse_args()
+    print(f"date {time.strftime('%Y-%m-%d %H:%M')}, nproc {os.cpu_count()}, CPU {cpu_model()}, "
+          f"Python {platform.python_version()}, load {os.getloadavg()[0]:.1f} at start")
+    print("| time scale | period target ms | p50 / p99 / max ms | overruns | missed slots | controller CPU % "
+          "| emulator achieved scale | lost sim s | rms / final error mm | completed |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
+    for scale in (float(s) for s in args.scales.split(",")):
+        c0, w0 = time.process_time(), time.monotonic()
+        res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, time_scale=scale, log=None))
+        cpu = (time.process_time() - c0) / (time.monotonic() - w0)
+        s = res.summary
+        print(f"| {scale:g} | {s['loop_period_target_ms']:.1f} | {s['loop_period_p50_ms']:.2f} / "
+              f"{s['loop_period_p99_ms']:.2f} / {s['loop_period_max_ms']:.1f} | {s['overruns']} | "
+              f"{s['missed_slots']} | {100 * cpu:.0f} | {s.get('emulator_achieved_time_scale', float('nan')):.2f} | "
+              f"{s.get('emulator_lost_sim_s', float('nan')):.2f} | "
+              f"{1e3 * s.get('rms_position_error_m', float('nan')):.1f} / "
+              f"{1e3 * s.get('final_position_error_m', float('nan')):.1f} | "
+              f"{'yes' if s.get('completed') else 'no: ' + str(s.get('abort_cause'))} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()
