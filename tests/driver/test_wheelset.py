@@ -45,7 +45,10 @@ def test_configure_writes_modes_gains_watchdog(wheels, bus):
     wheels.configure()
     modes = bus.sync_read(wheels.ids, Reg.OPERATING_MODE)
     assert {i: v["operating_mode"] for i, v in modes.items()} == {1: 1, 2: 1, 3: 1, 4: 1, 5: 3, 6: 3, 7: 3, 8: 3}
-    assert bus.read(1, Reg.VELOCITY_P_GAIN) == 100 and bus.read(5, Reg.POSITION_P_GAIN) == 900
+    want_v = wheels.config.drive.gains["velocity_p_gain"]
+    want_p = wheels.config.steering.gains["position_p_gain"]
+    assert (want_v, want_p) != (100, 900)               # differ from the servo defaults: a write shows
+    assert bus.read(1, Reg.VELOCITY_P_GAIN) == want_v and bus.read(5, Reg.POSITION_P_GAIN) == want_p
     assert bus.read(8, Reg.BUS_WATCHDOG) == 5          # 0.1 s / 20 ms
     assert bus.read(2, Reg.RETURN_DELAY_TIME) == 0
     assert bus.read(3, Reg.TORQUE_ENABLE) == 0
