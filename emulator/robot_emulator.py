@@ -40,6 +40,7 @@ import numpy as np
 
 from driver.errors import ConfigError
 from emulator.faults import Faults
+from emulator.physics import units as u
 from emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from emulator.physics.robot import RobotPhysics, load_robot_geometry
 from emulator.physics.servo_model import ServoModel
@@ -121,6 +122,14 @@ class _ServoDynamics:
         changed = {k: v for k, v in out.items() if last.get(k) != v}
         last.update(changed)
         return changed
+
+    def initial_outputs(self) -> dict[str, int]:
+        """Present items of the model at rest, before its first step (shaft angle, supply,
+        temperature), so a bus read before any simulated time passes sees the physical state."""
+        m = self.model
+        return {"present_position": math.floor(m.position_pulse),
+                "present_input_voltage": round(m.supply_voltage_v / u.VOLT_PER_UNIT),
+                "present_temperature": round(m.temperature_c)}
 
     def invalidate(self) -> None:
         self._raw = b""
@@ -241,6 +250,10 @@ class RobotEmulator(Emulator):
         missing = set(physics.servos) - {s.id for s in self.servos}
         if missing:
             raise ConfigError(f"the robot's servos {sorted(missing)} are not on the emulated bus")
+        for servo in self.servos:         # steering shafts start at their centre, not at pulse 0
+            if servo.dynamics is not None:
+                for name, raw in servo.dynamics.initial_outputs().items():
+                    servo.write(name, raw)
         self.rate_hz = float(rate_hz)
         self.status_file = None if status_file is None else Path(status_file)
         self.status_hz = float(status_hz)

@@ -211,3 +211,11 @@ def test_reboot_over_the_bus_restarts_the_firmware(emu, bus):
     bus.write(DRIVE, Reg.GOAL_VELOCITY, -40)
     emu.advance(1.0)
     assert bus.read(DRIVE, Reg.PRESENT_VELOCITY) == pytest.approx(-40, abs=1)
+
+
+def test_present_items_show_the_physical_state_before_any_step(emu, bus):
+    """No simulated time has passed: steering shafts read their centre, the supply reads 12 V."""
+    assert emu.sim_time_s == 0.0
+    assert bus.read(STEER, Reg.PRESENT_POSITION) == 2048
+    assert bus.read(DRIVE, Reg.PRESENT_POSITION) == 0
+    assert bus.read(DRIVE, Reg.PRESENT_INPUT_VOLTAGE) == round(CFG.supply_voltage_v * 10)
