@@ -4,6 +4,7 @@ import sys
 from pathlib import Path
 
 HERE = Path(__file__).parent
+sys.path.insert(0, str(HERE))  # the scripts import benchutil
 
 if __name__ == "__main__":
     scripts = sorted(HERE.glob("bench_*.py"))

@@ -30,6 +30,7 @@ from controller.synthesis import (conjugate_gradient,  # noqa: E402
                                   conjugate_gradient_continuation, cost_and_gradient,
                                   frozen_time_lqr_gains, initial_error_set)
 from controller.tracking import TrackingLaw  # noqa: E402
+from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Controller (issue 5)"
 GEOM, LIMITS = load_robot()
@@ -140,14 +141,7 @@ def bench_tracking():
 
 
 def machine():
-    cpu = "unknown"
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                cpu = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
+    cpu = cpu_model()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
     return (f"Date {datetime.date.today().isoformat()}, `nproc` = {os.cpu_count()}, CPU "
             f"\"{cpu}\", Python {platform.python_version()}, numpy {np.__version__}; "
@@ -197,17 +191,6 @@ def render(ric, grad, cg, cg_more, track, cg_seconds):
     return "\n".join(out) + "\n"
 
 
-def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    start = old.find(SECTION)
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        nxt = old.find("\n## ", start + len(SECTION))
-        new = old[:start] + text + ("\n" + old[nxt + 1:] if nxt >= 0 else "")
-    path.write_text(new)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cg-seconds", type=float, default=60.0)
@@ -226,7 +209,7 @@ def main() -> None:
     text = render(ric, grad, cg, cg_more, track, args.cg_seconds)
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_section(SECTION, text)
 
 
 if __name__ == "__main__":

@@ -28,6 +28,7 @@ from driver.parser import PacketParser  # noqa: E402
 from driver.robot_config import load_robot_config  # noqa: E402
 from driver.wheelset import WheelSet  # noqa: E402
 from emulator import Emulator  # noqa: E402
+from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Driver (issue 2)"
 
@@ -120,16 +121,6 @@ def sdk_cycle(cycles: int) -> dict | None:
             "hz": cycles / total, "cpu_ms": 1e3 * cpu / cycles}
 
 
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def loadavg() -> str:
     try:
         return " ".join(f"{x:.1f}" for x in os.getloadavg())
@@ -161,17 +152,6 @@ def render(codec_rows, cycle_rows, sdk, cycles) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    old = path.read_text() if path.exists() else "# Benchmarks\n"
-    start = old.find(SECTION)
-    if start < 0:
-        new = old.rstrip("\n") + "\n\n" + text
-    else:
-        nxt = old.find("\n## ", start + len(SECTION))
-        new = old[:start] + text + ("\n" + old[nxt + 1:] if nxt >= 0 else "")
-    path.write_text(new)
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cycles", type=int, default=1000)
@@ -188,7 +168,7 @@ def main() -> None:
     text = render(codec_rows, cycle_rows, sdk, args.cycles)
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_section(SECTION, text)
 
 
 if __name__ == "__main__":

@@ -26,6 +26,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchutil import cpu_model, write_section  # noqa: E402
+
 IDS = list(range(1, 9))
 BAUD = 1_000_000
 ADDRESS, LENGTH = 132, 4                       # Present Position
@@ -129,16 +131,6 @@ def bench_driver(port: str, seconds: float) -> tuple[float, int] | None:
         return _rate(once, seconds)
 
 
-def _cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
-
-
 def run(seconds: float) -> list[tuple[str, str, float, int]]:
     rows = []
     for label, extra in (("pty, no wire timing", ()), ("--wire-timing 1 Mbps", ("--wire-timing",))):
@@ -160,7 +152,7 @@ def render(rows, seconds: float) -> str:
     lines = [
         SECTION, "",
         f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC; `nproc` = {os.cpu_count()}; "
-        f"CPU {_cpu_model()}; Python {platform.python_version()}; `bench/bench_emulator.py` "
+        f"CPU {cpu_model()}; Python {platform.python_version()}; `bench/bench_emulator.py` "
         f"({seconds:g} s per row).",
         "",
         "8-servo Sync Read of Present Position (4 bytes, IDs 1-8), Return Delay Time 0, "
@@ -185,16 +177,6 @@ def render(rows, seconds: float) -> str:
     return "\n".join(lines)
 
 
-def write_section(text: str, path: Path = ROOT / "BENCHMARKS.md") -> None:
-    old = path.read_text() if path.exists() else "# Benchmarks\n\n"
-    pattern = re.compile(rf"^{re.escape(SECTION)}\n.*?(?=^## |\Z)", re.S | re.M)
-    if pattern.search(old):
-        new = pattern.sub(lambda _m: text + "\n", old)
-    else:
-        new = old.rstrip("\n") + "\n\n" + text + "\n"
-    path.write_text(new)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per row")
@@ -203,7 +185,7 @@ def main() -> int:
     text = render(run(args.seconds), args.seconds)
     print(text)
     if not args.no_write:
-        write_section(text)
+        write_section(SECTION, text)
     return 0
 
 

@@ -39,6 +39,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchutil import cpu_model  # noqa: E402
 from driver.bus import Bus  # noqa: E402
 from driver.control_table import Reg  # noqa: E402
 from driver.robot_config import load_robot_config  # noqa: E402
@@ -209,16 +210,6 @@ def step_table() -> list[str]:
         rows.append(f"| position +512 pulse (steering ID 5) | P {kp} | {mt.overshoot_pct:.2f} / "
                     f"{int(p.max()) - 2560:+d} pulse | {mt.settle_s:.3f} / {mp.settle_s:.3f} | {mt.rise_s:.3f} |")
     return rows
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
 
 
 def main(argv=None) -> int:

@@ -13,15 +13,7 @@ import os
 import platform
 import time
 
-
-def cpu_model() -> str:
-    try:
-        for line in open("/proc/cpuinfo"):
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown"
+from benchutil import cpu_model
 
 
 def main() -> None:
