@@ -42,9 +42,7 @@ def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
 
     def publish() -> None:
         while not stop.wait(pose_period_s):
-            with emu.lock:
-                t = emu._body.t_s
-                x, y, th = emu.physics.body.pose
+            t, (x, y, th) = emu.true_state()
             shared[1], shared[2], shared[3] = x, y, th
             shared[0] = t
 
@@ -69,8 +67,9 @@ def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
     pub.join(timeout=2.0)
     emu.close()
     try:
+        t, pose = emu.true_state()
         conn.send(("stats", dict(bus=emu.stats.as_dict(), clock=emu.clock_stats.as_dict(),
-                                 pose=list(emu.physics.body.pose), sim_time_s=emu._body.t_s)))
+                                 pose=list(pose), sim_time_s=t)))
     except (BrokenPipeError, OSError):
         pass
 
