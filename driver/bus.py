@@ -213,10 +213,14 @@ class Bus:
         with self._lock:
             for n in range(attempts):
                 try:
-                    return fn(*args, **kw)
+                    result = fn(*args, **kw)
                 except (DxlTimeoutError, CorruptPacketError):
                     if n == attempts - 1:
                         raise
+                    continue
+                if n:  # a retry answered; the failed try's late replies may still be coming
+                    self._unsettled = True
+                return result
 
     def _read_raw(self, id_: int, address: int, length: int, *, check: bool = True) -> bytes:
         got = self._exchange(pk.read(id_, address, length), [id_], STATUS_OVERHEAD + length,

@@ -22,3 +22,29 @@ def test_late_reply_is_drained_not_misattributed(emu):
         emu.faults.delay_s = 0.0
         assert bus.read(1, Reg.OPERATING_MODE) == 3    # also 1 byte: only timing tells them apart
         assert bus.drained_bytes > 0                   # the late 250 was seen and discarded
+
+
+
+def test_replies_to_a_failed_try_do_not_answer_the_next_request(emu):
+    """One late reply makes the first try fail; the retry is answered; a straggler of that
+    exchange then arrives: the next request must not take it as its answer."""
+    faults = emu.faults
+    with Bus(emu.port, 1_000_000, default_model="xh430-w210", return_delay_us=500,
+             timeout_margin_s=0.005, retries=1) as bus:
+        late = [bus.timeout_s(11 + 14) + 0.008]      # past the deadline and the 5 ms quiet wait
+
+        class OneLateReply(type(faults)):
+            @property
+            def delay_s(self):
+                return late.pop() if late else 0.0
+
+            @delay_s.setter
+            def delay_s(self, value):
+                pass
+
+        faults.__class__ = OneLateReply
+        try:
+            assert bus.read(1, Reg.RETURN_DELAY_TIME) == 250   # needed the retry
+            assert bus.read(1, Reg.OPERATING_MODE) == 3         # not the straggling 250
+        finally:
+            faults.__class__ = OneLateReply.__mro__[1]

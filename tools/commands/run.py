@@ -30,7 +30,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="robot seconds per wall second: only for an emulator (--emulate, or --port "
                              "on a `swerve emulate --time-scale S` pty); default 1")
     parser.add_argument("--timeout-margin-ms", type=float, default=None,
-                        help="slack on every bus reply deadline (default: 2 ms; 20 ms with --emulate)")
+                        help="slack on every bus reply deadline (default: 2 ms; 50 ms with --emulate)")
     parser.add_argument("--log", default=None,
                         help="run log (ROS 2 bag directory, MCAP); default out/runs/<trajectory>-<time>")
     parser.add_argument("--no-log", action="store_true", help="do not write a run log")
