@@ -81,6 +81,10 @@ class TrackingLoop:
         Consecutive failed reads tolerated (then :class:`LoopAbort`, cause ``"no reply"``).
     watchdog_s : float
         The servos' Bus Watchdog, robot seconds: a gap in bus traffic this long aborts the loop.
+    max_time_factor : float
+        The run is aborted (cause ``"diverged"``) once robot time exceeds this many times the
+        trajectory's duration: the reference governor slows the reference while the robot
+        saturates, so a robot that cannot follow would otherwise never finish.
     true_pose : callable, optional
         ``() -> (x, y, theta)`` ground truth (emulator only), logged beside the estimate.
     on_cycle : callable, optional
@@ -89,7 +93,7 @@ class TrackingLoop:
     """
 
     def __init__(self, wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
-                 max_failed_reads: int = 3, watchdog_s: float = 0.1,
+                 max_failed_reads: int = 3, watchdog_s: float = 0.1, max_time_factor: float = 1.5,
                  true_pose: Callable[[], tuple] | None = None,
                  on_cycle: Callable[[dict], None] | None = None,
                  clock=time.monotonic, sleep=time.sleep):
@@ -100,6 +104,7 @@ class TrackingLoop:
         self.time_scale = float(time_scale)
         self.max_failed_reads = int(max_failed_reads)
         self.watchdog_s = float(watchdog_s)
+        self.max_time_factor = float(max_time_factor)
         self.true_pose = true_pose
         self.on_cycle = on_cycle
         self._clock, self._sleep = clock, sleep
@@ -186,8 +191,13 @@ class TrackingLoop:
         k = 0
         ticker.start()
         try:
+            t_max = self.max_time_factor * law.reference.tf_s
             while True:
                 t = k * tau
+                if t > t_max:
+                    raise LoopAbort(f"the robot could not follow the reference: after {t:.1f} s the "
+                                    f"reference clock stands at {law.reference_time_s:.1f} of "
+                                    f"{law.reference.tf_s:.1f} s; stopping", "diverged")
                 self._touch_bus()
                 st = self._read()
                 flags = 0

@@ -108,6 +108,10 @@ def run_tracking(req: RunRequest):
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
         wheels.configure()
+        # In the loop every read is the same 10-byte block: a missed reply is the next cycle's
+        # job (no retry), and its deadline must fit in a cycle (half the wall period at most).
+        bus.retries = 0
+        bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
         on_cycle = None
         if req.log is not None:
             on_cycle = _log_writer(stack, req, cfg, traj, sim, cfg_path)

@@ -147,3 +147,15 @@ def test_stall_longer_than_the_watchdog_aborts(line_law):
     assert res.aborted is not None and res.aborted.cause == "stalled"
     assert "Bus Watchdog" in str(res.aborted) and wheels.stops == 1
     assert 25 <= res.summary["cycles"] <= 31
+
+
+def test_a_robot_that_cannot_follow_is_stopped_not_run_forever(line_law):
+    law, traj, geom = line_law
+    fc = FakeClock()
+    wheels = FakeWheels(fc, geom, traj.start_state(geom))
+    wheels.write_goals = lambda drive, steer: None     # the wheels ignore every command
+    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep, max_time_factor=1.5).run(
+        traj.start_state(geom))
+    assert res.aborted is not None and res.aborted.cause == "diverged"
+    assert res.summary["cycles"] <= 1.5 * traj.n_steps + 2
+    assert wheels.stops == 1
