@@ -58,8 +58,8 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
 
     traj = load_trajectory(trajectory, geom)
     if gains_path is not None:
-        ref = build_reference(traj, geom, limits)
-        gains = load_gains(gains_path)
+        gains = load_gains(gains_path)  # the reference must use the schedule's chained frames
+        ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
         ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
     return traj, TrackingLaw(ref, gains, limits)

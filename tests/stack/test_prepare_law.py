@@ -1,0 +1,16 @@
+"""Loading a gain schedule for a run: the reference is rebuilt in the schedule's own frames."""
+from controller.design import synthesize
+from controller.gains_io import save_gains
+from controller.reference import load_trajectory
+from driver.robot_config import load_robot_config
+from tools.robot_run import prepare_law, robot_models
+
+
+def test_gains_for_the_plain_law_load_with_fixed_frames(tmp_path):
+    geom, limits = robot_models(load_robot_config())
+    _, gains = synthesize(load_trajectory("line", geom), "riccati", geom, limits, frames="fixed")
+    path = save_gains(tmp_path / "line_fixed.npz", gains)
+    _, law = prepare_law("line", path, geom, limits)
+    assert law.plain and law.reference.frames == "fixed"
+    _, default = prepare_law("line", None, geom, limits)
+    assert not default.plain
