@@ -41,29 +41,30 @@ class Limits:
     steer_angle_max_rad: float = 1.5708
 
 
+def from_robot_config(cfg) -> tuple[Geometry, Limits]:
+    """``(Geometry, Limits)`` of a validated :class:`driver.robot_config.RobotConfig`."""
+    return (Geometry(cfg.a_m, cfg.b_m, cfg.wheel_radius_m),
+            Limits(cfg.v1_max_mps, cfg.steer_rate_max_radps, cfg.steer_angle_max_rad))
+
+
 def load_robot(path: str | Path = ROBOT_YAML) -> tuple[Geometry, Limits]:
-    """Read geometry and limits from a robot YAML file (``configs/robot.yaml``).
+    """Geometry and limits of a robot YAML file (``configs/robot.yaml``).
+
+    The file is read and validated by :func:`driver.robot_config.load_robot_config` (one
+    parser for the whole project). Raises :class:`ControllerError` naming the problem.
 
     Returns
     -------
     (Geometry, Limits)
     """
-    import yaml
+    from driver.errors import ConfigError
+    from driver.robot_config import load_robot_config
 
     try:
-        with open(path, encoding="utf-8") as fh:
-            cfg = yaml.safe_load(fh)
-        g, lim = cfg["geometry"], cfg["limits"]
-        geom = Geometry(float(g["a_m"]), float(g["b_m"]), float(g["wheel_radius_m"]))
-        limits = Limits(float(lim["v1_max_mps"]), float(lim["steer_rate_max_radps"]),
-                        float(lim.get("steer_angle_max_rad", np.pi / 2)))
-    except (OSError, KeyError, TypeError, ValueError, yaml.YAMLError) as exc:
-        raise ControllerError(f"cannot read robot geometry/limits from {path}: {exc}") from exc
-    vals = [geom.a_m, geom.b_m, geom.wheel_radius_m, limits.v1_max_mps,
-            limits.steer_rate_max_radps, limits.steer_angle_max_rad]
-    if not all(np.isfinite(v) and v > 0 for v in vals):
-        raise ControllerError(f"{path}: geometry and limits must be positive numbers")
-    return geom, limits
+        cfg = load_robot_config(path)
+    except ConfigError as exc:
+        raise ControllerError(f"cannot read robot geometry/limits from {path}: {exc}") from None
+    return from_robot_config(cfg)
 
 
 def state_derivative(state, inputs, geom: Geometry = Geometry()) -> np.ndarray:

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Callable
 
 import numpy as np
@@ -60,7 +60,6 @@ class RunResult:
     ref_states: np.ndarray
     inputs: np.ndarray
     aborted: LoopAbort | None = None
-    extra: dict = field(default_factory=dict)
 
 
 class TrackingLoop:

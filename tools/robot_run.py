@@ -41,14 +41,6 @@ class RunRequest:
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
 
 
-def robot_models(cfg):
-    """``(Geometry, Limits)`` of the controller from a validated :class:`RobotConfig`."""
-    from controller.kinematics import Geometry, Limits
-
-    return (Geometry(cfg.a_m, cfg.b_m, cfg.wheel_radius_m),
-            Limits(cfg.v1_max_mps, cfg.steer_rate_max_radps, cfg.steer_angle_max_rad))
-
-
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
     from controller.design import synthesize
@@ -76,6 +68,7 @@ def simulated_poses(law, start) -> np.ndarray:
 
 def run_tracking(req: RunRequest):
     """Run one trajectory; returns :class:`controller.online.RunResult` (``aborted`` set on a stop)."""
+    from controller.kinematics import from_robot_config
     from controller.online import TrackingLoop
     from driver.bus import Bus
     from driver.robot_config import DEFAULT_PATH, load_robot_config
@@ -83,7 +76,7 @@ def run_tracking(req: RunRequest):
 
     cfg_path = Path(req.config) if req.config else DEFAULT_PATH
     cfg = load_robot_config(cfg_path)
-    geom, limits = robot_models(cfg)
+    geom, limits = from_robot_config(cfg)
     traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
     start = traj.start_state(geom)
     sim = simulated_poses(law, start) if req.log is not None else None

@@ -3,11 +3,12 @@ from controller.design import synthesize
 from controller.gains_io import save_gains
 from controller.reference import load_trajectory
 from driver.robot_config import load_robot_config
-from tools.robot_run import prepare_law, robot_models
+from controller.kinematics import from_robot_config
+from tools.robot_run import prepare_law
 
 
 def test_gains_for_the_plain_law_load_with_fixed_frames(tmp_path):
-    geom, limits = robot_models(load_robot_config())
+    geom, limits = from_robot_config(load_robot_config())
     _, gains = synthesize(load_trajectory("line", geom), "riccati", geom, limits, frames="fixed")
     path = save_gains(tmp_path / "line_fixed.npz", gains)
     _, law = prepare_law("line", path, geom, limits)

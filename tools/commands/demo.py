@@ -36,12 +36,13 @@ def run(args: argparse.Namespace) -> int:
     from driver.robot_config import load_robot_config
     from tools.logs.bag import read_log
     from tools.logs.plots import plot_run
-    from tools.robot_run import RunRequest, robot_models, run_tracking
+    from controller.kinematics import from_robot_config
+    from tools.robot_run import RunRequest, run_tracking
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     cfg = load_robot_config()
-    geom, limits = robot_models(cfg)
+    geom, limits = from_robot_config(cfg)
     names = [n.strip() for n in args.trajectories.split(",") if n.strip()]
     rows, t_start = [], time.monotonic()
     for name in names:
