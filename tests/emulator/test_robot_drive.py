@@ -152,6 +152,7 @@ def test_status_file_holds_the_true_pose_at_close(tmp_path):
         wheels.enable()
         for _ in range(40):
             wheels.write_goals([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4)
+            wheels.read_state()       # a round trip: the (reply-less) Bulk Write has landed
             emu.advance(PERIOD_S)
         t_s, pose = emu.true_state()
         assert (t_s, pose) == (emu.sim_time_s, true_pose(emu))
