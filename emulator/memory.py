@@ -16,7 +16,7 @@ A write is checked completely before any byte changes (all or nothing).
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Iterable, Iterator, Mapping
+from typing import Callable, Iterable, Iterator, Mapping
 
 from driver.control_table import ControlTable, Reg, Register
 from driver.packets import ErrorNumber
@@ -54,6 +54,10 @@ class ServoMemory:
 
     ``read``/``write`` follow the bus rules; ``get``/``set`` bypass them (for the servo's own
     firmware, physics and tests). Values are raw integers, sign-extended where the item is signed.
+
+    Present items may be published lazily: whoever advances the physics sets :attr:`stale`, and
+    the next bus read, or ``get`` of a name in :attr:`published`, first calls :attr:`publisher`
+    (which writes them with ``set``). Nothing outside sees a difference from writing every tick.
     """
 
     def __init__(self, table: ControlTable, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT):
@@ -74,6 +78,9 @@ class ServoMemory:
                 self._addr_slot[slot.address + 1] = slot
                 self._data_slot[slot.data] = slot
         self.watchdog_tripped = False
+        self.publisher: Callable[[], None] | None = None
+        self.published: frozenset[str] = frozenset()
+        self.stale = False
         self.load_defaults()
 
     # --- defaults and resets ------------------------------------------------------------------
@@ -108,8 +115,17 @@ class ServoMemory:
             self._bytes[slot.data] = 0
 
     # --- bypass access ----------------------------------------------------------------------------
+    def publish(self) -> None:
+        """Bring published items up to date if the physics moved since they were written."""
+        if self.stale:
+            self.stale = False
+            if self.publisher is not None:
+                self.publisher()
+
     def get(self, name: str) -> int:
         """Raw value of item ``name`` (no rules)."""
+        if self.stale and name in self.published:
+            self.publish()
         reg = self.table[name]
         return reg.decode(bytes(self._bytes[reg.address:reg.address + reg.size]))
 
@@ -122,6 +138,7 @@ class ServoMemory:
 
     def snapshot(self) -> dict[str, int]:
         """Every item's raw value by name."""
+        self.publish()
         return {reg.name: self.get(reg.name) for reg in self.table}
 
     def view(self) -> "Mapping[str, int]":
@@ -130,6 +147,7 @@ class ServoMemory:
 
     def copy(self) -> "ServoMemory":
         """An independent copy (bytes and watchdog state), e.g. to try a write without applying it."""
+        self.publish()
         other = ServoMemory(self.table, limit_error=self.limit_error)
         other._bytes[:] = self._bytes
         other.watchdog_tripped = self.watchdog_tripped
@@ -152,6 +170,7 @@ class ServoMemory:
         if address < 0 or address + length > self.size:
             raise WriteRejected(ErrorNumber.ACCESS,
                                 f"read {address}+{length} outside the table (0..{self.size - 1})")
+        self.publish()
         out = bytearray(self._bytes[address:address + length])
         for a in range(address, address + length):
             slot = self._data_slot.get(a)

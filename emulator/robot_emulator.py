@@ -57,8 +57,6 @@ HAND_OVER_S = 5e-5
 MIN_SLEEP_S = 1e-3
 #: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
 MAX_BACKLOG_WALL_S = 0.5
-#: Full rewrite of the outputs into the control table every this many steps (see _ServoDynamics).
-FULL_REFRESH_STEPS = 256
 #: GIL hand-over interval while the clock thread runs, s. CPython's default (5 ms) lets a busy
 #: physics thread delay every step of a bus reply by up to 5 ms (p99 cycle 15 ms at scale 1).
 SWITCH_INTERVAL_S = 2e-4
@@ -78,12 +76,9 @@ _INPUTS = ("torque_enable", "operating_mode", "drive_mode", "goal_pwm", "goal_cu
 class _ServoDynamics:
     """Adapter between one :class:`VirtualServo` and its :class:`ServoModel` (the ``dynamics``).
 
-    Speed, not semantics: the emulator's ``memory.view()`` decodes an item per access (about
-    40 % of a tick). This adapter decodes the ~24 input items in one pass from the control-table
-    bytes below the first output item, only when those bytes changed, and returns only the
-    outputs whose value changed (the server writes back what it is given). The cache is dropped
-    on Reboot/Clear and the full output set is returned every :data:`FULL_REFRESH_STEPS` steps,
-    so a table reset by other code is repaired within 0.13 s of simulated time at 2 kHz.
+    Speed, not semantics: the emulator's ``memory.view()`` decodes an item per access. This
+    adapter decodes the ~24 input items in one pass from the control-table bytes below the first
+    output item, and only when those bytes changed.
     """
 
     def __init__(self, model: ServoModel, servo: VirtualServo):
@@ -94,8 +89,6 @@ class _ServoDynamics:
         self._layout = [(r.name, r.address, r.address + r.size, r.signed) for r in regs]
         self._raw = b""
         self._items: dict[str, int] = {}
-        self._last: dict[str, int] = {}
-        self._count = 0
 
     def _input_bytes(self) -> bytes:
         # ServoMemory keeps the table in ``_bytes``; read() gives the same bytes 20x slower
@@ -111,37 +104,20 @@ class _ServoDynamics:
             self._items = {n: int.from_bytes(raw[a:b], "little", signed=s) for n, a, b, s in self._layout}
         return self._items
 
-    def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
-        """One physics step; returns the present items that changed (all of them now and then)."""
-        out = self.model.step(dt_s, self.inputs())
-        self._count += 1
-        if self._count % FULL_REFRESH_STEPS == 0 or not self._last:
-            self._last = dict(out)
-            return out
-        last = self._last
-        changed = {k: v for k, v in out.items() if last.get(k) != v}
-        last.update(changed)
-        return changed
+    def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
+        """One physics step under the servo's current input items."""
+        self.model.advance(dt_s, self.inputs())
 
-    def initial_outputs(self) -> dict[str, int]:
-        """Present items of the model at rest, before its first step (shaft angle, supply,
-        temperature), so a bus read before any simulated time passes sees the physical state."""
-        m = self.model
-        return {"present_position": math.floor(m.position_pulse),
-                "present_input_voltage": round(m.supply_voltage_v / u.VOLT_PER_UNIT),
-                "present_temperature": round(m.temperature_c)}
-
-    def invalidate(self) -> None:
-        self._raw = b""
-        self._last = {}
+    def outputs(self) -> dict[str, int]:
+        """Present items as of the last step (at rest before the first)."""
+        return self.model.outputs()
 
     def reboot(self) -> None:
         self.model.reboot()
-        self.invalidate()
+        self._raw = b""
 
     def clear_multi_turn(self) -> None:
         self.model.clear_multi_turn()
-        self.invalidate()
 
 
 class _HandOverLock:
@@ -252,8 +228,7 @@ class RobotEmulator(Emulator):
             raise ConfigError(f"the robot's servos {sorted(missing)} are not on the emulated bus")
         for servo in self.servos:         # steering shafts start at their centre, not at pulse 0
             if servo.dynamics is not None:
-                for name, raw in servo.dynamics.initial_outputs().items():
-                    servo.write(name, raw)
+                servo.memory.stale = True
         self.rate_hz = float(rate_hz)
         self.status_file = None if status_file is None else Path(status_file)
         self.status_hz = float(status_hz)

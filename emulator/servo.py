@@ -24,7 +24,7 @@ log = logging.getLogger(__name__)
 BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
 WATCHDOG_UNIT_S = 0.020
 REALTIME_TICK_WRAP = 32768
-#: Items the physics model returns (written back into memory after each step).
+#: Items the physics model returns (written into memory when the bus next reads).
 DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "present_position",
                     "velocity_trajectory", "position_trajectory", "present_input_voltage",
                     "present_temperature", "moving", "moving_status")
@@ -43,10 +43,17 @@ def baud_index(bps: int) -> int:
 
 
 class Dynamics(Protocol):
-    """What the physics model must provide (issue #4, e.g. ``emulator.physics.ServoModel``)."""
+    """What the physics model must provide (issue #4, e.g. ``emulator.physics.ServoModel``).
 
-    def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
-        """Advance ``dt_s`` s given raw items by name; return raw :data:`DYNAMICS_OUTPUTS`."""
+    The servo calls :meth:`advance` every tick and :meth:`outputs` only when someone reads a
+    present item, so physics ticks cost no table writes.
+    """
+
+    def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
+        """Advance ``dt_s`` s given raw items by name."""
+
+    def outputs(self) -> Mapping[str, int]:
+        """Raw :data:`DYNAMICS_OUTPUTS` (any subset) as of the last :meth:`advance`."""
 
 
 class VirtualServo:
@@ -70,6 +77,9 @@ class VirtualServo:
                  dynamics: Dynamics | None = None, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT):
         self.table = table
         self.memory = ServoMemory(table, limit_error=limit_error)
+        self.memory.publisher = self._publish
+        self.memory.published = frozenset((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
+        self._view = self.memory.view()
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
         self.dynamics = dynamics
@@ -290,10 +300,12 @@ class VirtualServo:
         hook = getattr(self.dynamics, "reboot", None)
         if callable(hook):
             hook()
+        self.memory.stale = True         # present items from the physics again, not the defaults
 
     def raise_hardware_error(self, bits: int) -> None:
         """Latch Hardware Error Status ``bits``; bits also set in Shutdown (63) drop torque."""
         m = self.memory
+        m.publish()
         m.set(Reg.HARDWARE_ERROR_STATUS, m.get(Reg.HARDWARE_ERROR_STATUS) | (bits & 0xFF))
         if bits & m.get(Reg.SHUTDOWN):
             self._latched = True
@@ -305,14 +317,23 @@ class VirtualServo:
         self._since_traffic_s = 0.0
 
     def advance(self, dt_s: float) -> None:
-        """Advance simulated time by ``dt_s`` s: Realtime Tick, Bus Watchdog, then ``dynamics``."""
+        """Advance simulated time by ``dt_s`` s: Realtime Tick, Bus Watchdog, then ``dynamics``.
+
+        Present items are written only when read next (:meth:`ServoMemory.publish`).
+        """
         m = self.memory
         self._tick_ms = (self._tick_ms + dt_s * 1e3) % REALTIME_TICK_WRAP
-        m.set(Reg.REALTIME_TICK, int(self._tick_ms))
         self._since_traffic_s += dt_s
+        if self._since_traffic_s > WATCHDOG_UNIT_S and not m.watchdog_tripped:
+            self._check_watchdog()      # the shortest watchdog time is one unit: cheap gate first
+        if self.dynamics is not None:
+            self.dynamics.advance(dt_s, self._view)
+        m.stale = True
+
+    def _check_watchdog(self) -> None:
+        m = self.memory
         wd = m.get(Reg.BUS_WATCHDOG)
-        if (wd > 0 and not m.watchdog_tripped and m.get(Reg.TORQUE_ENABLE)
-                and self._since_traffic_s > wd * WATCHDOG_UNIT_S):
+        if wd > 0 and m.get(Reg.TORQUE_ENABLE) and self._since_traffic_s > wd * WATCHDOG_UNIT_S:
             m.watchdog_tripped = True
             m.set(Reg.BUS_WATCHDOG, -1)
             m.set(Reg.GOAL_VELOCITY, 0)          # stop; physics also sees bus_watchdog == -1
@@ -320,8 +341,13 @@ class VirtualServo:
             if m.get(Reg.OPERATING_MODE) in (OperatingMode.POSITION, OperatingMode.EXTENDED_POSITION,
                                              OperatingMode.CURRENT_BASED_POSITION):
                 m.set(Reg.GOAL_POSITION, m.get(Reg.PRESENT_POSITION))
+
+    def _publish(self) -> None:
+        """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
+        m = self.memory
+        m.set(Reg.REALTIME_TICK, int(self._tick_ms))
         if self.dynamics is not None:
-            outputs = self.dynamics.step(dt_s, m.view())
+            outputs = self.dynamics.outputs()
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))

@@ -49,6 +49,8 @@ class BesselFilter:
         self.norm = norm
         self.y = 0.0
         self.dy = 0.0
+        self._dt_s = 0.0                # step of the cached coefficients
+        self._coef: tuple = ()
 
     def reset(self, value: float = 0.0, rate: float = 0.0) -> None:
         """Put the filter in steady state on an input at ``value`` moving at ``rate`` per second."""
@@ -57,7 +59,9 @@ class BesselFilter:
 
     def step(self, dt_s: float, u: float) -> float:
         """Advance ``dt_s`` with input ``u`` held; return the output ``y``."""
-        ((a00, a01), (a10, a11)), (b0, b1) = _discrete(self.cutoff_radps, self.norm, dt_s)
+        if dt_s != self._dt_s:
+            self._dt_s, self._coef = dt_s, _discrete(self.cutoff_radps, self.norm, dt_s)
+        ((a00, a01), (a10, a11)), (b0, b1) = self._coef
         y, dy = self.y, self.dy
         self.y = a00 * y + a01 * dy + b0 * u
         self.dy = a10 * y + a11 * dy + b1 * u

@@ -69,6 +69,8 @@ class GearedMotor:
         self.angle_rad = 0.0            # motor side
         self.load_torque_nm = 0.0       # output side
         self.load_inertia_kg_m2 = 0.0   # output side
+        self._key: tuple | None = None  # (dt, load inertia, coasting) of the cached coefficients
+        self._coef: tuple = ()
 
     @property
     def inertia_kg_m2(self) -> float:
@@ -88,15 +90,20 @@ class GearedMotor:
     def step(self, dt_s: float, voltage_v: float | None) -> None:
         """Advance ``dt_s`` with the armature voltage held at ``voltage_v`` (None: bridge open)."""
         tau = self.load_torque_nm / self.gear_ratio
-        if voltage_v is None:
-            (a00, a01), (a10, a11) = (ad := _discrete(self.params, self.inertia_kg_m2, dt_s, True))[0]
-            (b0,), (b1,) = ad[1]
+        coasting = voltage_v is None
+        key = (dt_s, self.load_inertia_kg_m2, coasting)
+        if key != self._key:            # one dict-free lookup per step; _discrete caches the expm
+            self._key = key
+            self._coef = _discrete(self.params, self.inertia_kg_m2, dt_s, coasting)
+        ad, bd = self._coef
+        if coasting:
+            (a00, a01), (a10, a11) = ad
+            (b0,), (b1,) = bd
             w, th = self.speed_radps, self.angle_rad
             self.current_a = 0.0
             self.speed_radps = a00 * w + a01 * th + b0 * tau
             self.angle_rad = a10 * w + a11 * th + b1 * tau
             return
-        ad, bd = _discrete(self.params, self.inertia_kg_m2, dt_s, False)
         i, w, th = self.current_a, self.speed_radps, self.angle_rad
         (a00, a01, _), (a10, a11, _), (a20, a21, _) = ad
         (b00, b01), (b10, b11), (b20, b21) = bd

@@ -57,9 +57,13 @@ class ServoModel:
         self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.temperature_c = thermal.ambient_c
+        self._heat_dt, self._heat_decay = 0.0, 1.0     # exp(-dt / time constant) for the last dt
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
-        self._prev: dict[str, int] = {}
+        self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
+        self._prev_goal_position: int | None = None
+        self._last: tuple | None = None            # what outputs() needs from the last step
+        self._measure_filtered = firmware.bessel_placement == "velocity_feedback"
         self._hold_position: float | None = None
         self._started = False
         self._sign = 1
@@ -104,14 +108,16 @@ class ServoModel:
     def clear_multi_turn(self) -> None:
         """Clear instruction (0x10): Present Position back within one turn (+ Homing Offset)."""
         self._rewrap(self._encoder_pulse(self._sign))
+        self._last = None
 
     def reboot(self) -> None:
         """Reboot / power cycle: firmware state cleared, Present Position re-wrapped; the shaft stays put."""
         self.loop.reset()
         self.profile = ProfileGenerator()
-        self._prev = {}
+        self._prev_key = self._prev_goal_position = None
         self._hold_position = None
         self.duty = 0.0
+        self._last = None
         self._rewrap(self._encoder_pulse(self._sign))
 
     # ---- sensors -------------------------------------------------------------------------------
@@ -127,6 +133,8 @@ class ServoModel:
     # ---- one tick ------------------------------------------------------------------------------
     def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
         """Advance ``dt_s`` seconds under the control-table items in ``table``; return present items.
+
+        The same as :meth:`advance` followed by :meth:`outputs`.
 
         Parameters
         ----------
@@ -146,21 +154,30 @@ class ServoModel:
             velocity_trajectory, position_trajectory, present_input_voltage,
             present_temperature, moving, moving_status.
         """
+        self.advance(dt_s, table)
+        return self.outputs()
+
+    def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
+        """Advance ``dt_s`` seconds under the raw items ``table`` (see :meth:`step`); no outputs.
+
+        The emulator calls this every physics tick and :meth:`outputs` only when the bus reads,
+        so the present items cost nothing between reads.
+        """
         sign = self._sign = -1 if table["drive_mode"] & 1 else 1
-        self._homing = table["homing_offset"]
+        self._homing = homing = table["homing_offset"]
         mode = table["operating_mode"]
-        torque = bool(table["torque_enable"])
+        torque = table["torque_enable"] != 0
         raw = self._encoder_pulse(sign)
         if not self._started:
             self.velocity_filter.reset(raw)
             self._started = True
-        switched = (mode != self._prev.get("operating_mode") or torque != bool(self._prev.get("torque_enable"))
-                    or table["drive_mode"] != self._prev.get("drive_mode"))
+        key = (mode, torque, table["drive_mode"])
+        switched = key != self._prev_key
         if switched and torque and mode == u.MODE_POSITION:
             self._rewrap(raw)           # Present Position re-wrapped to one turn (+ Homing Offset)
-        present = raw - self._wrap_pulse + table["homing_offset"]
+        present = raw - self._wrap_pulse + homing
         self.velocity_filter.step(dt_s, float(raw))
-        if self.fw.bessel_placement == "velocity_feedback":
+        if self._measure_filtered:
             v_meas = self.velocity_filter.dy / PULSE_PER_S_PER_VEL_UNIT
         else:                           # ideal estimator: the true speed (README: placement choice)
             v_meas = sign * self.motor.output_speed_radps / u.RADPS_PER_VEL_UNIT
@@ -180,11 +197,18 @@ class ServoModel:
             self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
         self.motor.step(dt_s, voltage)
         self._heat(dt_s)
-        self._prev = {"operating_mode": mode, "torque_enable": table["torque_enable"],
-                      "drive_mode": table["drive_mode"], "goal_velocity": table["goal_velocity"],
-                      "goal_position": table["goal_position"], "goal_pwm": table["goal_pwm"],
-                      "goal_current": table["goal_current"]}
-        return self._outputs(table, mode, torque, present, v_meas, sign)
+        self._prev_key = key
+        self._prev_goal_position = table["goal_position"]
+        self._last = (table, mode, torque, present, v_meas, sign)
+
+    def outputs(self) -> dict[str, int]:
+        """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
+        current and voltage is drawn per call. Before the first step: the servo at rest."""
+        if self._last is None:
+            return {"present_position": math.floor(self.position_pulse),
+                    "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
+                    "present_temperature": round(self.temperature_c)}
+        return self._outputs(*self._last)
 
     def _control(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
                  v_meas: float, sign: int, switched: bool) -> float | None:
@@ -237,7 +261,7 @@ class ServoModel:
         if mode == u.MODE_POSITION:
             goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
         self._goal_pulse = goal
-        new_goal = switched or t["goal_position"] != self._prev.get("goal_position")
+        new_goal = switched or t["goal_position"] != self._prev_goal_position
         if tripped:
             if self._hold_position is None:
                 self._hold_position, new_goal = float(present), True
@@ -272,9 +296,11 @@ class ServoModel:
 
     def _heat(self, dt_s: float) -> None:
         th = self.thermal
+        if dt_s != self._heat_dt:
+            self._heat_dt, self._heat_decay = dt_s, math.exp(-dt_s / th.time_constant_s)
         power = self.motor.current_a ** 2 * self.motor.params.resistance_ohm
         steady = th.ambient_c + th.thermal_resistance_k_per_w * power
-        self.temperature_c = steady + (self.temperature_c - steady) * math.exp(-dt_s / th.time_constant_s)
+        self.temperature_c = steady + (self.temperature_c - steady) * self._heat_decay
 
     def _outputs(self, t: Mapping[str, int], mode: int, torque: bool, present: int, v_meas: float,
                  sign: int) -> dict[str, int]:

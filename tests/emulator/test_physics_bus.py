@@ -18,7 +18,7 @@ from driver.control_table import Reg
 from emulator.physics import units as u
 from emulator.physics.params import load_config
 from emulator.physics.steptest import StepMetrics, step_metrics
-from emulator.robot_emulator import FULL_REFRESH_STEPS, _INPUTS, robot_emulator
+from emulator.robot_emulator import _INPUTS, robot_emulator
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
@@ -176,26 +176,32 @@ def test_fast_input_decoding_matches_the_control_table(emu, bus):
     assert adapter.inputs()["goal_position"] == 3000
 
 
-def test_present_items_stay_in_step_with_the_model(emu, bus):
-    """Only changed outputs are written back; the table still equals the model's last full output."""
-    adapter = emu.servo(DRIVE).dynamics
-    model_step = adapter.model.step
-    last: dict[str, int] = {}
+def test_present_items_are_published_when_read(emu, bus):
+    """Ticks write nothing; a read first brings the table to the model's outputs of that moment."""
+    servo = emu.servo(DRIVE)
+    model = servo.dynamics.model
+    publish = servo.memory.publisher
+    calls = []
 
-    def recording_step(dt_s, table):
-        last.clear()
-        last.update(model_step(dt_s, table))
-        return dict(last)
+    def counting_publisher():
+        calls.append(1)
+        publish()
 
-    adapter.model.step = recording_step
+    servo.memory.publisher = counting_publisher
     setup(bus, DRIVE, u.MODE_VELOCITY)
     bus.write(DRIVE, Reg.GOAL_VELOCITY, 50)
-    for n in (FULL_REFRESH_STEPS + 37, 3, 1):        # across a full refresh and between them
+    for n in (237, 3, 1):
+        calls.clear()
         emu.advance(n / emu.rate_hz)
+        assert calls == []                           # no table writes while only time passes
         with emu.lock:
-            table = {k: emu.servo(DRIVE).read(k) for k in last}
-        assert table == last
-    assert last["present_velocity"] != 0
+            expected = model.outputs()
+            table = {k: servo.read(k) for k in expected}
+        assert calls == [1]
+        assert table == expected
+        assert bus.read(DRIVE, Reg.PRESENT_VELOCITY) == expected["present_velocity"]
+        assert calls == [1]                          # already fresh: the bus read publishes nothing
+    assert expected["present_velocity"] != 0
 
 
 def test_reboot_over_the_bus_restarts_the_firmware(emu, bus):

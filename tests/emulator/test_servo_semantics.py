@@ -113,12 +113,15 @@ class _Spin:
     def __init__(self):
         self.calls = 0
         self.pos = 0.0
+        self.v = 0
 
-    def step(self, dt_s, table):
+    def advance(self, dt_s, table):
         self.calls += 1
-        v = table["goal_velocity"] if table["torque_enable"] else 0
-        self.pos += v * dt_s
-        return {"present_velocity": v, "present_position": int(self.pos), "moving": int(v != 0)}
+        self.v = table["goal_velocity"] if table["torque_enable"] else 0
+        self.pos += self.v * dt_s
+
+    def outputs(self):
+        return {"present_velocity": self.v, "present_position": int(self.pos), "moving": int(self.v != 0)}
 
 
 def test_dynamics_hook_writes_outputs():
