@@ -3,6 +3,8 @@
 Run ``.venv/bin/python bench/bench_controller.py`` from the repository root. Results are
 printed and written to the "## Controller (issue 5)" section of BENCHMARKS.md
 (``--no-write`` to leave it alone; ``--cg-seconds`` caps each cold-start CG run).
+``--per-cycle`` measures only the online loop's per-cycle CPU (tracking law, odometry, cycle
+record, run-log write) and writes the "## Controller per-cycle cost" section instead.
 """
 from __future__ import annotations
 
@@ -12,6 +14,7 @@ import os
 import platform
 import statistics
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -21,8 +24,10 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from controller.design import synthesize  # noqa: E402
-from controller.kinematics import load_robot  # noqa: E402
+from controller.kinematics import load_robot, rk4_step  # noqa: E402
 from controller.ltv import cost, error_system, initial_error  # noqa: E402
+from controller.odometry import Odometry  # noqa: E402
+from controller.online import TrackingLoop  # noqa: E402
 from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
 from controller.riccati import finite_horizon_lqr  # noqa: E402
 from controller.simulate import metrics, simulate  # noqa: E402
@@ -30,9 +35,12 @@ from controller.synthesis import (conjugate_gradient,  # noqa: E402
                                   conjugate_gradient_continuation, cost_and_gradient,
                                   frozen_time_lqr_gains, initial_error_set)
 from controller.tracking import TrackingLaw  # noqa: E402
+from driver.wheelset import WheelState  # noqa: E402
+from tools.logs import CycleRecord, RunLogWriter  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Controller (issue 5)"
+SECTION_CYCLE = "## Controller per-cycle cost"
 GEOM, LIMITS = load_robot()
 
 #: Tracking cases: (label, trajectory, start state or None = the trajectory's own).
@@ -140,6 +148,102 @@ def bench_tracking():
     return rows
 
 
+#: The per-cycle pieces, in loop order (column titles of the per-cycle table).
+CYCLE_PIECES = ("odometry", "law", "record", "log")
+
+
+def _ideal_measurement(t_s, x, v1, wheel_rad, geom=GEOM):
+    """What ideal wheels report at robot state ``x`` (5,) driving at ``v1`` m/s."""
+    w = v1 / geom.wheel_radius_m
+    d1, d2 = float(x[3]), float(x[4])
+    return WheelState(t_s, (w,) * 4, (wheel_rad,) * 4, (d1, d2, d2, d1), (0.0,) * 4,
+                      (0.1,) * 4, (0.0,) * 4)
+
+
+def cycle_costs(name, log_dir):
+    """Per-cycle CPU of the loop's own work on one trajectory, ideal wheels, Riccati gains.
+
+    The cycle body of :meth:`controller.online.TrackingLoop.run` without the bus: odometry
+    update, tracking law, the cycle record (state vector, steering integration, result row and
+    the ``on_cycle`` dict) and the run-log write (``CycleRecord`` + ``RunLogWriter.write``).
+    Returns ``{piece: per-cycle ns array}`` and the number of cycles.
+    """
+    traj = load_trajectory(name, GEOM)
+    ref, gains = synthesize(traj, "riccati", GEOM, LIMITS)
+    law = TrackingLaw(ref, gains, LIMITS)
+    tau, r = traj.tau_s, GEOM.wheel_radius_m
+    x = traj.start_state(GEOM)
+    odo = Odometry(GEOM, x[:3])
+    delta_cmd = x[3:5].copy()
+    law.reset()
+    ns = {p: [] for p in CYCLE_PIECES}
+    rows, v1, wheel_rad = [], 0.0, 0.0
+    clock = time.perf_counter_ns
+    with RunLogWriter(Path(log_dir) / name, {"trajectory": name}) as writer:
+        for k in range(int(1.5 * traj.n_steps)):
+            t = k * tau
+            meas = _ideal_measurement(t, x, v1, wheel_rad)
+            c0 = clock()
+            odo.update(tau, meas.drive_radps, meas.steer_rad, meas.drive_rad)
+            c1 = clock()
+            state = np.array([*odo.pose, *delta_cmd])
+            v1, w1, w2 = law.command(t, state)
+            c2 = clock()
+            if law.last.get("finished"):
+                break
+            L = law.last
+            delta_cmd = np.clip(delta_cmd + np.array([w1, w2]) * tau,
+                                -LIMITS.steer_angle_max_rad, LIMITS.steer_angle_max_rad)
+            steer = [delta_cmd[0], delta_cmd[1], delta_cmd[1], delta_cmd[0]]
+            drive = [v1 / r] * 4
+            truth = x[:3].copy()
+            rows.append((t, state, truth, L["desired_state"], np.array([v1, w1, w2]), L["raw"],
+                         L["s"], L["error"], L["u"] - L["ud"], 0))
+            fields = TrackingLoop._cycle(k, t, tau, drive, steer, v1, w1, w2, meas, odo.pose,
+                                         L["desired_state"], truth, 0)
+            c3 = clock()
+            writer.write(CycleRecord(sim_pose=truth, **fields))
+            c4 = clock()
+            for p, dt in zip(CYCLE_PIECES, (c1 - c0, c2 - c1, c3 - c2, c4 - c3)):
+                ns[p].append(dt)
+            # ideal actuators: wheel speed and steering reach their goals at once
+            x[3:5] = delta_cmd
+            x = rk4_step(x, [v1, 0.0, 0.0], tau, GEOM)
+            wheel_rad += v1 / r * tau
+    return {p: np.array(v) for p, v in ns.items()}, len(rows)
+
+
+def bench_cycles(repeat=3):
+    """Median (over cycles, then the best of ``repeat`` runs) and p99 per piece, microseconds."""
+    out = []
+    with tempfile.TemporaryDirectory() as d:
+        for name in ("line", "circle", "curvilinear"):
+            runs = []
+            for j in range(repeat):
+                costs, n = cycle_costs(name, Path(d) / str(j))
+                runs.append(costs)
+            med = {p: min(np.median(c[p]) for c in runs) / 1e3 for p in CYCLE_PIECES}
+            p99 = {p: min(np.percentile(c[p], 99) for c in runs) / 1e3 for p in CYCLE_PIECES}
+            out.append((name, n, med, p99))
+    return out
+
+
+def render_cycles(rows):
+    out = [SECTION_CYCLE, "", machine(),
+           "Command: `.venv/bin/python bench/bench_controller.py --per-cycle`. The loop body of "
+           "`TrackingLoop.run` without the bus, on ideal wheels (Riccati gains, the paper's start "
+           "states): µs per cycle, median over the run's cycles (best of 3 runs), p99 in "
+           "brackets. *record*: state vector, steering integration, result row and the "
+           "`on_cycle` dict; *log*: `CycleRecord` + `RunLogWriter.write` (flush every cycle).", "",
+           "| trajectory | cycles | " + " | ".join(CYCLE_PIECES) + " | total (without log) |",
+           "|---|---|" + "---|" * (len(CYCLE_PIECES) + 1)]
+    for name, n, med, p99 in rows:
+        cells = [f"{med[p]:.0f} ({p99[p]:.0f})" for p in CYCLE_PIECES]
+        total = sum(med[p] for p in CYCLE_PIECES if p != "log")
+        out.append(f"| {name} | {n} | " + " | ".join(cells) + f" | {total:.0f} |")
+    return "\n".join(out) + "\n"
+
+
 def machine():
     cpu = cpu_model()
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -195,7 +299,15 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cg-seconds", type=float, default=60.0)
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--per-cycle", action="store_true",
+                    help="only the per-cycle cost of the online loop's own work")
     args = ap.parse_args()
+    if args.per_cycle:
+        text = render_cycles(bench_cycles())
+        print(text)
+        if not args.no_write:
+            write_section(SECTION_CYCLE, text)
+        return
     ric = bench_riccati()
     grad = bench_gradient()
     cg = bench_cg(args.cg_seconds)
