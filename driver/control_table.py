@@ -135,6 +135,11 @@ class Register:
     divisor: int | None = None  # firmware gain = raw / divisor
     extra: dict = field(default_factory=dict, compare=False, hash=False)
 
+    def __hash__(self) -> int:
+        # The generated hash would hash every field on each use as a dict key (the emulator's
+        # write path does that per item); name and address identify an item within a table.
+        return hash((self.name, self.address))
+
     @property
     def writable(self) -> bool:
         return self.access == "RW"

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator, Mapping
 
 from driver.control_table import ControlTable, Reg, Register
+from driver.errors import RegisterError
 from driver.packets import ErrorNumber
 
 #: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
@@ -65,6 +66,7 @@ class ServoMemory:
         self.limit_error = ErrorNumber(limit_error)
         self.size = table.size
         self._bytes = bytearray(self.size)
+        self._slices = {reg.name: (reg.address, reg.address + reg.size, reg.signed) for reg in table}
         self._owner: list[Register | None] = [None] * self.size
         for reg in table:
             for a in range(reg.address, reg.address + reg.size):
@@ -126,12 +128,19 @@ class ServoMemory:
         """Raw value of item ``name`` (no rules)."""
         if self.stale and name in self.published:
             self.publish()
-        reg = self.table[name]
-        return reg.decode(bytes(self._bytes[reg.address:reg.address + reg.size]))
+        try:
+            a, b, signed = self._slices[name]
+        except KeyError:
+            raise RegisterError(f"{self.table.model} has no register named {str(name)!r}") from None
+        return int.from_bytes(self._bytes[a:b], "little", signed=signed)
 
     def set(self, name: str, raw: int) -> None:
         """Store raw value ``raw`` in item ``name`` (no rules; raises if it does not fit the size)."""
-        self._put(self.table[name], raw)
+        try:
+            a, b, signed = self._slices[name]
+            self._bytes[a:b] = int(raw).to_bytes(b - a, "little", signed=signed)
+        except (KeyError, OverflowError):
+            self._put(self.table[name], raw)       # raises RegisterError / OutOfRangeError
 
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
