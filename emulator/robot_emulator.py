@@ -53,6 +53,8 @@ log = logging.getLogger(__name__)
 MAX_BATCH_WALL_S = 2e-3
 #: Pause after a step when a bus transaction waits for the lock, s.
 HAND_OVER_S = 5e-5
+#: Longest the clock waits for the bus thread to answer a request before stepping again, s.
+BUS_YIELD_MAX_S = 2e-3
 #: Shortest sleep of the clock thread when it is ahead (batches steps at high time scales), s.
 MIN_SLEEP_S = 1e-3
 #: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
@@ -362,7 +364,9 @@ class RobotEmulator(Emulator):
                     with lock:                # per step: a bus transaction waits one step at most
                         self._tick(dt)
                     n += 1
-                    if lock.waiting:
+                    if self.bus_busy():        # a request is in: the bus goes first
+                        self.wait_bus_idle(BUS_YIELD_MAX_S)
+                    elif lock.waiting:
                         time.sleep(HAND_OVER_S)   # let the waiting thread take the lock
                     if n & 7 == 0 and time.monotonic() > deadline:
                         break

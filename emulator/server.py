@@ -187,6 +187,8 @@ class Emulator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._wake_r = self._wake_w = -1
+        self._serving = False               # the bus thread is reading or answering a request
+        self._served = threading.Event()    # set whenever the bus thread finished a request
 
     # --- lifecycle ------------------------------------------------------------------------------
     def start(self) -> "Emulator":
@@ -277,6 +279,7 @@ class Emulator:
             now = time.monotonic()
             packets = []
             if pty.master in ready:
+                self._serving = True
                 data = pty.read()
                 if data:
                     if not parser.pending:
@@ -291,6 +294,28 @@ class Emulator:
             for pkt in packets:
                 self._handle(pkt, first_byte_t, now)
                 first_byte_t = now
+            self._serving = False
+            self._served.set()
+
+    def bus_busy(self) -> bool:
+        """True while a request waits in the pty or the bus thread is answering one.
+
+        A physics clock calls this between steps and yields (:meth:`wait_bus_idle`), so a
+        reply is not delayed by physics holding the interpreter.
+        """
+        if self._serving:
+            return True
+        pty = self._pty
+        try:
+            return pty is not None and bool(select.select([pty.master], [], [], 0)[0])
+        except (OSError, ValueError):
+            return False
+
+    def wait_bus_idle(self, timeout_s: float) -> None:
+        """Block until the bus thread finished its current request (at most ``timeout_s``)."""
+        self._served.clear()
+        if self.bus_busy():
+            self._served.wait(timeout_s)
 
     def _count_parser_errors(self) -> None:
         p = self._parser
@@ -477,12 +502,20 @@ class Emulator:
             t = max(due, time.monotonic()) if not self.wire_timing else due
 
     def _sleep_until(self, deadline: float) -> None:
-        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
+        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes.
+
+        While it waits (Return Delay, wire time) the physics clock may run.
+        """
         remaining = deadline - time.monotonic()
+        if remaining > 0:
+            self._serving = False
+            self._served.set()
         if remaining > 2e-3:
             self._stop.wait(remaining)
         elif remaining > 0:
             time.sleep(remaining)
+        if remaining > 0:
+            self._serving = True
 
     # --- clock thread ----------------------------------------------------------------------------
     def _clock(self) -> None:
