@@ -5,11 +5,11 @@ process, time-scaled. Error bounds are absolute allowances on top of the ideal-m
 (``swerve sim``), whose errors are ~0 mm on these paths: the emulated robot has servo lag,
 encoder quantisation and bus latency that model (1)-(5) does not (see README, "Full stack").
 
-Time scale: the issue asks for >= 5; on a 2-core machine the Python emulator (8 servos at 1 kHz)
-and the Python loop (~3.5 ms of work per cycle) do not keep a 3.2 ms period, so these tests run
-at ``SWERVE_TEST_TIME_SCALE`` (default 2); BENCHMARKS.md has the measured limit. The tests use a
-copy of ``configs/robot.yaml`` whose Bus Watchdog is 0.5 s robot time (0.25 s wall at 2x) instead
-of 0.1 s, so one scheduling hiccup of a loaded CI machine is not taken for a dead controller.
+Time scale: ``SWERVE_TEST_TIME_SCALE`` (default 5, as the issue asks); BENCHMARKS.md has the
+largest scale at which every deadline is met on the reference machine. Overruns on a loaded
+machine are counted in the summary, not failures. The tests use a copy of ``configs/robot.yaml``
+whose Bus Watchdog is 0.25 s of wall time (1.25 s robot time at 5x; the robot's default is 0.1 s),
+so one scheduling hiccup of a loaded CI machine is not taken for a dead controller.
 """
 import json
 import os
@@ -25,7 +25,7 @@ import pytest
 from tools.robot_run import RunRequest, run_tracking
 
 #: Time scale of the stack tests (the issue asks for >= 5; see BENCHMARKS.md for the limit).
-SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "2"))
+SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "5"))
 #: Tracking allowance above the ideal simulation, m (servo lag, quantisation, latency).
 ALLOWANCE_M = 0.03
 #: Odometry vs true pose over a whole run, m (stated bound, README).
@@ -33,7 +33,8 @@ ODOMETRY_BOUND_M = 0.03
 
 pytestmark = pytest.mark.slow
 
-WATCHDOG_S = 0.5
+#: Bus Watchdog of the test config, robot s: 0.25 s of wall time, within the item's 2.54 s range.
+WATCHDOG_S = min(2.54, round(0.25 * SCALE / 0.02) * 0.02)
 
 
 @pytest.fixture(scope="module")
@@ -137,11 +138,15 @@ def _wait_for(predicate, timeout_s: float):
     return False
 
 
-def _wheel_speeds(status: Path) -> list[float]:
+def _status(status: Path) -> dict | None:
     try:
-        return [w["speed_mps"] for w in json.loads(status.read_text())["wheels"]]
-    except (OSError, ValueError, KeyError):
-        return [float("nan")]
+        return json.loads(status.read_text())
+    except (OSError, ValueError):
+        return None
+
+
+def _max_wheel_speed(doc: dict | None) -> float:
+    return max(abs(w["speed_mps"]) for w in doc["wheels"]) if doc else float("nan")
 
 
 def test_killed_controller_lets_the_watchdog_stop_the_wheels(tmp_path, config):
@@ -150,13 +155,21 @@ def test_killed_controller_lets_the_watchdog_stop_the_wheels(tmp_path, config):
         ctl = subprocess.Popen([sys.executable, "-m", "tools.cli", "run", "--trajectory", "line", "--config", str(config),
                                 "--port", port, "--time-scale", str(SCALE), "--timeout-margin-ms", "50",
                                 "--no-log"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
-        assert _wait_for(lambda: max(map(abs, _wheel_speeds(status))) > 0.02, 120), "robot never moved"
+        assert _wait_for(lambda: _max_wheel_speed(_status(status)) > 0.02, 120), "robot never moved"
         ctl.kill()                                   # SIGKILL: no cleanup in the controller at all
         ctl.wait(timeout=30)
-        killed = time.monotonic()
-        # the servos stop within the Bus Watchdog (0.5 s robot time) plus their deceleration
-        assert _wait_for(lambda: max(map(abs, _wheel_speeds(status))) < 0.005, 30), _wheel_speeds(status)
-        assert (time.monotonic() - killed) * SCALE < WATCHDOG_S + 2.0
+        killed_sim_s = _status(status)["t_s"]       # robot time, at most one status period late
+        stopped = []
+
+        def wheels_stopped() -> bool:
+            doc = _status(status)
+            if doc is not None and _max_wheel_speed(doc) < 0.005:
+                stopped.append(doc["t_s"])
+            return bool(stopped)
+
+        assert _wait_for(wheels_stopped, 30), _status(status)
+        # in robot time: the Bus Watchdog, the servos' deceleration and one status period
+        assert stopped[0] - killed_sim_s < WATCHDOG_S + 1.0, (stopped[0], killed_sim_s)
     finally:
         emu.send_signal(signal.SIGTERM)
         emu.wait(timeout=30)
@@ -174,7 +187,7 @@ def test_ctrl_c_turns_torque_off_and_keeps_the_log(tmp_path, config):
                                 "--port", port, "--time-scale", str(SCALE), "--timeout-margin-ms", "50",
                                 "--log", str(log)],
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert _wait_for(lambda: max(map(abs, _wheel_speeds(status))) > 0.02, 120), "robot never moved"
+        assert _wait_for(lambda: _max_wheel_speed(_status(status)) > 0.02, 120), "robot never moved"
         time.sleep(1.0)                              # let the run log a few dozen cycles
         ctl.send_signal(signal.SIGINT)
         out, err = ctl.communicate(timeout=60)
