@@ -1,11 +1,11 @@
 """The emulated robot in a child process, as a separate device is on the robot.
 
 ``swerve run --emulate`` and ``swerve demo`` drive the emulator through its pty exactly as
-they drive a U2D2; running the emulator (its physics clock at 2 kHz, its bus thread) in its own
+they drive a U2D2; running the emulator (its physics clock and bus thread) in its own
 process keeps it from competing with the control loop for one interpreter lock, so the loop's
 timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
-shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]`` that the child refreshes every
-``pose_period_s`` of wall time (default 1 ms).
+shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]`` that the child refreshes after every
+run of physics steps (at least every millisecond of wall time while the clock runs).
 
 ::
 
@@ -20,7 +20,6 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
-import threading
 from pathlib import Path
 
 from driver.errors import ConfigError, SwerveError
@@ -28,7 +27,7 @@ from driver.errors import ConfigError, SwerveError
 _START_TIMEOUT_S = 60.0
 
 
-def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
+def _child(conn, shared, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     from emulator.robot_emulator import robot_emulator
@@ -38,16 +37,12 @@ def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    stop = threading.Event()
+    def publish(t: float, pose: tuple[float, float, float]) -> None:
+        shared[1], shared[2], shared[3] = pose
+        shared[0] = t
 
-    def publish() -> None:
-        while not stop.wait(pose_period_s):
-            t, (x, y, th) = emu.true_state()
-            shared[1], shared[2], shared[3] = x, y, th
-            shared[0] = t
-
-    pub = threading.Thread(target=publish, name="pose-publisher", daemon=True)
-    pub.start()
+    publish(*emu.true_state())
+    emu.on_batch = publish             # after each run of physics steps, from the emulator's bus thread
     conn.send(("port", emu.port))
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
@@ -63,8 +58,6 @@ def _child(conn, shared, kwargs: dict, pose_period_s: float) -> None:
             conn.send(("ok", None))
         except Exception as exc:  # noqa: BLE001 - reported to the parent
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
-    stop.set()
-    pub.join(timeout=2.0)
     emu.close()
     try:
         t, pose = emu.true_state()
@@ -83,13 +76,11 @@ class EmulatorProcess:
     after :meth:`close`, :attr:`final_stats`.
     """
 
-    def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", *,
-                 pose_period_s: float = 1e-3, **kwargs):
+    def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", **kwargs):
         from driver.control_table import CONFIG_DIR
 
         kwargs.setdefault("emulator_config", str(CONFIG_DIR / "emulator.yaml"))
         self._kwargs = dict(kwargs, robot_config=str(Path(robot_config)))
-        self._pose_period_s = float(pose_period_s)
         self._ctx = mp.get_context("spawn")
         self._shared = self._ctx.RawArray("d", 4)
         self._proc = None
@@ -100,7 +91,7 @@ class EmulatorProcess:
     def start(self) -> "EmulatorProcess":
         parent, child = self._ctx.Pipe()
         self._proc = self._ctx.Process(target=_child, name="swerve-emulator", daemon=True,
-                                       args=(child, self._shared, self._kwargs, self._pose_period_s))
+                                       args=(child, self._shared, self._kwargs))
         self._proc.start()
         child.close()
         self._conn = parent
@@ -124,7 +115,7 @@ class EmulatorProcess:
 
     @property
     def pose(self) -> tuple[float, float, float]:
-        """True body pose ``(x_m, y_m, theta_rad)`` (at most ``pose_period_s`` wall old)."""
+        """True body pose ``(x_m, y_m, theta_rad)`` after the emulator's latest physics steps."""
         s = self._shared
         return s[1], s[2], s[3]
 

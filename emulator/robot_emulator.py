@@ -4,7 +4,7 @@
 
     from emulator.robot_emulator import robot_emulator
 
-    with robot_emulator(time_scale=0) as emu:         # 0: no clock thread, step with emu.advance()
+    with robot_emulator(time_scale=0) as emu:         # 0: no clock, step with emu.advance()
         ...                                           # open emu.port with driver.bus.Bus
         emu.advance(0.016)                            # 16 ms of simulated time, 2 kHz steps
         x, y, theta = emu.pose                        # true pose, never through the bus
@@ -13,9 +13,10 @@
         ...                                           # physics runs on its own clock, 5x real time
 
 The physics (:mod:`emulator.physics`) advances in fixed steps of ``1 / physics.rate_hz``
-simulated seconds. With ``time_scale = S > 0`` a clock thread runs the steps that wall time
-demands (``S * rate_hz`` steps per wall second), taking the bus lock per step and stepping
-aside when a bus transaction waits for it. If the CPU cannot keep up, it runs the owed steps
+simulated seconds. With ``time_scale = S > 0`` the bus thread runs the steps that wall time
+demands (``S * rate_hz`` steps per wall second) whenever no request is pending, taking the bus
+lock per step; a request waits for one step at most, and physics never competes with the bus
+for the interpreter lock. If the CPU cannot keep up, it runs the owed steps
 back to back; beyond :data:`MAX_BACKLOG_WALL_S` of backlog it drops simulated time and counts
 it in :class:`ClockStats` (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
 
@@ -34,7 +35,7 @@ import threading
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping
+from typing import Callable, Mapping
 
 import numpy as np
 
@@ -53,14 +54,12 @@ log = logging.getLogger(__name__)
 MAX_BATCH_WALL_S = 2e-3
 #: Pause after a step when a bus transaction waits for the lock, s.
 HAND_OVER_S = 5e-5
-#: Longest the clock waits for the bus thread to answer a request before stepping again, s.
-BUS_YIELD_MAX_S = 2e-3
-#: Shortest sleep of the clock thread when it is ahead (batches steps at high time scales), s.
+#: Shortest wait of the clock when it is ahead (batches steps at high time scales), s.
 MIN_SLEEP_S = 1e-3
 #: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
 MAX_BACKLOG_WALL_S = 0.5
-#: GIL hand-over interval while the clock thread runs, s. CPython's default (5 ms) lets a busy
-#: physics thread delay every step of a bus reply by up to 5 ms (p99 cycle 15 ms at scale 1).
+#: GIL hand-over interval while the clock runs, s. CPython's default (5 ms) lets the busy bus
+#: thread delay a client in the same process (tests) by up to 5 ms per hand-over.
 SWITCH_INTERVAL_S = 2e-4
 #: Keys of the ``noise`` spec and the SensorParams fields they set.
 NOISE_KEYS = {"position": "position_noise_std_pulse", "current": "current_noise_std_a",
@@ -125,10 +124,10 @@ class _ServoDynamics:
 class _HandOverLock:
     """The emulator's one lock, plus who is waiting for it (so the clock can step aside).
 
-    A plain :class:`threading.Lock` is not fair: a clock thread that releases it and takes it
-    again at once starves a bus transaction waiting for it (replies 50 ms late at time scale
-    2 on a loaded machine). The clock checks :attr:`waiting` after each physics step and
-    pauses only then, so it loses no time when nobody waits. ``set.add``/``discard`` are atomic.
+    A plain :class:`threading.Lock` is not fair: a clock that releases it and takes it
+    again at once starves another thread waiting for it (the status file, fault injection,
+    pose readers). The clock checks :attr:`waiting` after each physics step and pauses only
+    then, so it loses no time when nobody waits. ``set.add``/``discard`` are atomic.
     """
 
     def __init__(self):
@@ -161,18 +160,18 @@ class _HandOverLock:
 
 @dataclass
 class ClockStats:
-    """How the physics clock kept up with wall time (written by the clock thread)."""
+    """How the physics clock kept up with wall time (written by the bus thread)."""
 
     time_scale: float = 0.0
     rate_hz: float = 0.0
     wall_s: float = 0.0         # wall time since the clock started
-    steps: int = 0              # physics steps run by the clock thread
+    steps: int = 0              # physics steps run by the clock
     batches: int = 0            # runs of back-to-back steps (one per wake-up or 2 ms of work)
     backlog_s: float = 0.0      # simulated time owed right now (steps due but not yet run)
     max_backlog_s: float = 0.0  # largest simulated time the clock was behind wall time * scale
     fell_behind: int = 0        # times the backlog exceeded MAX_BACKLOG_WALL_S and time was dropped
     lost_sim_s: float = 0.0     # simulated time dropped then (the world ran slower than scale)
-    cpu_s: float = 0.0          # CPU time of the clock thread (thread_time)
+    cpu_s: float = 0.0          # CPU time spent in physics steps (thread_time)
 
     @property
     def achieved_scale(self) -> float:
@@ -181,7 +180,7 @@ class ClockStats:
 
     @property
     def real_time_factor(self) -> float:
-        """Simulated seconds per CPU second of the clock thread (physics + table upkeep)."""
+        """Simulated seconds per CPU second of physics (servos, body, clock upkeep)."""
         return self.steps / self.rate_hz / self.cpu_s if self.cpu_s > 0 else math.inf
 
     def as_dict(self) -> dict[str, float | None]:
@@ -235,6 +234,11 @@ class RobotEmulator(Emulator):
         self.status_file = None if status_file is None else Path(status_file)
         self.status_hz = float(status_hz)
         self.clock_stats = ClockStats(time_scale=self.time_scale, rate_hz=self.rate_hz)
+        self._clock_t0: float | None = None     # wall time of the first physics step
+        self._clock_skipped = 0                 # steps dropped when the clock fell behind
+        #: Called by the physics clock after each run of steps with ``(sim_time_s, pose)``,
+        #: from the bus thread (keep it short; no lock needed).
+        self.on_batch: Callable[[float, tuple[float, float, float]], None] | None = None
         self._status_thread: threading.Thread | None = None
         self._status_stop = threading.Event()
         self._previous_switch_s: float | None = None
@@ -248,7 +252,7 @@ class RobotEmulator(Emulator):
 
     @property
     def sim_time_s(self) -> float:
-        """Simulated seconds since construction (clock thread and :meth:`advance` together)."""
+        """Simulated seconds since construction (clock and :meth:`advance` together)."""
         with self.lock:
             return self._body.t_s
 
@@ -327,57 +331,67 @@ class RobotEmulator(Emulator):
             except OSError as exc:
                 log.warning("cannot write status file %s: %s", self.status_file, exc)
 
-    # --- the physics clock (replaces Emulator._clock; same thread, started by Emulator.start) ----
-    def _clock(self) -> None:
+    # --- the physics clock, run by the bus thread between requests ---------------------------------
+    CLOCK_IN_BUS_THREAD = True
+
+    def _run_clock(self) -> float:
+        """Run the physics steps wall time demands (``time_scale * rate_hz`` per wall second).
+
+        Called by the bus thread whenever it is not answering a request, so a request waits for
+        one physics step at most and physics never competes with the bus for the interpreter.
+        Steps run back to back until caught up, until a request arrives, or for
+        :data:`MAX_BATCH_WALL_S`; beyond :data:`MAX_BACKLOG_WALL_S` of backlog, simulated time
+        is dropped and counted. Returns the wall seconds until the next step is due (0: more
+        is owed now).
+        """
         st = self.clock_stats
+        now = time.monotonic()
+        if self._clock_t0 is None:
+            self._clock_t0 = now
         dt = 1.0 / self.rate_hz
         steps_per_wall_s = self.rate_hz * self.time_scale
+        st.wall_s = now - self._clock_t0
+        backlog = int(st.wall_s * steps_per_wall_s) - self._clock_skipped - st.steps
+        if backlog <= 0:
+            due = self._clock_t0 + (st.steps + self._clock_skipped + 1) / steps_per_wall_s
+            return max(MIN_SLEEP_S, due - now)
         max_backlog = max(1, int(MAX_BACKLOG_WALL_S * steps_per_wall_s))
-        t0 = time.monotonic()
+        if backlog > max_backlog:
+            drop = backlog - max_backlog
+            self._clock_skipped += drop
+            backlog = max_backlog
+            st.fell_behind += 1
+            st.lost_sim_s += drop * dt
+            if st.fell_behind == 1:
+                log.warning("physics clock fell behind at time scale %g; dropping simulated time "
+                            "(see clock_stats)", self.time_scale)
+        st.max_backlog_s = max(st.max_backlog_s, backlog * dt)
         cpu0 = time.thread_time()
-        done = skipped = 0
-        while not self._stop.is_set():
-            now = time.monotonic()
-            st.wall_s = now - t0
-            st.cpu_s = time.thread_time() - cpu0
-            backlog = int((now - t0) * steps_per_wall_s) - skipped - done
-            if backlog <= 0:
-                due = t0 + (done + skipped + 1) / steps_per_wall_s
-                self._stop.wait(max(MIN_SLEEP_S, due - now))
-                continue
-            if backlog > max_backlog:
-                drop = backlog - max_backlog
-                skipped += drop
-                backlog = max_backlog
-                st.fell_behind += 1
-                st.lost_sim_s += drop * dt
-                if st.fell_behind == 1:
-                    log.warning("physics clock fell behind at time scale %g; dropping simulated time "
-                                "(see clock_stats)", self.time_scale)
-            st.backlog_s = backlog * dt
-            st.max_backlog_s = max(st.max_backlog_s, st.backlog_s)
-            n = 0
-            deadline = time.monotonic() + MAX_BATCH_WALL_S
-            lock = self._lock
-            try:
-                while n < backlog:
-                    with lock:                # per step: a bus transaction waits one step at most
-                        self._tick(dt)
-                    n += 1
-                    if self.bus_busy():        # a request is in: the bus goes first
-                        self.wait_bus_idle(BUS_YIELD_MAX_S)
-                    elif lock.waiting:
-                        time.sleep(HAND_OVER_S)   # let the waiting thread take the lock
-                    if n & 7 == 0 and time.monotonic() > deadline:
-                        break
-            except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
-                self.stats.dispatch_errors += 1
-                log.debug("error in physics tick", exc_info=True)
-                n = max(n, 1)
-            done += n
-            st.steps = done
-            st.batches += 1
-            st.backlog_s = (backlog - n) * dt
+        deadline = now + MAX_BATCH_WALL_S
+        lock = self._lock
+        n = 0
+        try:
+            while n < backlog:
+                with lock:
+                    self._tick(dt)
+                n += 1
+                if self._request_pending():
+                    break
+                if lock.waiting:
+                    time.sleep(HAND_OVER_S)   # let a waiting thread (status, faults) take the lock
+                if n & 7 == 0 and time.monotonic() > deadline:
+                    break
+        except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
+            self.stats.dispatch_errors += 1
+            log.debug("error in physics tick", exc_info=True)
+            n = max(n, 1)
+        st.steps += n
+        st.batches += 1
+        st.backlog_s = (backlog - n) * dt
+        st.cpu_s += time.thread_time() - cpu0
+        if self.on_batch is not None:
+            self.on_batch(self._body.t_s, self.physics.body.pose)
+        return 0.0 if n < backlog else MIN_SLEEP_S
 
 
 def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> tuple[SensorParams, int | None]:

@@ -1,5 +1,8 @@
 """The emulated bus: virtual servos behind a pty, served by a reader thread and a clock thread.
 
+(:class:`emulator.robot_emulator.RobotEmulator` runs its physics clock in the reader thread
+instead, between requests; see :attr:`Emulator.CLOCK_IN_BUS_THREAD`.)
+
 Reader thread: blocks in ``select`` on the pty master (and a wake-up pipe), feeds a
 :class:`driver.parser.PacketParser`, abandons a partial frame after an idle gap
 (``inter_byte_timeout_s``, 1.5 ms as on the servo), dispatches each instruction to the
@@ -187,8 +190,6 @@ class Emulator:
         self._stop = threading.Event()
         self._threads: list[threading.Thread] = []
         self._wake_r = self._wake_w = -1
-        self._serving = False               # the bus thread is reading or answering a request
-        self._served = threading.Event()    # set whenever the bus thread finished a request
 
     # --- lifecycle ------------------------------------------------------------------------------
     def start(self) -> "Emulator":
@@ -199,7 +200,7 @@ class Emulator:
         self._wake_r, self._wake_w = os.pipe()
         self._stop.clear()
         self._threads = [threading.Thread(target=self._serve, name="emulator-bus", daemon=True)]
-        if self.time_scale > 0:
+        if self.time_scale > 0 and not self.CLOCK_IN_BUS_THREAD:
             self._threads.append(threading.Thread(target=self._clock, name="emulator-clock", daemon=True))
         for t in self._threads:
             t.start()
@@ -268,8 +269,11 @@ class Emulator:
     def _serve(self) -> None:
         pty, parser = self._pty, self._parser
         first_byte_t = last_rx_t = 0.0
+        inline = self.CLOCK_IN_BUS_THREAD and self.time_scale > 0
         while not self._stop.is_set():
             timeout = self.inter_byte_timeout_s if parser.pending else IDLE_POLL_S
+            if inline:
+                timeout = min(timeout, self._run_clock())
             try:
                 ready, _, _ = select.select([pty.master, self._wake_r], [], [], timeout)
             except (OSError, ValueError):
@@ -279,7 +283,6 @@ class Emulator:
             now = time.monotonic()
             packets = []
             if pty.master in ready:
-                self._serving = True
                 data = pty.read()
                 if data:
                     if not parser.pending:
@@ -294,28 +297,6 @@ class Emulator:
             for pkt in packets:
                 self._handle(pkt, first_byte_t, now)
                 first_byte_t = now
-            self._serving = False
-            self._served.set()
-
-    def bus_busy(self) -> bool:
-        """True while a request waits in the pty or the bus thread is answering one.
-
-        A physics clock calls this between steps and yields (:meth:`wait_bus_idle`), so a
-        reply is not delayed by physics holding the interpreter.
-        """
-        if self._serving:
-            return True
-        pty = self._pty
-        try:
-            return pty is not None and bool(select.select([pty.master], [], [], 0)[0])
-        except (OSError, ValueError):
-            return False
-
-    def wait_bus_idle(self, timeout_s: float) -> None:
-        """Block until the bus thread finished its current request (at most ``timeout_s``)."""
-        self._served.clear()
-        if self.bus_busy():
-            self._served.wait(timeout_s)
 
     def _count_parser_errors(self) -> None:
         p = self._parser
@@ -502,22 +483,33 @@ class Emulator:
             t = max(due, time.monotonic()) if not self.wire_timing else due
 
     def _sleep_until(self, deadline: float) -> None:
-        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes.
-
-        While it waits (Return Delay, wire time) the physics clock may run.
-        """
+        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
         remaining = deadline - time.monotonic()
-        if remaining > 0:
-            self._serving = False
-            self._served.set()
         if remaining > 2e-3:
             self._stop.wait(remaining)
         elif remaining > 0:
             time.sleep(remaining)
-        if remaining > 0:
-            self._serving = True
 
-    # --- clock thread ----------------------------------------------------------------------------
+    # --- clock -------------------------------------------------------------------------------------
+    #: Subclasses set this to run their clock in the bus thread between requests (:meth:`_run_clock`)
+    #: instead of in a thread of its own.
+    CLOCK_IN_BUS_THREAD = False
+
+    def _request_pending(self) -> bool:
+        """True if bytes from the client wait in the pty (for a clock run by the bus thread)."""
+        try:
+            return bool(select.select([self._pty.master], [], [], 0)[0])
+        except (OSError, ValueError, AttributeError):
+            return False
+
+    def _run_clock(self) -> float:
+        """Run the clock steps that are due, in the bus thread; return seconds until more are due.
+
+        Only called when :attr:`CLOCK_IN_BUS_THREAD` is set; it must return soon after
+        :meth:`_request_pending` turns true, so that requests go first.
+        """
+        raise NotImplementedError
+
     def _clock(self) -> None:
         period = 1.0 / self.clock_hz
         dt_sim = period * self.time_scale
