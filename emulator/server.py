@@ -457,6 +457,7 @@ class Emulator:
         byte_t = self._byte_time_s()
         fast_dropped = fast_drawn = False
         last = replies[-1]
+        pending = bytearray()
         for r in replies:
             frame = r.frame
             if r.fast:
@@ -475,12 +476,20 @@ class Emulator:
             due = t + r.delay_s + faults.delay_s
             if self.wire_timing:
                 due += len(frame) * byte_t     # the last byte reaches the host then
-            if r is last or due - time.monotonic() > EARLY_WRITE_S:
+            ahead = due - time.monotonic()
+            if ahead > 0 and (r is last or ahead > EARLY_WRITE_S):
+                self._write(pending)           # what is due goes out before the wait
+                pending.clear()
                 self._sleep_until(due)      # never early for the reply that ends the exchange
-            sent = self._pty.write(frame)
-            self.stats.tx_overflow_bytes += len(frame) - sent
+            pending += frame                  # replies due together go out in one write
             self.stats.replies_sent += 1
             t = max(due, time.monotonic()) if not self.wire_timing else due
+        self._write(pending)
+
+    def _write(self, data: bytes) -> None:
+        if data:
+            sent = self._pty.write(bytes(data))
+            self.stats.tx_overflow_bytes += len(data) - sent
 
     def _sleep_until(self, deadline: float) -> None:
         """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
