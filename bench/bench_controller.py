@@ -148,99 +148,155 @@ def bench_tracking():
     return rows
 
 
-#: The per-cycle pieces, in loop order (column titles of the per-cycle table).
-CYCLE_PIECES = ("odometry", "law", "record", "log")
+#: Per-cycle cases: (label, trajectory, start state or None = the trajectory's own).
+CYCLE_CASES = [("line", "line", None), ("circle", "circle", None),
+               ("circle, start 0.1 m off, θ = 0.3 rad", "circle", [0.0, -0.1, 0.3, 0.0, 0.0]),
+               ("curvilinear", "curvilinear", None)]
+#: The per-cycle pieces (column titles of the per-cycle table).
+CYCLE_PIECES = ("odometry", "law", "loop", "log")
 
 
-def _ideal_measurement(t_s, x, v1, wheel_rad, geom=GEOM):
-    """What ideal wheels report at robot state ``x`` (5,) driving at ``v1`` m/s."""
-    w = v1 / geom.wheel_radius_m
-    d1, d2 = float(x[3]), float(x[4])
-    return WheelState(t_s, (w,) * 4, (wheel_rad,) * 4, (d1, d2, d2, d1), (0.0,) * 4,
-                      (0.1,) * 4, (0.0,) * 4)
+class _Timer:
+    """Accumulates the wall time of the calls it wraps, per loop cycle (ns)."""
+
+    def __init__(self):
+        self.ns = 0
+
+    def wrap(self, fn):
+        def timed(*args, **kwargs):
+            t0 = time.perf_counter_ns()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.ns += time.perf_counter_ns() - t0
+        return timed
 
 
-def cycle_costs(name, log_dir):
-    """Per-cycle CPU of the loop's own work on one trajectory, ideal wheels, Riccati gains.
+class _IdealWheels:
+    """Wheels that reach their goals at once, on a simulated clock (no bus, no sleeping).
 
-    The cycle body of :meth:`controller.online.TrackingLoop.run` without the bus: odometry
-    update, tracking law, the cycle record (state vector, steering integration, result row and
-    the ``on_cycle`` dict) and the run-log write (``CycleRecord`` + ``RunLogWriter.write``).
-    Returns ``{piece: per-cycle ns array}`` and the number of cycles.
+    Each ``read_state`` starts a cycle: it records the time since the previous one and the time
+    the pieces' timers accumulated meanwhile, the wheels' own work excluded.
     """
-    traj = load_trajectory(name, GEOM)
+
+    def __init__(self, state, timers):
+        self.x = np.asarray(state, float).copy()
+        self.t = 0.0                     # simulated robot time, s
+        self.t_read = 0.0
+        self.timers = timers
+        self.v1 = self.wheel_rad = 0.0
+        self.cycles, self._t0, self._own = [], None, 0
+
+    def clock(self):
+        return self.t
+
+    def sleep(self, dt):
+        self.t += dt
+
+    def read_state(self):
+        now = time.perf_counter_ns()
+        if self._t0 is not None:
+            pieces = {name: tm.ns for name, tm in self.timers.items()}
+            self.cycles.append((now - self._t0 - self._own, pieces))
+        for tm in self.timers.values():
+            tm.ns = 0
+        self._t0, self._own = now, 0
+        dt = self.t - self.t_read            # advance the ideal robot to the read time
+        if dt > 0:
+            self.x = rk4_step(self.x, [self.v1, 0.0, 0.0], dt, GEOM)
+            self.wheel_rad += self.v1 / GEOM.wheel_radius_m * dt
+        self.t_read = self.t
+        w, d1, d2 = self.v1 / GEOM.wheel_radius_m, float(self.x[3]), float(self.x[4])
+        st = WheelState(self.t, (w,) * 4, (self.wheel_rad,) * 4, (d1, d2, d2, d1), (0.0,) * 4,
+                        (0.1,) * 4, (0.0,) * 4)
+        self._own += time.perf_counter_ns() - now
+        return st
+
+    def write_goals(self, drive, steer):
+        t0 = time.perf_counter_ns()
+        self.v1 = float(np.mean(drive)) * GEOM.wheel_radius_m
+        self.x[3], self.x[4] = steer[0], steer[1]
+        self._own += time.perf_counter_ns() - t0
+
+    def stop(self):
+        self.v1 = 0.0
+
+
+def cycle_costs(traj_name, x0, log_dir):
+    """Per-cycle CPU of :meth:`controller.online.TrackingLoop.run`'s own work, ideal wheels.
+
+    Runs the real loop (Riccati gains, a run log as ``swerve run --log`` writes it) and splits
+    each cycle into odometry (``Odometry.update``), law (``TrackingLaw.command``), log
+    (``CycleRecord`` + ``RunLogWriter.write``) and loop (everything else the loop does: state
+    vector, steering integration, result row, ``on_cycle`` dict, ticker). Returns
+    ``({piece: ns array}, fraction of cycles whose reference time was on the grid)``.
+    """
+    import controller.online as online
+
+    traj = load_trajectory(traj_name, GEOM)
     ref, gains = synthesize(traj, "riccati", GEOM, LIMITS)
     law = TrackingLaw(ref, gains, LIMITS)
-    tau, r = traj.tau_s, GEOM.wheel_radius_m
-    x = traj.start_state(GEOM)
-    odo = Odometry(GEOM, x[:3])
-    delta_cmd = x[3:5].copy()
-    law.reset()
-    ns = {p: [] for p in CYCLE_PIECES}
-    rows, v1, wheel_rad = [], 0.0, 0.0
-    clock = time.perf_counter_ns
-    with RunLogWriter(Path(log_dir) / name, {"trajectory": name}) as writer:
-        for k in range(int(1.5 * traj.n_steps)):
-            t = k * tau
-            meas = _ideal_measurement(t, x, v1, wheel_rad)
-            c0 = clock()
-            odo.update(tau, meas.drive_radps, meas.steer_rad, meas.drive_rad)
-            c1 = clock()
-            state = np.array([*odo.pose, *delta_cmd])
-            v1, w1, w2 = law.command(t, state)
-            c2 = clock()
-            if law.last.get("finished"):
-                break
-            L = law.last
-            delta_cmd = np.clip(delta_cmd + np.array([w1, w2]) * tau,
-                                -LIMITS.steer_angle_max_rad, LIMITS.steer_angle_max_rad)
-            steer = [delta_cmd[0], delta_cmd[1], delta_cmd[1], delta_cmd[0]]
-            drive = [v1 / r] * 4
-            truth = x[:3].copy()
-            rows.append((t, state, truth, L["desired_state"], np.array([v1, w1, w2]), L["raw"],
-                         L["s"], L["error"], L["u"] - L["ud"], 0))
-            fields = TrackingLoop._cycle(k, t, tau, drive, steer, v1, w1, w2, meas, odo.pose,
-                                         L["desired_state"], truth, 0)
-            c3 = clock()
-            writer.write(CycleRecord(sim_pose=truth, **fields))
-            c4 = clock()
-            for p, dt in zip(CYCLE_PIECES, (c1 - c0, c2 - c1, c3 - c2, c4 - c3)):
-                ns[p].append(dt)
-            # ideal actuators: wheel speed and steering reach their goals at once
-            x[3:5] = delta_cmd
-            x = rk4_step(x, [v1, 0.0, 0.0], tau, GEOM)
-            wheel_rad += v1 / r * tau
-    return {p: np.array(v) for p, v in ns.items()}, len(rows)
+    start = traj.start_state(GEOM) if x0 is None else np.array(x0, float)
+    timers = {p: _Timer() for p in ("odometry", "law", "log")}
+    wheels = _IdealWheels(start, timers)
+    timed_command, on_grid = timers["law"].wrap(law.command), []
+
+    def command(t_s, state):
+        out = timed_command(t_s, state)
+        if not law.last["finished"]:         # is the reference time a grid time?
+            on_grid.append(law.last["s"] == ref.times_s[ref.index(law.last["s"])])
+        return out
+    law.command = command
+
+    class TimedOdometry(Odometry):
+        update = timers["odometry"].wrap(Odometry.update)
+
+    with RunLogWriter(Path(log_dir) / traj.name, {"trajectory": traj.name}) as writer:
+        def on_cycle(fields):
+            writer.write(CycleRecord(sim_pose=fields["true_pose"], **fields))
+
+        loop = TrackingLoop(wheels, law, GEOM, clock=wheels.clock, sleep=wheels.sleep,
+                            true_pose=lambda: wheels.x[:3], on_cycle=timers["log"].wrap(on_cycle))
+        saved, online.Odometry = online.Odometry, TimedOdometry
+        try:
+            loop.run(start)
+        finally:
+            online.Odometry = saved
+    total = np.array([c[0] for c in wheels.cycles])
+    ns = {p: np.array([c[1][p] for c in wheels.cycles]) for p in timers}
+    ns["loop"] = total - sum(ns.values())
+    return ns, float(np.mean(on_grid))
 
 
 def bench_cycles(repeat=3):
     """Median (over cycles, then the best of ``repeat`` runs) and p99 per piece, microseconds."""
     out = []
     with tempfile.TemporaryDirectory() as d:
-        for name in ("line", "circle", "curvilinear"):
-            runs = []
-            for j in range(repeat):
-                costs, n = cycle_costs(name, Path(d) / str(j))
-                runs.append(costs)
-            med = {p: min(np.median(c[p]) for c in runs) / 1e3 for p in CYCLE_PIECES}
-            p99 = {p: min(np.percentile(c[p], 99) for c in runs) / 1e3 for p in CYCLE_PIECES}
-            out.append((name, n, med, p99))
+        for label, name, x0 in CYCLE_CASES:
+            runs = [cycle_costs(name, x0, Path(d) / f"{label}-{j}") for j in range(repeat)]
+            med = {p: min(np.median(c[p]) for c, _ in runs) / 1e3 for p in CYCLE_PIECES}
+            p99 = {p: min(np.percentile(c[p], 99) for c, _ in runs) / 1e3 for p in CYCLE_PIECES}
+            out.append((label, len(runs[0][0]["law"]), runs[0][1], med, p99))
     return out
 
 
 def render_cycles(rows):
     out = [SECTION_CYCLE, "", machine(),
-           "Command: `.venv/bin/python bench/bench_controller.py --per-cycle`. The loop body of "
-           "`TrackingLoop.run` without the bus, on ideal wheels (Riccati gains, the paper's start "
-           "states): µs per cycle, median over the run's cycles (best of 3 runs), p99 in "
-           "brackets. *record*: state vector, steering integration, result row and the "
-           "`on_cycle` dict; *log*: `CycleRecord` + `RunLogWriter.write` (flush every cycle).", "",
-           "| trajectory | cycles | " + " | ".join(CYCLE_PIECES) + " | total (without log) |",
-           "|---|---|" + "---|" * (len(CYCLE_PIECES) + 1)]
-    for name, n, med, p99 in rows:
+           "Command: `.venv/bin/python bench/bench_controller.py --per-cycle`. "
+           "`TrackingLoop.run` on ideal wheels and a simulated clock (no bus; Riccati gains; run "
+           "log written as by `swerve run --log`): µs per cycle, median over the run's cycles "
+           "(best of 3 runs), p99 in brackets. *odometry*: `Odometry.update`; *law*: "
+           "`TrackingLaw.command`; *loop*: the rest of the loop's work (state vector, steering "
+           "integration, result row, `on_cycle` dict, ticker); *log*: `CycleRecord` + "
+           "`RunLogWriter.write` (flush every cycle). *on grid*: share of cycles whose reference "
+           "time is a grid time (the governor slows the reference clock off the grid).", "",
+           "| case | cycles | on grid | " + " | ".join(CYCLE_PIECES) + " | total without log |",
+           "|---|---|---|" + "---|" * (len(CYCLE_PIECES) + 1)]
+    for label, n, grid, med, p99 in rows:
         cells = [f"{med[p]:.0f} ({p99[p]:.0f})" for p in CYCLE_PIECES]
         total = sum(med[p] for p in CYCLE_PIECES if p != "log")
-        out.append(f"| {name} | {n} | " + " | ".join(cells) + f" | {total:.0f} |")
+        out.append(f"| {label} | {n} | {100 * grid:.0f} % | " + " | ".join(cells)
+                   + f" | {total:.0f} |")
     return "\n".join(out) + "\n"
 
 

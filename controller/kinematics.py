@@ -7,6 +7,7 @@ rear ``(-a, b)``; ``b`` only enters through ``r**2 = a**2 + b**2``.
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +68,14 @@ def load_robot(path: str | Path = ROBOT_YAML) -> tuple[Geometry, Limits]:
     return from_robot_config(cfg)
 
 
+def _pose_rates(th, d1, d2, v1, k, cos, sin):
+    """``(dx, dy, dtheta)`` of model (1)-(3); ``k = a / (2 r**2)``. Works on floats (``math``'s
+    cos/sin) and on arrays (numpy's)."""
+    return (0.5 * (cos(d1 + th) + cos(d2 + th)) * v1,
+            0.5 * (sin(d1 + th) + sin(d2 + th)) * v1,
+            k * (sin(d1) - sin(d2)) * v1)
+
+
 def state_derivative(state, inputs, geom: Geometry = Geometry()) -> np.ndarray:
     """Right-hand side of model (1)-(5).
 
@@ -88,9 +97,7 @@ def state_derivative(state, inputs, geom: Geometry = Geometry()) -> np.ndarray:
     v1, w1, w2 = u[..., 0], u[..., 1], u[..., 2]
     k = geom.a_m / (2.0 * geom.r2_m2)
     out = np.empty(np.broadcast_shapes(s.shape, u.shape[:-1] + (5,)))
-    out[..., 0] = 0.5 * (np.cos(d1 + th) + np.cos(d2 + th)) * v1
-    out[..., 1] = 0.5 * (np.sin(d1 + th) + np.sin(d2 + th)) * v1
-    out[..., 2] = k * (np.sin(d1) - np.sin(d2)) * v1
+    out[..., 0], out[..., 1], out[..., 2] = _pose_rates(th, d1, d2, v1, k, np.cos, np.sin)
     out[..., 3] = w1
     out[..., 4] = w2
     return out
@@ -99,17 +106,34 @@ def state_derivative(state, inputs, geom: Geometry = Geometry()) -> np.ndarray:
 def rk4_step(state, inputs, dt_s: float, geom: Geometry = Geometry(), substeps: int = 2):
     """Integrate model (1)-(5) over ``dt_s`` with inputs held constant (classical RK4).
 
-    Returns the state after ``dt_s``, shape (5,).
+    ``state`` (5,), ``inputs`` (3,). Returns the state after ``dt_s``, shape (5,).
     """
-    s = np.asarray(state, dtype=float)
+    return np.array(rk4_step_floats(np.asarray(state, dtype=float).tolist(),
+                                    np.asarray(inputs, dtype=float).tolist(), dt_s, geom,
+                                    substeps))
+
+
+def rk4_step_floats(state, inputs, dt_s: float, geom: Geometry = Geometry(),
+                    substeps: int = 2) -> list[float]:
+    """:func:`rk4_step` on plain floats (5 and 3 of them; returns a list of 5): the same
+    arithmetic as :func:`state_derivative` stages, without numpy's per-call overhead."""
+    x, y, th, d1, d2 = state
+    v1, w1, w2 = inputs
+    k = geom.a_m / (2.0 * geom.r2_m2)
     h = dt_s / substeps
+    cos, sin = math.cos, math.sin
     for _ in range(substeps):
-        k1 = state_derivative(s, inputs, geom)
-        k2 = state_derivative(s + 0.5 * h * k1, inputs, geom)
-        k3 = state_derivative(s + 0.5 * h * k2, inputs, geom)
-        k4 = state_derivative(s + h * k3, inputs, geom)
-        s = s + (h / 6.0) * (k1 + 2 * k2 + 2 * k3 + k4)
-    return s
+        # the steering angles move linearly: the stages need them at 0, h/2 and h
+        d1m, d2m = d1 + 0.5 * h * w1, d2 + 0.5 * h * w2
+        k1 = _pose_rates(th, d1, d2, v1, k, cos, sin)
+        k2 = _pose_rates(th + 0.5 * h * k1[2], d1m, d2m, v1, k, cos, sin)
+        k3 = _pose_rates(th + 0.5 * h * k2[2], d1m, d2m, v1, k, cos, sin)
+        k4 = _pose_rates(th + h * k3[2], d1 + h * w1, d2 + h * w2, v1, k, cos, sin)
+        x, y, th = (p + (h / 6.0) * (r1 + 2 * r2 + 2 * r3 + r4)
+                    for p, r1, r2, r3, r4 in zip((x, y, th), k1, k2, k3, k4))
+        d1 = d1 + (h / 6.0) * (w1 + 2 * w1 + 2 * w1 + w1)
+        d2 = d2 + (h / 6.0) * (w2 + 2 * w2 + 2 * w2 + w2)
+    return [x, y, th, d1, d2]
 
 
 def wheel_commands(v1_mps: float, delta1_rad: float, delta2_rad: float) -> np.ndarray:

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.kinematics import Geometry, rk4_step
+from controller.kinematics import Geometry, rk4_step_floats
 
 FRONT = (0, 3)
 REAR = (1, 2)
@@ -21,11 +21,15 @@ REAR = (1, 2)
 
 def model_inputs(ground_speeds_mps, steer_rad) -> tuple[float, float, float]:
     """``(v1, delta1, delta2)`` from four ground speeds (m/s) and four steering angles (rad)."""
-    v = np.asarray(ground_speeds_mps, dtype=float)
-    d = np.asarray(steer_rad, dtype=float)
-    if v.shape != (4,) or d.shape != (4,):
-        raise ValueError(f"expected 4 wheel speeds and 4 steering angles, got {v.shape} and {d.shape}")
-    return float(v.mean()), float(d[list(FRONT)].mean()), float(d[list(REAR)].mean())
+    v, d = list(map(float, ground_speeds_mps)), list(map(float, steer_rad))
+    if len(v) != 4 or len(d) != 4:
+        raise ValueError(f"expected 4 wheel speeds and 4 steering angles, got {len(v)} and {len(d)}")
+    return _mean4(v), (d[FRONT[0]] + d[FRONT[1]]) / 2, (d[REAR[0]] + d[REAR[1]]) / 2
+
+
+def _mean4(v) -> float:
+    """Mean of 4 floats, summed in order (as numpy's ``mean`` does for 4 values)."""
+    return (v[0] + v[1] + v[2] + v[3]) / 4
 
 
 class Odometry:
@@ -41,15 +45,20 @@ class Odometry:
 
     def __init__(self, geom: Geometry, pose=(0.0, 0.0, 0.0)):
         self.geom = geom
-        self.pose = np.asarray(pose, dtype=float).copy()
+        self._pose = np.asarray(pose, dtype=float).tolist()
         self._last: tuple[float, float, float] | None = None
-        self._angles: np.ndarray | None = None
+        self._angles: list[float] | None = None
+
+    @property
+    def pose(self) -> np.ndarray:
+        """Pose estimate ``(x_m, y_m, theta_rad)``, shape (3,) (a copy)."""
+        return np.array(self._pose)
 
     @property
     def state(self) -> np.ndarray:
         """Model state ``(x, y, theta, delta1, delta2)``, shape (5,); steering NaN before the first sample."""
         d1, d2 = (self._last[1], self._last[2]) if self._last else (np.nan, np.nan)
-        return np.array([*self.pose, d1, d2])
+        return np.array([*self._pose, d1, d2])
 
     def update(self, dt_s: float, wheel_speeds_radps, steer_rad, wheel_angles_rad=None) -> np.ndarray:
         """Advance by ``dt_s`` with the new sample; returns the pose, shape (3,).
@@ -58,17 +67,17 @@ class Odometry:
         over the speeds for the distance rolled.
         """
         r = self.geom.wheel_radius_m
-        v1, d1, d2 = model_inputs(np.asarray(wheel_speeds_radps, dtype=float) * r, steer_rad)
-        angles = None if wheel_angles_rad is None else np.asarray(wheel_angles_rad, dtype=float)
+        v1, d1, d2 = model_inputs([w * r for w in map(float, wheel_speeds_radps)], steer_rad)
+        angles = None if wheel_angles_rad is None else list(map(float, wheel_angles_rad))
         if self._last is not None and dt_s > 0:
             v0, e1, e2 = self._last
             if angles is not None and self._angles is not None:
-                v_bar = r * float(np.mean(angles - self._angles)) / dt_s
+                v_bar = r * _mean4([a - b for a, b in zip(angles, self._angles)]) / dt_s
             else:
                 v_bar = 0.5 * (v0 + v1)
-            s = np.array([*self.pose, e1, e2])
-            u = np.array([v_bar, (d1 - e1) / dt_s, (d2 - e2) / dt_s])
-            self.pose = rk4_step(s, u, dt_s, self.geom, substeps=1)[:3]  # 16 ms: one RK4 step suffices
+            u = (v_bar, (d1 - e1) / dt_s, (d2 - e2) / dt_s)
+            # 16 ms: one RK4 step suffices
+            self._pose = rk4_step_floats([*self._pose, e1, e2], u, dt_s, self.geom, 1)[:3]
         self._last = (v1, d1, d2)
         self._angles = angles
-        return self.pose.copy()
+        return self.pose

@@ -178,7 +178,8 @@ class TrackingLoop:
         law, geom, tau = self.law, self.geom, self.tau_s
         s0 = np.asarray(start_state, dtype=float)
         odo = Odometry(geom, s0[:3])
-        delta_cmd = s0[3:5].copy()
+        d1, d2 = s0[3:5].tolist()       # commanded steering angles, rad
+        d_max = law.limits.steer_angle_max_rad
         law.reset()
         ticker = Ticker(tau / self.time_scale, self._clock, self._sleep)
         self._consecutive = 0
@@ -207,14 +208,15 @@ class TrackingLoop:
                     t_prev_meas = st.t_s
                     odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
                     meas = st
-                state = np.array([*odo.pose, *delta_cmd])
+                pose = odo.pose
+                state = np.array([*pose, d1, d2])
                 v1, w1, w2 = law.command(t, state)
                 if law.last.get("finished"):
                     break
                 L = law.last
-                delta_cmd = np.clip(delta_cmd + np.array([w1, w2]) * tau,
-                                    -law.limits.steer_angle_max_rad, law.limits.steer_angle_max_rad)
-                steer = [delta_cmd[0], delta_cmd[1], delta_cmd[1], delta_cmd[0]]
+                d1 = min(max(d1 + w1 * tau, -d_max), d_max)   # integrated steering rates
+                d2 = min(max(d2 + w2 * tau, -d_max), d_max)
+                steer = [d1, d2, d2, d1]
                 drive = [v1 / geom.wheel_radius_m] * 4
                 self._touch_bus()
                 self.wheels.write_goals(drive, steer)
@@ -222,10 +224,10 @@ class TrackingLoop:
                 period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
                 if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
                     flags |= FLAG_OVERRUN
-                rows.append((t, state, truth, L["desired_state"], np.array([v1, w1, w2]), L["raw"],
-                             L["s"], L["error"], L["u"] - L["ud"], ticker.stats.overruns))
+                rows.append((t, state, truth, L["desired_state"], (v1, w1, w2), L["raw"],
+                             L["s"], L["error"], L["u"], L["ud"], ticker.stats.overruns))
                 if self.on_cycle is not None:
-                    self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, odo.pose,
+                    self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose,
                                               L["desired_state"], truth, flags))
                 k = ticker.wait()
         except LoopAbort as exc:
@@ -243,17 +245,21 @@ class TrackingLoop:
 
     @staticmethod
     def _cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose, sd, truth, flags) -> dict:
-        nan4 = np.full(4, np.nan)
+        """The ``on_cycle`` dict: :class:`tools.logs.record.CycleRecord` fields, float64 arrays.
+
+        ``pose`` (3,) must be the caller's own copy (it is logged as is)."""
+        if meas is None:
+            meas_drive = meas_steer = np.full(4, np.nan)
+            meas_current = np.full(8, np.nan)
+        else:
+            meas_drive, meas_steer = np.array(meas.drive_radps), np.array(meas.steer_rad)
+            meas_current = np.array([*meas.drive_current_a, *meas.steer_current_a])
         return dict(
             cycle=k, t_s=t, stamp_ns=time.time_ns(), period_s=period,
-            cmd_drive_radps=np.asarray(drive, float), cmd_steer_rad=np.asarray(steer, float),
+            cmd_drive_radps=np.array(drive, float), cmd_steer_rad=np.array(steer, float),
             cmd_v1_mps=float(v1), cmd_omega_radps=np.array([w1, w2]),
-            meas_drive_radps=np.asarray(meas.drive_radps) if meas is not None else nan4,
-            meas_steer_rad=np.asarray(meas.steer_rad) if meas is not None else nan4,
-            meas_current_a=(np.concatenate([meas.drive_current_a, meas.steer_current_a])
-                            if meas is not None else np.full(8, np.nan)),
-            est_pose=np.asarray(pose, float).copy(), ref_pose=np.asarray(sd[:3], float),
-            ref_delta=np.asarray(sd[3:5], float), true_pose=truth, flags=flags)
+            meas_drive_radps=meas_drive, meas_steer_rad=meas_steer, meas_current_a=meas_current,
+            est_pose=pose, ref_pose=sd[:3], ref_delta=sd[3:5], true_pose=truth, flags=flags)
 
     def _result(self, rows, ticker: Ticker, aborted) -> RunResult:
         law = self.law
@@ -275,7 +281,8 @@ class TrackingLoop:
         if use_truth:
             states[:, :3] = truth
         res = SimResult(t, states, np.array(cols[4]), np.array(cols[5]), np.array(cols[6]),
-                        np.array(cols[3]), np.array(cols[7]), np.array(cols[8]), traj.tf_s)
+                        np.array(cols[3]), np.array(cols[7]),
+                        np.array(cols[8]) - np.array(cols[9]), traj.tf_s)
         settled = bool(np.any(t >= traj.tf_s / 4))
         if not settled:  # stopped before tf/4: the settled-error keys are undefined, not 0
             res.tf_s = 0.0

@@ -8,7 +8,9 @@ and assigns each step a chained-form frame angle ``phi_i`` (see :func:`frame_sch
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -218,6 +220,68 @@ def chained_desired(states, extra, phi, geom: Geometry = Geometry()):
     return xd, ud
 
 
+def _np(ufunc, *args) -> float:
+    """``ufunc`` of floats as a float. numpy's SIMD tan, arctan, arctan2 and power differ from
+    libm's (:mod:`math`) by an ulp on some inputs; calling numpy's kernels keeps the scalar
+    path equal to the vectorised one bit for bit."""
+    return float(ufunc(*args))
+
+
+def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry()):
+    """Scalar twin of :func:`desired_states` + :func:`chained_desired` at one time.
+
+    Parameters
+    ----------
+    der : sequence of 8 floats
+        The path's derivatives ``(px, py, vx, vy, ax, ay, jx, jy)`` at that time (m, m/s, ...).
+    theta_near : float
+        An unwrapped heading near the answer, rad: ``theta_d`` is taken on its branch.
+    phi : float
+        Chained frame, rad.
+
+    Returns
+    -------
+    (state, inputs, xd, ud) : tuples of 5, 3, 5 and 3 floats
+        The same numbers as the vectorised functions (same operations in the same order).
+
+    Raises
+    ------
+    ZeroDivisionError
+        Where those return inf/NaN (the path stops, or travels along the frame's y-axis).
+    """
+    px, py, vx, vy, ax, ay, jx, jy = der
+    # desired_states (numpy's array ** 2 is x * x, its ** 3 and ** 5 are np.power)
+    V2 = vx * vx + vy * vy
+    V = math.sqrt(V2)
+    cross = vx * ay - vy * ax
+    dot = vx * ax + vy * ay
+    V3 = _np(np.power, V, 3)
+    kappa = cross / V3
+    kappa_dot = (vx * jy - vy * jx) / V3 - 3 * cross * dot / _np(np.power, V, 5)
+    th_rate = cross / V2
+    th_acc = (vx * jy - vy * jx) / V2 - 2 * cross * dot / (V2 * V2)
+    heading = _np(np.arctan2, vy, vx)
+    theta = theta_near + ((heading - theta_near + math.pi) % (2 * math.pi) - math.pi)
+    q = geom.r2_m2 / geom.a_m
+    qk = q * kappa
+    delta = _np(np.arctan, qk)
+    delta_rate = q * kappa_dot / (1 + qk * qk)
+    state = (px, py, theta, delta, -delta)
+    inputs = (V / math.cos(delta), delta_rate, -delta_rate)
+    # chained_desired, with to_chained of the state (delta2 = -delta)
+    c, s = math.cos(phi), math.sin(phi)
+    vxr, vyr = c * vx + s * vy, -s * vx + c * vy
+    axr, ayr = c * ax + s * ay, -s * ax + c * ay
+    thr = theta - phi
+    D = geom.a_m * (math.sin(delta) - math.sin(-delta)) / geom.r2_m2
+    C = math.cos(delta + thr) + math.cos(-delta + thr)
+    xd = (c * px + s * py, D / C, thr, _np(np.tan, 0.5 * (delta + -delta) + thr),
+          -s * px + c * py)
+    vx2 = vxr * vxr
+    ud = (vxr, (th_acc * vxr - th_rate * axr) / vx2, (ayr * vxr - vyr * axr) / vx2)
+    return state, inputs, xd, ud
+
+
 def frame_schedule(theta_d, mode: str = "rotating", switch_rad: float = FRAME_SWITCH_RAD):
     """Chained-form frame angle ``phi_i`` for each sample of the unwrapped heading ``theta_d``.
 
@@ -279,21 +343,50 @@ class Reference:
 
     def index(self, t_s: float) -> int:
         """Gain-schedule index in force at time ``t_s``: ``floor(t / tau)`` within [0, N-1]."""
-        return int(min(max(np.floor(t_s / self.tau_s + 1e-9), 0), self.n_steps - 1))
+        return math.floor(min(max(t_s / self.tau_s + 1e-9, 0.0), self.n_steps - 1))
 
     def at(self, t_s: float, phi_rad: float | None = None):
         """Desired state (5,), inputs (3,), chained state (5,) and inputs (3,) at ``t_s``.
 
         The chained values are in the frame ``phi_rad`` (default: that of :meth:`index`).
-        ``theta_d`` is unwrapped consistently with the sampled grid.
+        ``theta_d`` is unwrapped consistently with the sampled grid. Arrays of :meth:`sample`.
+        """
+        return tuple(np.array(v) for v in self.sample(t_s, phi_rad))
+
+    def sample(self, t_s: float, phi_rad: float | None = None):
+        """:meth:`at` as tuples of floats ``(state, inputs, xd, ud)``: the tracking law's path.
+
+        On the grid (``t_s == times_s[i]`` and frame ``phi_rad[i]``, the usual case while the
+        reference governor does not slow the clock) a table lookup; elsewhere the path is
+        evaluated at ``t_s`` (:func:`sample_at`). Raises :class:`ControllerError` where the
+        reference is undefined.
         """
         t = float(min(max(t_s, 0.0), self.tf_s))
         i = self.index(t)
-        phi = self.phi_rad[i] if phi_rad is None else phi_rad
-        s, u, ex = desired_states(self.trajectory.path, np.array([t]), self.geom)
-        s[0, 2] = self.states[i, 2] + wrap_angle(s[0, 2] - self.states[i, 2])
-        xd, ud = chained_desired(s, ex, np.array([phi]), self.geom)
-        return s[0], u[0], xd[0], ud[0]
+        times, phis, thetas, rows = self._grid
+        phi = phis[i] if phi_rad is None else float(phi_rad)
+        if t == times[i] and phi == phis[i]:
+            return rows[i]
+        der = self.trajectory.path.derivatives(np.array([t])).reshape(8).tolist()
+        try:
+            return sample_at(der, thetas[i], phi, self.geom)
+        except ZeroDivisionError:
+            raise ControllerError(f"the reference is undefined at t = {t:.3f} s (the path stops, "
+                                  "or travels along the chained frame's y-axis)") from None
+
+    @cached_property
+    def _grid(self):
+        """Lists ``times_s[i]``, ``phi_rad[i]``, ``states[i, 2]`` and rows
+        ``(state, inputs, xd, ud)`` for ``i = 0..N-1``: the values :func:`sample_at` gives at
+        the grid times, evaluated once with the vectorised functions."""
+        N = self.n_steps
+        v = self.extra["derivatives"][1]
+        states = self.states.copy()
+        states[:, 2] += wrap_angle(np.arctan2(v[1], v[0]) - states[:, 2])  # as sample_at does
+        xd, ud = chained_desired(states, self.extra, self.phi_rad, self.geom)
+        rows = zip(*(map(tuple, a[:N].tolist()) for a in (states, self.inputs, xd, ud)))
+        return (self.times_s[:N].tolist(), self.phi_rad[:N].tolist(),
+                self.states[:N, 2].tolist(), list(rows))
 
 
 def build_reference(traj: Trajectory, geom: Geometry = Geometry(), limits: Limits = Limits(),

@@ -21,8 +21,15 @@ up; what would wind up is the tracking error while the robot is held back by the
 optional reference governor (``governor=True``) therefore slows the reference clock by
 ``r = min(1, v1_max / |v1 requested|)`` after each saturated step (and scales ``ud`` by r), so
 the reference waits for the robot instead of running away.
+
+Cost: :meth:`TrackingLaw.command` runs at the loop rate, so it is float math (numpy only for
+``K_i x~``) and takes the reference from :meth:`controller.reference.Reference.sample` (a
+precomputed table on the grid, a scalar evaluation of the path off it); the vectorised numpy
+functions it must agree with are pinned in tests/controller/test_tracking.py.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
@@ -30,7 +37,6 @@ from controller.chained import wrap_angle
 from controller.errors import ControllerError, SingularityError
 from controller.gains_io import GainSchedule
 from controller.kinematics import Limits
-from controller.ltv import chained_error
 from controller.reference import Reference
 
 #: Floor of |cos(sigma - phi)| used for the robot's own state (about 84 degrees).
@@ -42,28 +48,53 @@ PLAIN_MIN_MARGIN = 0.02
 def _chained_terms(state, phi, geom, floor, sign_hint=0.0):
     """Chained coordinates and the pieces of the inverse input map, with |cos sigma'| floored.
 
-    Inside the floored band the sign of cos(sigma') is taken from ``sign_hint`` (the previous
-    step's) when given, so that the law does not flip between travelling forwards and
-    backwards across the singular direction.
+    ``state``: 5 floats, ``phi``: frame (rad). Returns the chained state (5 floats), the terms
+    ``(C, D, B1, B2, s1, s2, Kden)`` and the sign of cos(sigma') used. Inside the floored band
+    that sign is taken from ``sign_hint`` (the previous step's) when given, so that the law
+    does not flip between travelling forwards and backwards across the singular direction.
     """
-    x, y, th, d1, d2 = (float(v) for v in state)
-    c, s = np.cos(phi), np.sin(phi)
+    x, y, th, d1, d2 = state
+    c, s = math.cos(phi), math.sin(phi)
     xr, yr, thr = c * x + s * y, -s * x + c * y, th - phi
     a, r2 = geom.a_m, geom.r2_m2
-    c1, c2 = np.cos(d1 + thr), np.cos(d2 + thr)
-    s1, s2 = np.sin(d1 + thr), np.sin(d2 + thr)
-    D = a * (np.sin(d1) - np.sin(d2)) / r2
-    B1, B2 = a * np.cos(d1) / r2, -a * np.cos(d2) / r2
+    c1, c2 = math.cos(d1 + thr), math.cos(d2 + thr)
+    s1, s2 = math.sin(d1 + thr), math.sin(d2 + thr)
+    D = a * (math.sin(d1) - math.sin(d2)) / r2
+    B1, B2 = a * math.cos(d1) / r2, -a * math.cos(d2) / r2
     sig = 0.5 * (d1 + d2) + thr
-    cs = np.cos(sig)
-    sgn = np.sign(sign_hint) if (abs(cs) < floor and sign_hint != 0) else np.copysign(1.0, cs)
+    cs = math.cos(sig)
+    floored = abs(cs) < floor
+    sgn = math.copysign(1.0, sign_hint if (floored and sign_hint != 0) else cs)
     cs_f = sgn * max(abs(cs), floor)
     C = c1 + c2
-    if abs(cs) < floor:         # scale the travel term as if |cos sigma'| were the floor
-        C = 2 * cs_f * np.cos(0.5 * (d1 - d2))
+    if floored:                 # scale the travel term as if |cos sigma'| were the floor
+        C = 2 * cs_f * math.cos(0.5 * (d1 - d2))
     Kden = 2 * cs_f ** 2
-    chained = np.array([xr, D / C, thr, np.sin(sig) / cs_f, yr])
+    chained = (xr, D / C, thr, math.sin(sig) / cs_f, yr)
     return chained, (C, D, B1, B2, s1, s2, Kden), sgn
+
+
+def _inverse_input_map(u, C, D, B1, B2, s1, s2, Kden):
+    """``(v1, omega1, omega2)`` for chained inputs ``u`` (3 floats) with the floored terms of
+    :func:`_chained_terms` (:func:`controller.chained.inputs_from_chained` otherwise).
+    NaN where the map is singular or its inputs are not finite."""
+    v1 = 2.0 * u[0] / C
+    a11 = (B1 * C + D * s1) / C ** 2
+    a12 = (B2 * C + D * s2) / C ** 2
+    r1 = u[1] - v1 * D ** 2 * (s1 + s2) / (2.0 * C ** 2)
+    r2 = u[2] * Kden - v1 * D
+    den = a11 - a12
+    if abs(den) < 1e-12 or not all(map(math.isfinite, (v1, r1, r2))):
+        return math.nan, math.nan, math.nan
+    w1 = (r1 - a12 * r2) / den
+    return v1, w1, r2 - w1
+
+
+def _steer_rate_limit(w, delta, w_max, delta_max, tau):
+    """Steering rate ``w`` (rad/s) within ``+-w_max`` and such that the angle ``delta`` (rad)
+    stays within ``+-delta_max`` over one step ``tau`` (s)."""
+    w = min(max(w, -w_max), w_max)
+    return min(max(w, min(0.0, (-delta_max - delta) / tau)), max(0.0, (delta_max - delta) / tau))
 
 
 class TrackingLaw:
@@ -101,6 +132,7 @@ class TrackingLaw:
         self.limits = limits
         self.governor = governor
         self.plain = reference.frames == "fixed"
+        self._phi = gains.phi_rad.tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -135,63 +167,68 @@ class TrackingLaw:
         non-finite state and :class:`SingularityError` if the plain (fixed-frame) law meets
         the chained form's singular set.
         """
-        s_vec = np.asarray(state, dtype=float).reshape(-1)
-        if s_vec.shape != (5,) or not np.all(np.isfinite(s_vec)) or not np.isfinite(t_s):
+        st = np.asarray(state, dtype=float).reshape(-1).tolist()
+        if len(st) != 5 or not all(map(math.isfinite, st)) or not math.isfinite(t_s):
             raise ControllerError(f"state must be 5 finite numbers, got {state!r} at t = {t_s}")
-        ref, lim = self.reference, self.limits
-        if self._t_prev is None:
-            self._s = max(float(t_s), 0.0)
-        else:
-            dt = float(t_s) - self._t_prev
-            if dt < 0:
-                raise ControllerError(f"time went backwards ({self._t_prev} -> {t_s} s)")
-            self._s += dt * (self._rate if self.governor else 1.0)
-        self._t_prev = float(t_s)
+        self._advance_clock(float(t_s))
         if self.finished():
             self.last = dict(finished=True, s=self._s)
             return 0.0, 0.0, 0.0
-        i = ref.index(self._s)
-        phi = self.gains.phi_rad[i]
-        sd, _, xd, ud = ref.at(self._s, phi)
-        floor = PLAIN_MIN_MARGIN if self.plain else STATE_MARGIN
-        sig = 0.5 * (s_vec[3] + s_vec[4]) + s_vec[2] - phi
-        if self.plain and abs(np.cos(sig)) < PLAIN_MIN_MARGIN:
+        i = self.reference.index(self._s)
+        phi = self._phi[i]
+        sd, _, xd, ud = self.reference.sample(self._s, phi)
+        sig = 0.5 * (st[3] + st[4]) + st[2] - phi
+        if self.plain and abs(math.cos(sig)) < PLAIN_MIN_MARGIN:
             raise SingularityError(
                 f"at t = {t_s:.3f} s the robot travels parallel to the world y-axis "
                 f"(sigma = {np.degrees(wrap_angle(sig)):.1f} deg): the paper's plain "
                 "chained-form law is singular there; use the rotating-frame law",
                 t_s=float(t_s))
-        x, (C, D, B1, B2, s1, s2, Kden), self._sign = _chained_terms(
-            s_vec, phi, ref.geom, floor, self._sign if phi == self._phi_prev else 0.0)
-        self._phi_prev = phi
-        e = chained_error(x, xd)
-        r = self._rate if self.governor else 1.0
-        u = r * ud + self.gains.K[i] @ e
-        # inverse input map (chained.inputs_from_chained with the floored terms)
-        v1 = 2.0 * u[0] / C
-        a11 = (B1 * C + D * s1) / C ** 2
-        a12 = (B2 * C + D * s2) / C ** 2
-        r1 = u[1] - v1 * D ** 2 * (s1 + s2) / (2.0 * C ** 2)
-        r2 = u[2] * Kden - v1 * D
-        den = a11 - a12
-        if abs(den) < 1e-12 or not np.all(np.isfinite([v1, r1, r2])):
+        e, u, (v1, w1, w2) = self._feedback(st, i, phi, xd, ud)
+        if not math.isfinite(v1):
             raise ControllerError(f"inverse input map is singular at t = {t_s:.3f} s "
-                                  f"(state {s_vec.round(4).tolist()})")
-        w1 = (r1 - a12 * r2) / den
-        w2 = r2 - w1
-        raw = np.array([v1, w1, w2])
-        v1s = float(np.clip(v1, -lim.v1_max_mps, lim.v1_max_mps))
-        ws = np.clip([w1, w2], -lim.steer_rate_max_radps, lim.steer_rate_max_radps)
-        # do not steer a wheel past its angle limit within this step
-        tau, amax = ref.tau_s, lim.steer_angle_max_rad
-        ws = np.clip(ws, np.minimum(0.0, (-amax - s_vec[3:]) / tau),
-                     np.maximum(0.0, (amax - s_vec[3:]) / tau))
-        self._rate = min(1.0, lim.v1_max_mps / abs(v1)) if v1 != 0 else 1.0
-        self.last = dict(finished=False, s=self._s, index=i, phi=phi, error=e, u=u, ud=ud,
-                         raw=raw, desired_state=sd,
-                         saturated=bool(abs(v1) > lim.v1_max_mps or
-                                        np.any(np.abs([w1, w2]) > lim.steer_rate_max_radps)))
-        return v1s, float(ws[0]), float(ws[1])
+                                  f"(state {np.round(st, 4).tolist()})")
+        lim, tau = self.limits, self.reference.tau_s
+        vmax, wmax = lim.v1_max_mps, lim.steer_rate_max_radps
+        ws = [_steer_rate_limit(w, d, wmax, lim.steer_angle_max_rad, tau)
+              for w, d in ((w1, st[3]), (w2, st[4]))]
+        self._rate = min(1.0, vmax / abs(v1)) if v1 != 0 else 1.0
+        self.last = dict(finished=False, s=self._s, index=i, phi=phi, error=e, u=np.array(u),
+                         ud=np.array(ud), raw=np.array([v1, w1, w2]), desired_state=np.array(sd),
+                         saturated=abs(v1) > vmax or abs(w1) > wmax or abs(w2) > wmax)
+        return min(max(v1, -vmax), vmax), ws[0], ws[1]
+
+    def _feedback(self, st, i, phi, xd, ud):
+        """The law at schedule step ``i`` (frame ``phi``) for the state ``st`` (5 floats).
+
+        Returns the chained error ``x - xd`` (5,) array (heading wrapped, as
+        :func:`controller.ltv.chained_error`), the chained inputs ``u = r ud + K_i x~`` (3 floats)
+        and the unsaturated ``(v1, omega1, omega2)``, NaN where the input map is singular.
+        """
+        try:
+            x, terms, self._sign = _chained_terms(
+                st, phi, self.reference.geom, PLAIN_MIN_MARGIN if self.plain else STATE_MARGIN,
+                self._sign if phi == self._phi_prev else 0.0)
+        except ZeroDivisionError:   # c1 + c2 = 0 with |cos sigma'| above the floor
+            return None, None, (math.nan,) * 3
+        self._phi_prev = phi
+        d = [a - b for a, b in zip(x, xd)]
+        d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
+        e = np.array(d)
+        r = self._rate if self.governor else 1.0
+        u = [r * a + b for a, b in zip(ud, (self.gains.K[i] @ e).tolist())]
+        return e, u, _inverse_input_map(u, *terms)
+
+    def _advance_clock(self, t_s: float) -> None:
+        """Advance the reference clock to robot time ``t_s`` (at the governor's rate)."""
+        if self._t_prev is None:
+            self._s = max(t_s, 0.0)
+        else:
+            dt = t_s - self._t_prev
+            if dt < 0:
+                raise ControllerError(f"time went backwards ({self._t_prev} -> {t_s} s)")
+            self._s += dt * (self._rate if self.governor else 1.0)
+        self._t_prev = t_s
 
     def wheel_goals(self, t_s: float, state) -> np.ndarray:
         """The eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]`` for one control step.

@@ -37,3 +37,25 @@ def switching_reference():
 def short_line_reference(robot):
     geom, limits = robot
     return build_reference(short(load_trajectory("line", geom), 150), geom, limits)
+
+
+def numpy_reference(ref, t, phi):
+    """What :meth:`Reference.sample` must return at the times ``t`` (n,) in the frames
+    ``phi`` (n,), computed with the vectorised functions: states (n, 5), inputs (n, 3),
+    xd (n, 5), ud (n, 3); the heading on the branch of the grid's ``states[index(t), 2]``."""
+    from controller.chained import wrap_angle
+    from controller.reference import chained_desired, desired_states
+
+    t = np.clip(t, 0.0, ref.tf_s)
+    states, inputs, extra = desired_states(ref.trajectory.path, t, ref.geom)
+    v = extra["derivatives"][1]
+    near = ref.states[[ref.index(s) for s in t], 2]
+    states[:, 2] = near + wrap_angle(np.arctan2(v[1], v[0]) - near)
+    xd, ud = chained_desired(states, extra, phi, ref.geom)
+    return states, inputs, xd, ud
+
+
+@pytest.fixture(scope="session")
+def numpy_ref():
+    """:func:`numpy_reference`, the slow twin of :meth:`Reference.sample`."""
+    return numpy_reference

@@ -1,11 +1,14 @@
+import dataclasses
+
 import numpy as np
 import pytest
 
 from controller.chained import chained_inputs, to_chained
 from controller.errors import ControllerError, SingularityError
 from controller.kinematics import Geometry, Limits, state_derivative
+from controller.paths import LinePath
 from controller.reference import (TRAJECTORY_DIR, build_reference, frame_schedule,
-                                  load_trajectory)
+                                  load_trajectory, sample_at)
 
 
 @pytest.mark.parametrize("name,tf,n,q0,r0", [("line", 40, 2500, 1e3, 1e-4),
@@ -170,3 +173,45 @@ def test_curvilinear_closed_forms(robot):
                                atol=1e-12)
     frame0 = ref.phi_rad == 0
     np.testing.assert_allclose(ref.xd[frame0, 3], (num / den)[frame0], rtol=1e-9)
+
+
+@pytest.mark.parametrize("name", ["line", "circle", "curvilinear", "figure8.csv"])
+def test_sample_equals_the_vectorised_reference(name, robot, numpy_ref):
+    """Reference.sample (float math off the grid, a table on it) against desired_states +
+    chained_desired at the same times: off-grid times, grid times, other frames, t > tf."""
+    geom, limits = robot
+    src = name if not name.endswith(".csv") else TRAJECTORY_DIR / name
+    ref = build_reference(load_trajectory(src, geom), geom, limits)
+    rng = np.random.default_rng(1)
+    t = np.concatenate([rng.uniform(-0.5, ref.tf_s + 0.5, 300), ref.times_s[::7]])
+    phi = ref.phi_rad[[ref.index(s) for s in np.clip(t, 0, ref.tf_s)]]
+    for frames in (phi, phi - np.pi / 2 * (rng.random(t.size) < 0.3)):
+        want = numpy_ref(ref, t, frames)
+        got = [ref.sample(s, p) for s, p in zip(t, frames)]
+        for k, w in enumerate(want):
+            np.testing.assert_allclose([g[k] for g in got], w, rtol=1e-13, atol=1e-15)
+
+
+def test_grid_table_is_the_scalar_evaluation_at_grid_times(robot):
+    """On the grid, sample() returns a precomputed row: the scalar path's own values there
+    (circle: the heading passes +-pi, so the unwrapped branch matters)."""
+    ref = build_reference(load_trajectory("circle"), *robot)
+    der = ref.extra["derivatives"]
+    for i in range(0, ref.n_steps, 3):
+        row = ref.sample(ref.times_s[i])
+        assert row is ref.sample(ref.times_s[i], ref.phi_rad[i])      # a table lookup
+        want = sample_at(der[:, :, i].reshape(8).tolist(), ref.states[i, 2], ref.phi_rad[i],
+                         ref.geom)
+        np.testing.assert_allclose(np.concatenate(row), np.concatenate(want), rtol=1e-14,
+                                   atol=1e-16)
+    assert ref.sample(ref.times_s[5] + 1e-12) is not ref.sample(ref.times_s[5])  # off the grid
+
+
+def test_sample_refuses_an_undefined_reference(robot):
+    """Between grid samples a path may stop (no direction of travel): an error, not NaNs."""
+    geom, limits = robot
+    ref = build_reference(load_trajectory("line"), geom, limits)
+    stopped = dataclasses.replace(ref.trajectory, path=LinePath((0.0, 0.0), (0.0, 0.0), 40.0))
+    ref = dataclasses.replace(ref, trajectory=stopped)
+    with pytest.raises(ControllerError, match="reference is undefined at t = 1.001 s"):
+        ref.sample(1.001)

@@ -3,11 +3,13 @@ import dataclasses
 import numpy as np
 import pytest
 
+from controller.chained import inputs_from_chained, to_chained
 from controller.design import synthesize
 from controller.errors import ControllerError, SingularityError
 from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
 from controller.simulate import metrics, simulate
-from controller.tracking import TrackingLaw
+from controller.ltv import chained_error
+from controller.tracking import STATE_MARGIN, TrackingLaw
 
 
 
@@ -104,3 +106,33 @@ def test_law_api(robot):
     other = build_reference(short(load_trajectory("line", geom), 200), geom, limits)
     with pytest.raises(ControllerError, match="does not fit"):
         TrackingLaw(other, gains, limits)
+
+
+@pytest.mark.parametrize("name,x0", [("line", None), ("circle", [0.0, -0.1, 0.3, 0.0, 0.0]),
+                                     ("figure8.csv", [0.0, -0.05, 0.5, 0.0, 0.0])])
+def test_law_equals_the_vectorised_chained_law(name, x0, robot, numpy_ref):
+    """command() (float math; reference from the grid table or the scalar path) against the
+    law written with the package's numpy functions, over whole closed-loop runs: on the grid
+    (line) and off it (start errors saturate v1, the governor slows the reference clock)."""
+    geom, limits = robot
+    res, _, law = run(name, robot, x0)
+    ref, s = law.reference, res.ref_time_s
+    i = np.array([ref.index(v) for v in s])
+    phi = law.gains.phi_rad[i]
+    rate = np.ones_like(s)                         # the governor's clock rate at each step
+    with np.errstate(divide="ignore"):
+        rate[1:] = np.minimum(1.0, limits.v1_max_mps / np.abs(res.raw_inputs[:-1, 0]))
+    np.testing.assert_array_equal(s[1:], s[:-1] + np.diff(res.t_s) * rate[1:])
+    on_grid = s == ref.times_s[i]
+    assert on_grid.all() if x0 is None else on_grid.mean() < 0.01
+    sd, _, xd, ud = numpy_ref(ref, s, phi)
+    np.testing.assert_allclose(res.ref_states, sd, rtol=1e-13, atol=1e-15)
+    e = chained_error(to_chained(res.states, geom, phi), xd)
+    u = rate[:, None] * ud + np.einsum("nij,nj->ni", law.gains.K[i], e)
+    raw = inputs_from_chained(res.states, u, geom, phi)
+    sig = 0.5 * (res.states[:, 3] + res.states[:, 4]) + res.states[:, 2] - phi
+    plain = np.abs(np.cos(sig)) >= STATE_MARGIN    # outside the floored band: the plain form
+    assert plain.mean() > 0.95
+    np.testing.assert_allclose(res.errors[plain], e[plain], rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(res.u_tilde[plain], (u - ud)[plain], rtol=1e-10, atol=1e-13)
+    np.testing.assert_allclose(res.raw_inputs[plain], raw[plain], rtol=1e-10, atol=1e-13)

@@ -78,3 +78,31 @@ def test_odometry_uses_wheel_angles_over_quantised_speeds():
     distance = true_w * g.wheel_radius_m * n * dt
     assert by_angle.pose[0] == pytest.approx(distance, rel=1e-9)
     assert abs(by_speed.pose[0] - distance) > 1e-3  # the speed LSB biases the distance by mm
+
+
+def test_odometry_equals_its_algorithm_written_with_numpy():
+    """update() in plain floats against the documented algorithm on numpy arrays: means of
+    the wheel samples, distance from the angles when both samples have them (else the mean
+    speed), steering linear over dt, one RK4 step; dt = 0 only stores the sample."""
+    g = Geometry(0.12, 0.1, 0.03)
+    rng = np.random.default_rng(5)
+    odo = Odometry(g, (0.1, -0.2, 0.3))
+    pose, last, prev_angles, angles = np.array([0.1, -0.2, 0.3]), None, None, np.zeros(4)
+    for k in range(400):
+        speeds, steer = rng.normal(3, 1, 4), rng.normal(0, 0.5, 4)
+        angles = angles + speeds * 0.016
+        sample_angles = angles if k % 5 else None
+        dt = 0.0 if k % 7 == 0 else 0.016 * rng.uniform(0.5, 3)
+        v = float(np.mean(speeds * g.wheel_radius_m))
+        d1, d2 = float(np.mean(steer[[0, 3]])), float(np.mean(steer[[1, 2]]))
+        if last is not None and dt > 0:
+            if sample_angles is not None and prev_angles is not None:
+                v_bar = g.wheel_radius_m * float(np.mean(sample_angles - prev_angles)) / dt
+            else:
+                v_bar = 0.5 * (last[0] + v)
+            u = [v_bar, (d1 - last[1]) / dt, (d2 - last[2]) / dt]
+            pose = rk4_step(np.array([*pose, last[1], last[2]]), u, dt, g, substeps=1)[:3]
+        last, prev_angles = (v, d1, d2), sample_angles
+        np.testing.assert_allclose(odo.update(dt, speeds, steer, sample_angles), pose,
+                                   rtol=1e-14, atol=1e-15)
+        np.testing.assert_allclose(odo.state, [*pose, d1, d2], rtol=1e-14, atol=1e-15)
