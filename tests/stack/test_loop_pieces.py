@@ -106,3 +106,28 @@ def test_odometry_equals_its_algorithm_written_with_numpy():
         np.testing.assert_allclose(odo.update(dt, speeds, steer, sample_angles), pose,
                                    rtol=1e-14, atol=1e-15)
         np.testing.assert_allclose(odo.state, [*pose, d1, d2], rtol=1e-14, atol=1e-15)
+
+
+def test_cycle_dict_is_a_cycle_record():
+    """The loop's on_cycle dict: CycleRecord fields, float64 arrays, NaN while unmeasured."""
+    from controller.online import TrackingLoop
+    from driver.wheelset import WheelState
+    from tools.logs import CycleRecord
+
+    meas = WheelState(1.0, (1.0, 2.0, 3.0, 4.0), (0.0,) * 4, (0.1, 0.2, 0.3, 0.4), (0.0,) * 4,
+                      (0.5, 0.6, 0.7, 0.8), (-0.5, -0.6, -0.7, -0.8))
+    sd = np.array([1.0, 2.0, 0.3, 0.1, -0.1])
+    for m in (meas, None):
+        f = TrackingLoop._cycle(3, 0.048, 0.016, [3.0] * 4, [0.1, -0.1, -0.1, 0.1], 0.1, 0.2,
+                                -0.2, m, np.array([0.5, 0.6, 0.7]), sd, np.full(3, np.nan), 2)
+        rec = CycleRecord(**f)
+        for name in ("cmd_drive_radps", "meas_drive_radps", "meas_current_a", "est_pose",
+                     "ref_pose", "ref_delta"):
+            assert f[name].dtype == np.float64
+        np.testing.assert_array_equal(rec.ref_pose, sd[:3])
+        np.testing.assert_array_equal(rec.ref_delta, sd[3:])
+        if m is None:
+            assert np.isnan(rec.meas_current_a).all() and np.isnan(rec.meas_steer_rad).all()
+        else:
+            np.testing.assert_array_equal(rec.meas_current_a, [*m.drive_current_a, *m.steer_current_a])
+            np.testing.assert_array_equal(rec.meas_steer_rad, m.steer_rad)
