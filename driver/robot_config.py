@@ -18,6 +18,8 @@ from driver.control_table import CONFIG_DIR, ControlTable, table_for
 from driver.errors import ConfigError, SwerveError
 
 DEFAULT_PATH = CONFIG_DIR / "robot.yaml"
+#: Largest Bus Watchdog the item (98) holds: 127 units of 20 ms, s.
+BUS_WATCHDOG_MAX_S = 2.54
 
 #: Serial rates the X series can be set to (Baud Rate item 8).
 SERVO_BAUDS = (9_600, 57_600, 115_200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
@@ -218,8 +220,8 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
         doc.fail("steering.operating_mode", "steering servos must be in a position mode")
     safety = doc.get(data, "safety", "")
     wd = doc.num(safety, "bus_watchdog_s", "safety", nonneg=True)
-    if wd > 127 * 0.02 + 1e-9:
-        doc.fail("safety.bus_watchdog_s", f"{wd} s exceeds the Bus Watchdog maximum 2.54 s")
+    if wd > BUS_WATCHDOG_MAX_S + 1e-9:
+        doc.fail("safety.bus_watchdog_s", f"{wd} s exceeds the Bus Watchdog maximum {BUS_WATCHDOG_MAX_S} s")
     return RobotConfig(
         name=str(data.get("name", "")),
         a_m=doc.num(geo, "a_m", "geometry", positive=True),

@@ -66,6 +66,27 @@ def simulated_poses(law, start) -> np.ndarray:
     return poses
 
 
+def wall_clock_guards(cfg, time_scale: float):
+    """``cfg`` with the host-failure guards stretched to their 1x wall-clock length.
+
+    The Bus Watchdog and the failed-read limit detect a dead host or bus; what they must ride
+    out is the host's scheduling, which happens in wall time. Under ``--time-scale S`` (the
+    emulator; S = 1 on the robot) they are multiplied by S, so a 20 ms hiccup of a loaded
+    machine at 5x is not taken for a dead controller. The watchdog is capped at the item's
+    2.54 s.
+    """
+    import dataclasses
+    import math
+
+    from driver.robot_config import BUS_WATCHDOG_MAX_S
+
+    if time_scale <= 1.0:
+        return cfg
+    return dataclasses.replace(
+        cfg, bus_watchdog_s=min(BUS_WATCHDOG_MAX_S, cfg.bus_watchdog_s * time_scale),
+        max_consecutive_timeouts=math.ceil(cfg.max_consecutive_timeouts * time_scale))
+
+
 def run_tracking(req: RunRequest):
     """Run one trajectory; returns :class:`controller.online.RunResult` (``aborted`` set on a stop)."""
     from controller.kinematics import from_robot_config
@@ -75,7 +96,7 @@ def run_tracking(req: RunRequest):
     from driver.wheelset import WheelSet
 
     cfg_path = Path(req.config) if req.config else DEFAULT_PATH
-    cfg = load_robot_config(cfg_path)
+    cfg = wall_clock_guards(load_robot_config(cfg_path), req.time_scale)
     geom, limits = from_robot_config(cfg)
     traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
     start = traj.start_state(geom)
