@@ -2,8 +2,8 @@
 
 For each time scale: run the line trajectory (40 s robot time) through the driver against the
 emulator in its own process, and report the loop period p50/p99/max (wall), overruns, missed
-slots, the controller process's CPU share, the emulator's achieved time scale and tracking
-errors. Run: ``.venv/bin/python bench/bench_stack.py [--scales 1,2,3,4,5] [--trajectory line]``;
+slots, the controller process's CPU share (setup included), the emulator's achieved time scale and tracking
+errors. Run: ``.venv/bin/python bench/bench_stack.py [--scales 1,2,5] [--trajectory line] [--log]``;
 prints a Markdown table to paste into BENCHMARKS.md.
 """
 from __future__ import annotations
@@ -11,7 +11,9 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import tempfile
 import time
+from pathlib import Path
 
 from benchutil import cpu_model
 
@@ -20,17 +22,21 @@ def main() -> None:
     from tools.robot_run import RunRequest, run_tracking
 
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scales", default="1,1.5,2,3,4,5")
+    ap.add_argument("--scales", default="1,2,3,4,5,6,8,10")
     ap.add_argument("--trajectory", default="line")
+    ap.add_argument("--log", action="store_true", help="write the run log (as swerve demo and the tests do)")
     args = ap.parse_args()
     print(f"date {time.strftime('%Y-%m-%d %H:%M')}, nproc {os.cpu_count()}, CPU {cpu_model()}, "
-          f"Python {platform.python_version()}, load {os.getloadavg()[0]:.1f} at start")
+          f"Python {platform.python_version()}, load {os.getloadavg()[0]:.1f} at start, "
+          f"trajectory {args.trajectory}, log {'on' if args.log else 'off'}")
+    tmp = tempfile.TemporaryDirectory()
     print("| time scale | period target ms | p50 / p99 / max ms | overruns | missed slots | controller CPU % "
           "| emulator achieved scale | lost sim s | rms / final error mm | completed |")
     print("|---|---|---|---|---|---|---|---|---|---|")
-    for scale in (float(s) for s in args.scales.split(",")):
+    for k, scale in enumerate(float(s) for s in args.scales.split(",")):
         c0, w0 = time.process_time(), time.monotonic()
-        res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, time_scale=scale, log=None))
+        log = Path(tmp.name) / f"run_{k}" if args.log else None
+        res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, time_scale=scale, log=log))
         cpu = (time.process_time() - c0) / (time.monotonic() - w0)
         s = res.summary
         print(f"| {scale:g} | {s['loop_period_target_ms']:.1f} | {s['loop_period_p50_ms']:.2f} / "

@@ -20,9 +20,9 @@ KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    parser.add_argument("--time-scale", type=float, default=2.0,
-                        help="emulated robot seconds per wall second (default 2: the largest at which "
-                             "a 2-core machine keeps the emulator on time, see BENCHMARKS.md)")
+    parser.add_argument("--time-scale", type=float, default=5.0,
+                        help="emulated robot seconds per wall second (default 5; BENCHMARKS.md has the "
+                             "loop timing per scale on a 2-core machine)")
     parser.add_argument("--trajectories", default=",".join(TRAJECTORIES),
                         help="comma-separated trajectory names or files (default: the paper's three)")
 
