@@ -377,9 +377,8 @@ class Bus:
 
     @staticmethod
     def _decode_span(table: ControlTable, address: int, data: bytes) -> dict[str, int]:
-        end = address + len(data)
         return {r.name: r.decode(data[r.address - address:r.address - address + r.size])
-                for r in table if address <= r.address and r.address + r.size <= end}
+                for r in table.within(address, len(data))}
 
     def sync_read(self, ids: Sequence[int], first: RegLike, last: RegLike | None = None,
                   fast: bool = False) -> dict[int, dict[str, int]]:

@@ -234,6 +234,19 @@ class ControlTable:
     def by_address(self) -> dict[int, Register]:
         return {r.address: r for r in self.registers.values()}
 
+    @functools.cached_property
+    def _within_cache(self) -> dict[tuple[int, int], tuple[Register, ...]]:
+        return {}
+
+    def within(self, address: int, length: int) -> tuple[Register, ...]:
+        """The registers lying wholly inside bytes ``address .. address+length-1`` (cached)."""
+        regs = self._within_cache.get((address, length))
+        if regs is None:
+            end = address + length
+            regs = self._within_cache[(address, length)] = tuple(
+                r for r in self.registers.values() if address <= r.address and r.address + r.size <= end)
+        return regs
+
     def at(self, address: int) -> Register:
         """The register starting at ``address``."""
         try:

@@ -75,3 +75,12 @@ def test_malformed_table_files(tmp_path, text, match):
     p.write_text(text)
     with pytest.raises(ConfigError, match=match):
         load_table(p)
+
+
+def test_registers_within_a_span_are_the_wholly_covered_ones():
+    t = table_for("xh430-w210")
+    names = [r.name for r in t.within(126, 10)]          # Present Current .. Present Position
+    assert names == ["present_current", "present_velocity", "present_position"]
+    assert [r.name for r in t.within(127, 9)] == ["present_velocity", "present_position"]   # half an item: out
+    assert t.within(126, 10) is t.within(126, 10)        # cached
+    assert t.within(0, 1) == ()                           # no 1-byte item at 0 (Model Number is 2 bytes)
