@@ -6,6 +6,8 @@ slots are skipped (so slot index and trajectory time stay aligned with the clock
 """
 from __future__ import annotations
 
+import contextlib
+import gc
 import time
 from dataclasses import dataclass, field
 
@@ -88,3 +90,26 @@ class Ticker:
         self._last_wake = wake
         self._k = nxt
         return nxt
+
+
+@contextlib.contextmanager
+def collector_paused():
+    """Hold the cyclic garbage collector off for a timed loop.
+
+    A full collection of a process that has loaded numpy, scipy, rosbags and matplotlib walks
+    ~90 000 objects: measured 30 ms, two periods at 62.5 Hz. Inside this block the existing
+    objects are frozen (``gc.freeze``) and automatic collection is off; reference counting
+    still frees everything that forms no cycle. On exit the collector is back as it was and
+    collects any cycles made meanwhile.
+    """
+    enabled = gc.isenabled()
+    gc.collect()
+    gc.freeze()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.unfreeze()
+        if enabled:
+            gc.enable()
+

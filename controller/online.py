@@ -28,7 +28,7 @@ from typing import Callable
 import numpy as np
 
 from controller.kinematics import Geometry
-from controller.loop_timer import Ticker
+from controller.loop_timer import Ticker, collector_paused
 from controller.odometry import Odometry
 from controller.simulate import SimResult, metrics
 from controller.tracking import TrackingLaw
@@ -189,52 +189,53 @@ class TrackingLoop:
         t_prev_meas = None
         meas = None
         k = 0
-        ticker.start()
-        try:
-            t_max = self.max_time_factor * law.reference.tf_s
-            while True:
-                t = k * tau
-                if t > t_max:
-                    raise LoopAbort(f"the robot could not follow the reference: after {t:.1f} s the "
-                                    f"reference clock stands at {law.reference_time_s:.1f} of "
-                                    f"{law.reference.tf_s:.1f} s; stopping", "diverged")
-                self._touch_bus()
-                st = self._read()
-                flags = 0
-                if st is None:
-                    flags |= FLAG_STALE
-                else:
-                    dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
-                    t_prev_meas = st.t_s
-                    odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
-                    meas = st
-                pose = odo.pose
-                state = np.array([*pose, d1, d2])
-                v1, w1, w2 = law.command(t, state)
-                if law.last.get("finished"):
-                    break
-                L = law.last
-                d1 = min(max(d1 + w1 * tau, -d_max), d_max)   # integrated steering rates
-                d2 = min(max(d2 + w2 * tau, -d_max), d_max)
-                steer = [d1, d2, d2, d1]
-                drive = [v1 / geom.wheel_radius_m] * 4
-                self._touch_bus()
-                self.wheels.write_goals(drive, steer)
-                truth = self._pose_truth()
-                period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
-                if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
-                    flags |= FLAG_OVERRUN
-                rows.append((t, state, truth, L["desired_state"], (v1, w1, w2), L["raw"],
-                             L["s"], L["error"], L["u"], L["ud"], ticker.stats.overruns))
-                if self.on_cycle is not None:
-                    self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose,
-                                              L["desired_state"], truth, flags))
-                k = ticker.wait()
-        except LoopAbort as exc:
-            aborted = exc
-            log.error("%s", exc)
-        finally:
-            self._stop_quietly()
+        with collector_paused():         # a full GC pass would cost ~2 periods
+            ticker.start()
+            try:
+                t_max = self.max_time_factor * law.reference.tf_s
+                while True:
+                    t = k * tau
+                    if t > t_max:
+                        raise LoopAbort(f"the robot could not follow the reference: after {t:.1f} s the "
+                                        f"reference clock stands at {law.reference_time_s:.1f} of "
+                                        f"{law.reference.tf_s:.1f} s; stopping", "diverged")
+                    self._touch_bus()
+                    st = self._read()
+                    flags = 0
+                    if st is None:
+                        flags |= FLAG_STALE
+                    else:
+                        dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
+                        t_prev_meas = st.t_s
+                        odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
+                        meas = st
+                    pose = odo.pose
+                    state = np.array([*pose, d1, d2])
+                    v1, w1, w2 = law.command(t, state)
+                    if law.last.get("finished"):
+                        break
+                    L = law.last
+                    d1 = min(max(d1 + w1 * tau, -d_max), d_max)   # integrated steering rates
+                    d2 = min(max(d2 + w2 * tau, -d_max), d_max)
+                    steer = [d1, d2, d2, d1]
+                    drive = [v1 / geom.wheel_radius_m] * 4
+                    self._touch_bus()
+                    self.wheels.write_goals(drive, steer)
+                    truth = self._pose_truth()
+                    period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
+                    if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
+                        flags |= FLAG_OVERRUN
+                    rows.append((t, state, truth, L["desired_state"], (v1, w1, w2), L["raw"],
+                                 L["s"], L["error"], L["u"], L["ud"], ticker.stats.overruns))
+                    if self.on_cycle is not None:
+                        self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose,
+                                                  L["desired_state"], truth, flags))
+                    k = ticker.wait()
+            except LoopAbort as exc:
+                aborted = exc
+                log.error("%s", exc)
+            finally:
+                self._stop_quietly()
         return self._result(rows, ticker, aborted)
 
     def _stop_quietly(self) -> None:

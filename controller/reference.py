@@ -374,6 +374,11 @@ class Reference:
             raise ControllerError(f"the reference is undefined at t = {t:.3f} s (the path stops, "
                                   "or travels along the chained frame's y-axis)") from None
 
+    def prepare(self) -> None:
+        """Build :meth:`sample`'s grid table now (40–100 ms for the paper's paths), not in the
+        first cycle of a timed loop."""
+        self._grid  # noqa: B018 - evaluating the cached property is the point
+
     @cached_property
     def _grid(self):
         """Lists ``times_s[i]``, ``phi_rad[i]``, ``states[i, 2]`` and rows

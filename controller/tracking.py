@@ -136,7 +136,8 @@ class TrackingLaw:
         self.reset()
 
     def reset(self) -> None:
-        """Restart the reference clock (call before each run)."""
+        """Restart the reference clock (call before each run; builds the reference's table)."""
+        self.reference.prepare()
         self._t_prev = None
         self._s = 0.0
         self._rate = 1.0

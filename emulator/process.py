@@ -31,6 +31,7 @@ def _child(conn, shared, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
     from emulator.robot_emulator import robot_emulator
+    from emulator.server import freeze_startup_heap
 
     try:
         emu = robot_emulator(**kwargs).start()
@@ -43,6 +44,7 @@ def _child(conn, shared, kwargs: dict) -> None:
 
     publish(*emu.true_state())
     emu.on_batch = publish             # after each run of physics steps, from the emulator's bus thread
+    freeze_startup_heap()
     conn.send(("port", emu.port))
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:

@@ -16,6 +16,7 @@ Sync/Bulk Read as one combined frame (:class:`driver.packets.FastStatus`), one s
 """
 from __future__ import annotations
 
+import gc
 import logging
 import os
 import select
@@ -39,6 +40,17 @@ from emulator.pty_link import PtyLink
 from emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
+
+
+def freeze_startup_heap() -> None:
+    """In a process that serves the emulator: collect once and freeze what start-up allocated.
+
+    Later collections then walk only objects made since (``gc.freeze``). Without it a full
+    collection of the ~90 000 objects numpy and scipy bring stalls the bus thread for 10–25 ms
+    (measured in the emulator process), several missed cycles at time scale 5.
+    """
+    gc.collect()
+    gc.freeze()
 
 DEFAULT_IDS = tuple(range(1, 9))
 DEFAULT_MODEL = "xh430-w210"

@@ -12,10 +12,12 @@ import numpy as np
 from scipy import signal
 
 
+@lru_cache(maxsize=32)
 def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, float]:
     """Return ``(a1, a0)`` of ``H(s) = a0 / (s^2 + a1 s + a0)``, the 2nd-order analogue Bessel.
 
-    ``norm`` is SciPy's: ``"mag"`` puts -3 dB at ``cutoff_radps``.
+    ``norm`` is SciPy's: ``"mag"`` puts -3 dB at ``cutoff_radps``. Cached: the design takes
+    0.5 ms, and every servo's filter is reset with it when torque or mode changes.
     """
     b, a = signal.bessel(2, cutoff_radps, btype="low", analog=True, norm=norm)
     a = np.asarray(a, float) / a[0]

@@ -68,6 +68,7 @@ def run(args: argparse.Namespace) -> int:
     import logging
 
     from emulator import Emulator
+    from emulator.server import freeze_startup_heap
 
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
@@ -105,6 +106,7 @@ def run(args: argparse.Namespace) -> int:
             emu.start()
         except OSError as exc:
             raise ConfigError(f"cannot open the pty or link: {exc}") from None
+        freeze_startup_heap()
         print(f"PORT {emu.port}", flush=True)
         if emu.link_path:
             print(f"LINK {emu.link_path}", flush=True)
