@@ -35,3 +35,15 @@ def test_bad_config_is_reported_from_the_child(tmp_path):
     bad.write_text("geometry: 3\n")
     with pytest.raises(ConfigError, match="emulator"):
         EmulatorProcess(bad).start()
+
+
+def test_emulator_process_freezes_its_start_up_heap():
+    import gc
+
+    from emulator.server import freeze_startup_heap
+
+    try:
+        freeze_startup_heap()
+        assert gc.get_freeze_count() > 0
+    finally:
+        gc.unfreeze()

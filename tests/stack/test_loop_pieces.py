@@ -131,3 +131,22 @@ def test_cycle_dict_is_a_cycle_record():
         else:
             np.testing.assert_array_equal(rec.meas_current_a, [*m.drive_current_a, *m.steer_current_a])
             np.testing.assert_array_equal(rec.meas_steer_rad, m.steer_rad)
+
+
+def test_collector_is_paused_inside_a_timed_loop_and_restored_after():
+    import gc
+
+    from controller.loop_timer import collector_paused
+
+    assert gc.isenabled()
+    with collector_paused():
+        assert not gc.isenabled() and gc.get_freeze_count() > 0
+    assert gc.isenabled() and gc.get_freeze_count() == 0
+    gc.disable()                       # a caller that had it off keeps it off
+    try:
+        with collector_paused():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
+
