@@ -231,6 +231,8 @@ class RobotEmulator(Emulator):
             if servo.dynamics is not None:
                 servo.memory.stale = True
         self.rate_hz = float(rate_hz)
+        for model in physics.servos.values():     # SciPy's first expm would stall the bus at torque-on
+            model.prepare(1.0 / self.rate_hz)
         self.status_file = None if status_file is None else Path(status_file)
         self.status_hz = float(status_hz)
         self.clock_stats = ClockStats(time_scale=self.time_scale, rate_hz=self.rate_hz)

@@ -59,6 +59,10 @@ class BesselFilter:
         a1, a0 = bessel_coefficients(self.cutoff_radps, self.norm)
         self.y, self.dy = float(value) - float(rate) * a1 / a0, float(rate)
 
+    def prepare(self, dt_s: float) -> None:
+        """Compute (cache) the coefficients for steps of ``dt_s``."""
+        self._dt_s, self._coef = dt_s, _discrete(self.cutoff_radps, self.norm, dt_s)
+
     def step(self, dt_s: float, u: float) -> float:
         """Advance ``dt_s`` with input ``u`` held; return the output ``y``."""
         if dt_s != self._dt_s:

@@ -87,6 +87,11 @@ class GearedMotor:
         """Output-shaft angle, rad (continuous, multi-turn)."""
         return self.angle_rad / self.gear_ratio
 
+    def prepare(self, dt_s: float) -> None:
+        """Compute (cache) the driven and coasting discretisations for steps of ``dt_s``."""
+        for coasting in (False, True):
+            _discrete(self.params, self.inertia_kg_m2, dt_s, coasting)
+
     def step(self, dt_s: float, voltage_v: float | None) -> None:
         """Advance ``dt_s`` with the armature voltage held at ``voltage_v`` (None: bridge open)."""
         tau = self.load_torque_nm / self.gear_ratio

@@ -99,6 +99,14 @@ class ServoModel:
         """True output speed in the servo's frame (Drive Mode direction applied), rad/s."""
         return self._sign * self.motor.output_speed_radps
 
+    def prepare(self, dt_s: float) -> None:
+        """Compute the discretisations for steps of ``dt_s`` now (motor driven and coasting,
+        Bessel filters): SciPy's first ``expm`` takes ~9 ms, which in a running emulator would
+        stall the bus when torque first goes on."""
+        self.motor.prepare(dt_s)
+        self.velocity_filter.prepare(dt_s)
+        self.reference_filter.prepare(dt_s)
+
     def set_shaft_angle(self, angle_rad: float) -> None:
         """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
         self.motor.angle_rad = angle_rad * self.motor.gear_ratio

@@ -213,3 +213,19 @@ def test_clear_multi_turn_and_reboot_rewrap_present_position(steer):
     assert abs(outs[-1]["present_position"] - 9000 % 4096) <= 1
     s.reboot()
     assert s.loop.integral == 0.0 and not s.profile.ongoing
+
+
+def test_prepare_leaves_no_discretisation_for_the_first_steps(drive):
+    """After prepare(dt) neither torque-on nor coasting steps compute a matrix exponential."""
+    from emulator.physics import motor
+
+    m = drive()
+    m.external_load(0.0, 1.234e-3)                    # an inertia no other test uses
+    m.prepare(DT)
+    misses = motor._discrete.cache_info().misses
+    items = table(torque_enable=1, operating_mode=u.MODE_VELOCITY, goal_velocity=50)
+    for _ in range(5):
+        m.step(DT, items)
+    m.step(DT, dict(items, torque_enable=0))
+    assert motor._discrete.cache_info().misses == misses
+    assert m.outputs()["present_velocity"] != 0 or m.velocity_radps != 0.0
