@@ -23,10 +23,7 @@ import select
 import threading
 import time
 from dataclasses import dataclass, fields
-from pathlib import Path
 from typing import Callable, Iterable, Mapping
-
-import yaml
 
 from driver.control_table import table_for
 from driver.errors import ChecksumError, ConfigError, CorruptPacketError
@@ -34,6 +31,7 @@ from driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastS
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
                             parse_sync_read, parse_sync_write)
 from driver.parser import PacketParser
+from driver.robot_config import load_robot_config
 
 from emulator.faults import Faults
 from emulator.pty_link import PtyLink
@@ -95,21 +93,10 @@ class _Reply:
     fast: bool = False     # part of a combined fast-read frame (one fault draw per frame)
 
 
-def _robot_servos(path: str | os.PathLike) -> tuple[list[int], str | None, int | None]:
+def _robot_servos(path: str | os.PathLike) -> tuple[list[int], str, int]:
     """IDs, model and link baud from a robot config (``configs/robot.yaml``)."""
-    try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except OSError as exc:
-        raise ConfigError(f"cannot read robot config {path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    try:
-        ids = sorted({int(w[k]) for w in doc["wheels"] for k in ("drive_id", "steer_id")})
-    except (KeyError, TypeError, ValueError):
-        raise ConfigError(f"{path}: expected 'wheels' entries with drive_id and steer_id") from None
-    link = doc.get("link") or {}
-    baud = link.get("baud")
-    return ids, doc.get("model"), None if baud is None else int(baud)
+    cfg = load_robot_config(path)
+    return sorted(cfg.drive_ids + cfg.steer_ids), cfg.model, cfg.link.baud
 
 
 class Emulator:

@@ -10,9 +10,8 @@ from pathlib import Path
 from typing import Mapping
 
 import numpy as np
-import yaml
 
-from driver.errors import ConfigError
+from driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_config
 
 from . import units as u
 from .body import RobotBody
@@ -21,59 +20,25 @@ from .servo_model import ServoModel
 
 
 @dataclass(frozen=True)
-class Wheel:
-    """One wheel module from ``configs/robot.yaml``."""
-
-    name: str
-    x_m: float
-    y_m: float
-    drive_id: int
-    steer_id: int
-    drive_direction: int
-    steer_direction: int
-    center_pulse: int
-
-
-@dataclass(frozen=True)
 class RobotGeometry:
     """The parts of ``configs/robot.yaml`` the physics needs."""
 
     model: str
     wheel_radius_m: float
-    wheels: tuple[Wheel, ...]
+    wheels: tuple[WheelConfig, ...]
 
 
-def load_robot_geometry(path: str | Path = "configs/robot.yaml") -> RobotGeometry:
-    """Read wheel positions, IDs, direction signs and steering centres.
+def load_robot_geometry(path: str | Path = DEFAULT_PATH) -> RobotGeometry:
+    """Wheel positions, IDs, direction signs and steering centres, read and checked by
+    :func:`driver.robot_config.load_robot_config` (the one parser of ``robot.yaml``).
 
     Raises
     ------
     ConfigError
         On a missing or malformed key (the message names it).
     """
-    try:
-        doc = yaml.safe_load(Path(path).read_text())
-    except (OSError, yaml.YAMLError) as exc:
-        raise ConfigError(f"{path}: cannot read robot config ({exc})") from exc
-    try:
-        radius = float(doc["geometry"]["wheel_radius_m"])
-        wheels_doc = doc["wheels"]
-        drive_dir, steer_dir = doc["drive"]["direction"], doc["steering"]["direction"]
-        centers = doc["steering"]["center_pulse"]
-        model = str(doc["model"])
-    except (KeyError, TypeError) as exc:
-        raise ConfigError(f"{path}: missing key {exc}") from exc
-    if not (len(wheels_doc) == len(drive_dir) == len(steer_dir) == len(centers) == 4):
-        raise ConfigError(f"{path}: wheels, drive.direction, steering.direction and "
-                          "steering.center_pulse must each list 4 entries")
-    wheels = []
-    for i, w in enumerate(wheels_doc):
-        try:
-            wheels.append(Wheel(str(w["name"]), float(w["x_m"]), float(w["y_m"]), int(w["drive_id"]),
-                                int(w["steer_id"]), int(drive_dir[i]), int(steer_dir[i]), int(centers[i])))
-        except (KeyError, TypeError, ValueError) as exc:
-            raise ConfigError(f"{path}: wheels[{i}]: bad or missing key {exc}") from exc
-    return RobotGeometry(model, radius, tuple(wheels))
+    cfg = load_robot_config(path)
+    return RobotGeometry(cfg.model, cfg.wheel_radius_m, cfg.wheels)
 
 
 class RobotPhysics:

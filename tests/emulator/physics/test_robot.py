@@ -1,9 +1,11 @@
 """Eight servos on the body, driven through their raw control tables."""
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+import yaml
 
 from emulator.physics import units as u
 from emulator.physics.robot import BodyWorld, RobotPhysics, load_robot_geometry
@@ -11,6 +13,7 @@ from emulator.physics.steptest import table
 from driver.errors import ConfigError
 
 DT = 1.0 / 2000
+ROOT = Path(__file__).resolve().parents[3]
 
 
 def _tables(cfg, geometry, v1_mps, delta_front, delta_rear):
@@ -73,8 +76,10 @@ def test_robot_mass_loads_the_drive_motors(cfg, geometry):
 
 
 def test_robot_geometry_errors_name_the_key(tmp_path):
+    doc = yaml.safe_load((ROOT / "configs" / "robot.yaml").read_text())
+    del doc["geometry"]["wheel_radius_m"]
     p = tmp_path / "robot.yaml"
-    p.write_text("model: xh430-w210\ngeometry: {}\n")
+    p.write_text(yaml.safe_dump(doc))
     with pytest.raises(ConfigError, match="wheel_radius_m"):
         load_robot_geometry(p)
 
