@@ -1,14 +1,11 @@
 """Run logs as ROS 2 bags (MCAP storage): :class:`RunLogWriter`, :func:`read_log`, :func:`repair_log`.
 
-Writing goes through ``rosbags.rosbag2.Writer``; each cycle's messages are serialised by
-patching their numbers into CDR bytes that rosbags made once (:class:`_CdrTemplate`). Reading
-streams the MCAP with the ``mcap`` package, which tolerates a file whose summary and footer
-were never written (a crash or SIGKILL). Topics, types and the crash-recovery rules are
-described in ``tools/logs/README.md``.
+Writing goes through ``rosbags.rosbag2.Writer``; reading streams the MCAP with the ``mcap``
+package, which tolerates a file whose summary and footer were never written (a crash or
+SIGKILL). Topics, types and the crash-recovery rules are described in ``tools/logs/README.md``.
 """
 from __future__ import annotations
 
-import functools
 import json
 import math
 import struct
@@ -118,7 +115,7 @@ class RunLogWriter:
         self._open = True
         self._flush()  # schemas and channels reach the disk before the first cycle
         self._bag.set_custom_data("swerve_metadata", self._metadata_json)
-        self._cdr = self._templates()
+        self._warm_up()
 
     def close(self) -> None:
         """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
@@ -135,10 +132,7 @@ class RunLogWriter:
 
     # -- writing ---------------------------------------------------------------------------
     def _put(self, topic: str, stamp_ns: int, msg) -> None:
-        self._bag.write(self._conn[topic], stamp_ns, self._serialize(msg))
-
-    def _serialize(self, msg):
-        return self._ts.serialize_cdr(msg, msg.__msgtype__)
+        self._bag.write(self._conn[topic], stamp_ns, self._ts.serialize_cdr(msg, msg.__msgtype__))
 
     def _flush(self) -> None:
         if self._storage.chunk.bio.tell():
@@ -152,155 +146,67 @@ class RunLogWriter:
         ns = int(rec.stamp_ns)
         if not self.cycles_written:
             self._put_metadata(ns)
-        for topic, parts in self._parts(rec):
-            self._bag.write(self._conn[topic], ns, self._cdr[topic].serialize(parts))
+        for topic, msg in self._messages(rec):
+            self._put(topic, ns, msg)
         self.cycles_written += 1
         if self.cycles_written % self.flush_every == 0:
             self._flush()
 
-    def _templates(self) -> dict:
-        """A :class:`_CdrTemplate` per cycle topic, checked against rosbags on one record.
-
-        Making them serialises a message of every type once: rosbags builds its serialisers
-        lazily (~35 ms), which must not land in the first control cycle.
-        """
+    def _warm_up(self) -> None:
+        """Serialise one message of every type once: rosbags builds its serialisers lazily
+        (~35 ms), which must not land in the first control cycle."""
         z = np.zeros(3)
-        rec = CycleRecord(t_s=1.0, stamp_ns=1_700_000_000_123_456_789, cycle=7, ref_pose=z,
-                          true_pose=z, sim_pose=z)
-        cdr = {}
-        try:
-            for topic, parts in self._parts(rec):
-                cdr[topic] = _CdrTemplate(functools.partial(self._rosbags_cdr, topic), parts)
-                if cdr[topic].serialize(parts) != self._rosbags_cdr(topic, parts):
-                    raise RuntimeError(f"run log: {topic} messages do not serialise to a fixed "
-                                       "layout with this rosbags version")
-        except RuntimeError:
-            self._bag.abort()
-            raise
-        return cdr
+        rec = CycleRecord(t_s=0.0, stamp_ns=0, cycle=0, ref_pose=z, true_pose=z, sim_pose=z)
+        for _, msg in self._messages(rec):
+            self._ts.serialize_cdr(msg, msg.__msgtype__)
 
-    def _rosbags_cdr(self, topic: str, parts) -> bytes:
-        """rosbags' CDR bytes of the ``topic`` message carrying ``parts``."""
-        return bytes(self._serialize(self._message(topic, parts)))
-
-    def _parts(self, rec: CycleRecord) -> list:
-        """``(topic, parts)`` for one cycle, ``/swerve/cycle`` first: the numbers that change
-        from cycle to cycle in each message (:meth:`_message` builds the message from them),
-        a stamp ``(sec, nanosec)`` and float64 arrays."""
-        stamp = divmod(int(rec.stamp_ns), 1_000_000_000)
-        out = [("/swerve/cycle", (pack(rec),)),
-               ("/joint_states", (stamp, np.concatenate([_NAN4, rec.meas_steer_rad]),
-                                  np.concatenate([rec.meas_drive_radps, _NAN4]),
-                                  np.asarray(rec.meas_current_a, dtype=np.float64))),
-               ("/trajectory", (stamp, np.concatenate([_NAN4, rec.cmd_steer_rad]),
-                                np.concatenate([rec.cmd_drive_radps, _NAN4]))),
-               ("/odom", (stamp, _pose7(rec.est_pose)))]
+    def _messages(self, rec: CycleRecord) -> list:
+        """``(topic, message)`` for one cycle, ``/swerve/cycle`` first."""
+        T = self._ts.types
+        ns = int(rec.stamp_ns)
+        header = T["std_msgs/msg/Header"](
+            stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
+            frame_id="odom")
+        nan4 = np.full(4, np.nan)
+        layout = T["std_msgs/msg/MultiArrayLayout"](
+            dim=[T["std_msgs/msg/MultiArrayDimension"](label="cycle_record_v1", size=CYCLE_SIZE,
+                                                       stride=CYCLE_SIZE)],
+            data_offset=0)
+        out = [("/swerve/cycle", T["std_msgs/msg/Float64MultiArray"](layout=layout, data=pack(rec)))]
+        out.append(("/joint_states", T["sensor_msgs/msg/JointState"](
+            header=header, name=self._joints,
+            position=np.concatenate([nan4, rec.meas_steer_rad]),
+            velocity=np.concatenate([rec.meas_drive_radps, nan4]),
+            effort=np.asarray(rec.meas_current_a, dtype=np.float64))))
+        point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
+            positions=np.concatenate([nan4, rec.cmd_steer_rad]),
+            velocities=np.concatenate([rec.cmd_drive_radps, nan4]),
+            accelerations=np.empty(0), effort=np.empty(0),
+            time_from_start=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0))
+        out.append(("/trajectory", T["trajectory_msgs/msg/JointTrajectory"](
+            header=header, joint_names=self._joints, points=[point])))
+        nan3 = T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)
+        out.append(("/odom", T["nav_msgs/msg/Odometry"](
+            header=header, child_frame_id="base_link",
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(rec.est_pose),
+                                                           covariance=np.zeros(36)),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](linear=nan3, angular=nan3),
+                covariance=np.zeros(36)))))
         for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
                             ("/sim_pose", rec.sim_pose)):
             if np.isfinite(pose).all():
-                out.append((topic, (stamp, _pose7(pose))))
+                out.append((topic, T["geometry_msgs/msg/PoseStamped"](header=header,
+                                                                      pose=self._pose(pose))))
         return out
 
-    def _message(self, topic: str, parts):
-        """The ROS 2 message of ``topic`` carrying ``parts`` (see :meth:`_parts`)."""
+    def _pose(self, pose):
         T = self._ts.types
-        if topic == "/swerve/cycle":
-            layout = T["std_msgs/msg/MultiArrayLayout"](
-                dim=[T["std_msgs/msg/MultiArrayDimension"](label="cycle_record_v1",
-                                                           size=CYCLE_SIZE, stride=CYCLE_SIZE)],
-                data_offset=0)
-            return T["std_msgs/msg/Float64MultiArray"](layout=layout, data=parts[0])
-        (sec, nanosec), *arrays = parts
-        header = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=sec, nanosec=nanosec), frame_id="odom")
-        if topic == "/joint_states":
-            position, velocity, effort = arrays
-            return T["sensor_msgs/msg/JointState"](header=header, name=self._joints,
-                                                   position=position, velocity=velocity,
-                                                   effort=effort)
-        if topic == "/trajectory":
-            positions, velocities = arrays
-            point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
-                positions=positions, velocities=velocities, accelerations=np.empty(0),
-                effort=np.empty(0), time_from_start=T["builtin_interfaces/msg/Duration"](
-                    sec=0, nanosec=0))
-            return T["trajectory_msgs/msg/JointTrajectory"](
-                header=header, joint_names=self._joints, points=[point])
-        pose = self._pose(arrays[0])
-        if topic == "/odom":
-            nan3 = T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)
-            return T["nav_msgs/msg/Odometry"](
-                header=header, child_frame_id="base_link",
-                pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=pose,
-                                                               covariance=np.zeros(36)),
-                twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                    twist=T["geometry_msgs/msg/Twist"](linear=nan3, angular=nan3),
-                    covariance=np.zeros(36)))
-        return T["geometry_msgs/msg/PoseStamped"](header=header, pose=pose)
-
-    def _pose(self, pose7):
-        T = self._ts.types
-        x, y, z, qx, qy, qz, qw = pose7.tolist()
+        x, y, th = (float(v) for v in pose)
         return T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=z),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=qx, y=qy, z=qz, w=qw))
-
-
-_NAN4 = np.full(4, np.nan)
-_STAMP = struct.Struct("<iI")
-
-
-def _pose7(pose) -> np.ndarray:
-    """``geometry_msgs/Pose`` numbers of a planar pose ``(x, y, theta)``: position
-    ``(x, y, 0)``, orientation quaternion ``(0, 0, sin(theta/2), cos(theta/2))``; shape (7,)."""
-    x, y, th = (float(v) for v in pose)
-    return np.array([x, y, 0.0, 0.0, 0.0, math.sin(th / 2), math.cos(th / 2)])
-
-
-def _cdr_bytes(part) -> bytes:
-    """Little-endian CDR bytes of one part: a stamp ``(sec, nanosec)`` or a float64 array."""
-    if isinstance(part, tuple):
-        return _STAMP.pack(*part)
-    return np.asarray(part, dtype="<f8").tobytes()
-
-
-class _CdrTemplate:
-    """Serialises one topic's messages by putting their numbers into constant CDR bytes.
-
-    A topic's messages all have the same layout (fixed-length arrays, fixed strings), so their
-    CDR bytes differ only where the parts of :meth:`RunLogWriter._parts` go. The template is
-    rosbags' serialisation of a message whose parts are distinct sentinel numbers, cut around
-    them.
-
-    Parameters
-    ----------
-    build : callable
-        ``parts -> CDR bytes`` (rosbags).
-    example : sequence
-        Parts of one message: their types and sizes define the layout.
-    """
-
-    def __init__(self, build, example):
-        rng = np.random.default_rng(20240607)
-        sentinels = [(0x5EC0_0001 + k, 0x3A7B_0001 + k) if isinstance(p, tuple)
-                     else rng.uniform(1.0, 2.0, np.size(p)) for k, p in enumerate(example)]
-        data = bytes(build(sentinels))
-        self._pieces, pos = [], 0
-        for part in map(_cdr_bytes, sentinels):
-            at = data.find(part, pos)
-            if at < 0 or data.find(part, at + 1) >= 0:
-                raise RuntimeError("run log: cannot locate a message part in its CDR bytes")
-            self._pieces.append(data[pos:at])
-            pos = at + len(part)
-        self._tail = data[pos:]
-
-    def serialize(self, parts) -> bytes:
-        """CDR bytes of the message carrying ``parts`` (same types and sizes as the example)."""
-        out = []
-        for piece, part in zip(self._pieces, parts):
-            out += (piece, _cdr_bytes(part))
-        out.append(self._tail)
-        return b"".join(out)
+            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
+            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2),
+                                                          w=math.cos(th / 2)))
 
 
 # -- reading ---------------------------------------------------------------------------------
