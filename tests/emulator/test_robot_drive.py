@@ -3,7 +3,7 @@
 The robot is moved only by bus traffic (one Bulk Write of goals and one Sync Read of state per
 16 ms cycle, as the controller does); the true pose comes from the emulator's in-process API or
 its status file, never from the bus. Deterministic tests step simulated time with
-``emu.advance``; one test runs the clock thread at 5x real time and checks generous bounds only.
+``emu.advance``; one test runs the physics clock at 5x real time and checks generous bounds only.
 """
 from __future__ import annotations
 
