@@ -23,20 +23,20 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from controller.design import synthesize  # noqa: E402
-from controller.kinematics import load_robot, rk4_step  # noqa: E402
-from controller.ltv import cost, error_system, initial_error  # noqa: E402
-from controller.odometry import Odometry  # noqa: E402
-from controller.online import TrackingLoop  # noqa: E402
-from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
-from controller.riccati import finite_horizon_lqr  # noqa: E402
-from controller.simulate import metrics, simulate  # noqa: E402
-from controller.synthesis import (conjugate_gradient,  # noqa: E402
+from swerve.controller.design import synthesize  # noqa: E402
+from swerve.controller.kinematics import load_robot, rk4_step  # noqa: E402
+from swerve.controller.ltv import cost, error_system, initial_error  # noqa: E402
+from swerve.controller.odometry import Odometry  # noqa: E402
+from swerve.controller.online import TrackingLoop  # noqa: E402
+from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
+from swerve.controller.riccati import finite_horizon_lqr  # noqa: E402
+from swerve.controller.simulate import metrics, simulate  # noqa: E402
+from swerve.controller.synthesis import (conjugate_gradient,  # noqa: E402
                                   conjugate_gradient_continuation, cost_and_gradient,
                                   frozen_time_lqr_gains, initial_error_set)
-from controller.tracking import TrackingLaw  # noqa: E402
-from driver.wheelset import WheelState  # noqa: E402
-from tools.logs import CycleRecord, RunLogWriter  # noqa: E402
+from swerve.controller.tracking import TrackingLaw  # noqa: E402
+from swerve.driver.wheelset import WheelState  # noqa: E402
+from swerve.tools.logs import CycleRecord, RunLogWriter  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Controller (issue 5)"
@@ -231,7 +231,7 @@ def cycle_costs(traj_name, x0, log_dir):
     vector, steering integration, result row, ``on_cycle`` dict, ticker). Returns
     ``({piece: ns array}, fraction of cycles whose reference time was on the grid)``.
     """
-    import controller.online as online
+    import swerve.controller.online as online
 
     traj = load_trajectory(traj_name, GEOM)
     ref, gains = synthesize(traj, "riccati", GEOM, LIMITS)

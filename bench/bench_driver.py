@@ -22,12 +22,12 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from driver import packets as pk  # noqa: E402
-from driver.bus import Bus  # noqa: E402
-from driver.parser import PacketParser  # noqa: E402
-from driver.robot_config import load_robot_config  # noqa: E402
-from driver.wheelset import WheelSet  # noqa: E402
-from emulator import Emulator  # noqa: E402
+from swerve.driver import packets as pk  # noqa: E402
+from swerve.driver.bus import Bus  # noqa: E402
+from swerve.driver.parser import PacketParser  # noqa: E402
+from swerve.driver.robot_config import load_robot_config  # noqa: E402
+from swerve.driver.wheelset import WheelSet  # noqa: E402
+from swerve.emulator import Emulator  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Driver (issue 2)"

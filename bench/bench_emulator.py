@@ -48,7 +48,7 @@ def wire_limit_rtps(nservos: int = 8, length: int = LENGTH, baud: int = BAUD,
 class EmulatorProcess:
     def __init__(self, *extra: str):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "tools.cli", "emulate", "--ids", "1-8", "--baud", str(BAUD), *extra],
+            [sys.executable, "-m", "swerve.tools.cli", "emulate", "--ids", "1-8", "--baud", str(BAUD), *extra],
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
         line = self.proc.stdout.readline().split()
         if not line or line[0] != "PORT":
@@ -112,9 +112,9 @@ def bench_sdk(port: str, seconds: float) -> tuple[float, int]:
 
 def bench_driver(port: str, seconds: float) -> tuple[float, int] | None:
     try:
-        from driver.bus import Bus
-        from driver.control_table import Reg
-        from driver.errors import DxlError
+        from swerve.driver.bus import Bus
+        from swerve.driver.control_table import Reg
+        from swerve.driver.errors import DxlError
     except ImportError:
         return None
 

@@ -40,14 +40,14 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchutil import cpu_model  # noqa: E402
-from driver.bus import Bus  # noqa: E402
-from driver.control_table import Reg  # noqa: E402
-from driver.robot_config import load_robot_config  # noqa: E402
-from driver.wheelset import WheelSet  # noqa: E402
-from emulator.physics import units as u  # noqa: E402
-from emulator.physics.params import load_config  # noqa: E402
-from emulator.physics.steptest import step_metrics  # noqa: E402
-from emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
+from swerve.driver.bus import Bus  # noqa: E402
+from swerve.driver.control_table import Reg  # noqa: E402
+from swerve.driver.robot_config import load_robot_config  # noqa: E402
+from swerve.driver.wheelset import WheelSet  # noqa: E402
+from swerve.emulator.physics import units as u  # noqa: E402
+from swerve.emulator.physics.params import load_config  # noqa: E402
+from swerve.emulator.physics.steptest import step_metrics  # noqa: E402
+from swerve.emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
 
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"

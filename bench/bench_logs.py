@@ -18,7 +18,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "logs"))
 import synthetic  # noqa: E402
 
-from tools.logs import RunLogWriter, read_log  # noqa: E402
+from swerve.tools.logs import RunLogWriter, read_log  # noqa: E402
 
 
 def bench(n: int, flush_every: int, tmp: Path) -> dict:

@@ -11,11 +11,11 @@ import dataclasses
 import time
 from pathlib import Path
 
-from emulator.physics import units as u
-from emulator.physics.params import load_config
-from emulator.physics.robot import RobotPhysics, load_robot_geometry
-from emulator.physics.servo_model import ServoModel
-from emulator.physics.steptest import position_step, simulate, table, velocity_step
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.robot import RobotPhysics, load_robot_geometry
+from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.steptest import position_step, simulate, table, velocity_step
 
 ROOT = Path(__file__).resolve().parents[1]
 

@@ -18,11 +18,11 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "tune"))
 
-from emulator.physics import units as u  # noqa: E402
-from emulator.physics.params import MotorParams, load_config  # noqa: E402
+from swerve.emulator.physics import units as u  # noqa: E402
+from swerve.emulator.physics.params import MotorParams, load_config  # noqa: E402
 from simdata import PLAN, pwm_record  # noqa: E402
-from tools.tune.design import Plant, Spec, design_position, design_velocity  # noqa: E402
-from tools.tune.identify import FITTED, identify  # noqa: E402
+from swerve.tools.tune.design import Plant, Spec, design_position, design_velocity  # noqa: E402
+from swerve.tools.tune.identify import FITTED, identify  # noqa: E402
 
 PRIOR = MotorParams(8.0, 3e-3, 0.012, 0.0067, 3e-7, 9e-8)
 

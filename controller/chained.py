@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.kinematics import Geometry
+from swerve.controller.kinematics import Geometry
 
 
 def wrap_angle(angle):

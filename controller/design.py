@@ -3,12 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.errors import ControllerError
-from controller.gains_io import GainSchedule
-from controller.kinematics import Geometry, Limits
-from controller.ltv import error_system, initial_error
-from controller.reference import Reference, Trajectory, build_reference
-from controller.riccati import finite_horizon_lqr
+from swerve.controller.errors import ControllerError
+from swerve.controller.gains_io import GainSchedule
+from swerve.controller.kinematics import Geometry, Limits
+from swerve.controller.ltv import error_system, initial_error
+from swerve.controller.reference import Reference, Trajectory, build_reference
+from swerve.controller.riccati import finite_horizon_lqr
 
 METHODS = ("riccati", "paper")
 
@@ -54,7 +54,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
         meta.update(J_star=J)
         K = Kr
     else:
-        from controller.synthesis import (conjugate_gradient, conjugate_gradient_continuation,
+        from swerve.controller.synthesis import (conjugate_gradient, conjugate_gradient_continuation,
                                           frozen_time_lqr_gains, initial_error_set)
 
         if init not in ("continuation", "zero", "frozen-lqr"):

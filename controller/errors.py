@@ -5,7 +5,7 @@ prints it as one line (exit status 2) instead of a traceback.
 """
 from __future__ import annotations
 
-from driver.errors import ConfigError
+from swerve.driver.errors import ConfigError
 
 
 class ControllerError(ConfigError):

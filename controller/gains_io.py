@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.errors import ControllerError
+from swerve.controller.errors import ControllerError
 
 SIGN_CONVENTION = "u = ud + K (x - xd)"
 

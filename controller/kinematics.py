@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.errors import ControllerError
+from swerve.controller.errors import ControllerError
 
 #: ``configs/robot.yaml`` relative to the repository root.
 ROBOT_YAML = Path(__file__).resolve().parent.parent / "configs" / "robot.yaml"
@@ -58,8 +58,8 @@ def load_robot(path: str | Path = ROBOT_YAML) -> tuple[Geometry, Limits]:
     -------
     (Geometry, Limits)
     """
-    from driver.errors import ConfigError
-    from driver.robot_config import load_robot_config
+    from swerve.driver.errors import ConfigError
+    from swerve.driver.robot_config import load_robot_config
 
     try:
         cfg = load_robot_config(path)

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.chained import chained_jacobian, to_chained, wrap_angle
+from swerve.controller.chained import chained_jacobian, to_chained, wrap_angle
 
 
 def chained_error(x, xd):

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from controller.kinematics import Geometry, rk4_step_floats
+from swerve.controller.kinematics import Geometry, rk4_step_floats
 
 FRONT = (0, 3)
 REAR = (1, 2)

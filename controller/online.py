@@ -27,12 +27,12 @@ from typing import Callable
 
 import numpy as np
 
-from controller.kinematics import Geometry
-from controller.loop_timer import Ticker, collector_paused
-from controller.odometry import Odometry
-from controller.simulate import SimResult, metrics
-from controller.tracking import TrackingLaw
-from driver.errors import CorruptPacketError, DxlTimeoutError, ServoError, SwerveError
+from swerve.controller.kinematics import Geometry
+from swerve.controller.loop_timer import Ticker, collector_paused
+from swerve.controller.odometry import Odometry
+from swerve.controller.simulate import SimResult, metrics
+from swerve.controller.tracking import TrackingLaw
+from swerve.driver.errors import CorruptPacketError, DxlTimeoutError, ServoError, SwerveError
 
 log = logging.getLogger(__name__)
 

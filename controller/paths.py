@@ -10,7 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.errors import ControllerError
+from swerve.controller.errors import ControllerError
 
 
 @dataclass(frozen=True)

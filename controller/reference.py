@@ -15,10 +15,10 @@ from pathlib import Path
 
 import numpy as np
 
-from controller.chained import to_chained, wrap_angle
-from controller.errors import ControllerError, SingularityError
-from controller.kinematics import Geometry, Limits
-from controller.paths import CirclePath, CurvilinearPath, LinePath, read_csv_path
+from swerve.controller.chained import to_chained, wrap_angle
+from swerve.controller.errors import ControllerError, SingularityError
+from swerve.controller.kinematics import Geometry, Limits
+from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath, read_csv_path
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = Path(__file__).resolve().parent.parent / "configs" / "trajectories"

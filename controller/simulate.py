@@ -10,8 +10,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from controller.kinematics import rk4_step
-from controller.tracking import TrackingLaw
+from swerve.controller.kinematics import rk4_step
+from swerve.controller.tracking import TrackingLaw
 
 
 @dataclass

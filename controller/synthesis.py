@@ -34,8 +34,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import line_search
 
-from controller.errors import ControllerError
-from controller.ltv import closed_loop, policy_cost_matrices, rollout
+from swerve.controller.errors import ControllerError
+from swerve.controller.ltv import closed_loop, policy_cost_matrices, rollout
 
 #: (mu, nu) of each member of the beta family (44).
 BETA_METHODS = {"dai-yuan": (1.0, 0.0), "fletcher-reeves": (1.0, 1.0),
@@ -328,7 +328,7 @@ def conjugate_gradient_continuation(Ad, Bd, Q, R, tau, X0, n0: int = 64, growth:
     and seconds summed over all stages; ``history`` holds the final stage only, with
     evaluation counts and times offset by the earlier stages.
     """
-    from controller.ltv import cost as exact_cost
+    from swerve.controller.ltv import cost as exact_cost
 
     N = Ad.shape[0]
     n = min(int(n0), N)

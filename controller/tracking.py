@@ -33,11 +33,11 @@ import math
 
 import numpy as np
 
-from controller.chained import wrap_angle
-from controller.errors import ControllerError, SingularityError
-from controller.gains_io import GainSchedule
-from controller.kinematics import Limits
-from controller.reference import Reference
+from swerve.controller.chained import wrap_angle
+from swerve.controller.errors import ControllerError, SingularityError
+from swerve.controller.gains_io import GainSchedule
+from swerve.controller.kinematics import Limits
+from swerve.controller.reference import Reference
 
 #: Floor of |cos(sigma - phi)| used for the robot's own state (about 84 degrees).
 STATE_MARGIN = 0.1
@@ -237,7 +237,7 @@ class TrackingLaw:
         Steering goals are positions: the estimated angles advanced by ``omega * tau`` and
         kept within the steering limit. Shape (8,), m/s and rad.
         """
-        from controller.kinematics import wheel_commands
+        from swerve.controller.kinematics import wheel_commands
 
         v1, w1, w2 = self.command(t_s, state)
         st = np.asarray(state, dtype=float)

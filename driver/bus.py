@@ -28,12 +28,12 @@ import time
 from dataclasses import dataclass
 from typing import Iterable, Mapping, Sequence
 
-from driver import packets as pk
-from driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
-from driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
+from swerve.driver import packets as pk
+from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
+from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
                            RegisterError, ServoError)
-from driver.packets import BROADCAST_ID, Instruction, InstructionPacket, StatusPacket
-from driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
+from swerve.driver.packets import BROADCAST_ID, Instruction, InstructionPacket, StatusPacket
+from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
 STATUS_OVERHEAD = 11

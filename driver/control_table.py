@@ -14,9 +14,10 @@ from pathlib import Path
 
 import yaml
 
-from driver.errors import ConfigError, OutOfRangeError, RegisterError
+from swerve.configs import shipped_dir
+from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
-CONFIG_DIR = Path(__file__).resolve().parents[1] / "configs"
+CONFIG_DIR = shipped_dir()
 MODELS_DIR = CONFIG_DIR / "models"
 
 

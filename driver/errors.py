@@ -45,7 +45,7 @@ class DxlTimeoutError(DxlError, TimeoutError):
         self.ids = tuple(ids)
         self.instruction = int(instruction)
         self.timeout_s = float(timeout_s)
-        from driver.packets import instruction_name  # local: avoid an import cycle
+        from swerve.driver.packets import instruction_name  # local: avoid an import cycle
 
         msg = (f"no reply from servo ID {', '.join(map(str, self.ids)) or '-'} to "
                f"{instruction_name(self.instruction)} within {self.timeout_s * 1e3:.1f} ms")
@@ -77,7 +77,7 @@ class ServoError(DxlError):
 
     def __init__(self, id: int, error_byte: int, instruction: int | None = None,
                  hardware_error=None, context: str = ""):
-        from driver.packets import ErrorNumber, StatusError, instruction_name
+        from swerve.driver.packets import ErrorNumber, StatusError, instruction_name
 
         st = StatusError.from_byte(error_byte)
         self.id = int(id)

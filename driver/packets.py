@@ -15,7 +15,7 @@ from dataclasses import dataclass
 from enum import IntEnum
 from typing import Iterable, Mapping, Sequence
 
-from driver.errors import ChecksumError, CorruptPacketError
+from swerve.driver.errors import ChecksumError, CorruptPacketError
 
 HEADER = b"\xff\xff\xfd\x00"
 BROADCAST_ID = 0xFE

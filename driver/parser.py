@@ -8,8 +8,8 @@ from __future__ import annotations
 
 import struct
 
-from driver.errors import CorruptPacketError
-from driver.packets import HEADER, MAX_LENGTH, Packet, decode_frame
+from swerve.driver.errors import CorruptPacketError
+from swerve.driver.packets import HEADER, MAX_LENGTH, Packet, decode_frame
 
 
 class PacketParser:

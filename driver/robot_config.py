@@ -14,8 +14,8 @@ from typing import Any, Mapping
 
 import yaml
 
-from driver.control_table import CONFIG_DIR, ControlTable, table_for
-from driver.errors import ConfigError, SwerveError
+from swerve.driver.control_table import CONFIG_DIR, ControlTable, table_for
+from swerve.driver.errors import ConfigError, SwerveError
 
 DEFAULT_PATH = CONFIG_DIR / "robot.yaml"
 #: Largest Bus Watchdog the item (98) holds: 127 units of 20 ms, s.

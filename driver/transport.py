@@ -20,9 +20,9 @@ import warnings
 
 import serial
 
-from driver.errors import TransportError
-from driver.packets import Packet
-from driver.parser import PacketParser
+from swerve.driver.errors import TransportError
+from swerve.driver.packets import Packet
+from swerve.driver.parser import PacketParser
 
 log = logging.getLogger(__name__)
 

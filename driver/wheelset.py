@@ -23,10 +23,10 @@ import time
 from dataclasses import dataclass
 from typing import Sequence
 
-from driver.bus import Bus
-from driver.control_table import OperatingMode, Reg
-from driver.errors import ConfigError, DxlError, OutOfRangeError
-from driver.robot_config import RobotConfig
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import OperatingMode, Reg
+from swerve.driver.errors import ConfigError, DxlError, OutOfRangeError
+from swerve.driver.robot_config import RobotConfig
 
 log = logging.getLogger(__name__)
 

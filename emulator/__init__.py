@@ -3,8 +3,8 @@
 Modules: :mod:`memory` (control-table bytes and rules), :mod:`servo` (instruction semantics),
 :mod:`faults` (fault injection), :mod:`pty_link` (the pty), :mod:`server` (:class:`Emulator`).
 """
-from emulator.faults import Faults
-from emulator.server import Emulator, Stats
-from emulator.servo import VirtualServo
+from swerve.emulator.faults import Faults
+from swerve.emulator.server import Emulator, Stats
+from swerve.emulator.servo import VirtualServo
 
 __all__ = ["Emulator", "Faults", "Stats", "VirtualServo"]

@@ -15,9 +15,9 @@ from __future__ import annotations
 import random
 from typing import Callable
 
-from driver.errors import ConfigError
+from swerve.driver.errors import ConfigError
 
-from emulator.servo import hardware_error_bits
+from swerve.emulator.servo import hardware_error_bits
 
 
 class Faults:

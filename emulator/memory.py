@@ -18,9 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator, Mapping
 
-from driver.control_table import ControlTable, Reg, Register
-from driver.errors import RegisterError
-from driver.packets import ErrorNumber
+from swerve.driver.control_table import ControlTable, Reg, Register
+from swerve.driver.errors import RegisterError
+from swerve.driver.packets import ErrorNumber
 
 #: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
 INDIRECT_TARGET_MIN = 64

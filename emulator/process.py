@@ -22,7 +22,7 @@ import os
 import signal
 from pathlib import Path
 
-from driver.errors import ConfigError, SwerveError
+from swerve.driver.errors import ConfigError, SwerveError
 
 _START_TIMEOUT_S = 60.0
 
@@ -30,8 +30,8 @@ _START_TIMEOUT_S = 60.0
 def _child(conn, shared, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
-    from emulator.robot_emulator import robot_emulator
-    from emulator.server import freeze_startup_heap
+    from swerve.emulator.robot_emulator import robot_emulator
+    from swerve.emulator.server import freeze_startup_heap
 
     try:
         emu = robot_emulator(**kwargs).start()
@@ -79,7 +79,7 @@ class EmulatorProcess:
     """
 
     def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", **kwargs):
-        from driver.control_table import CONFIG_DIR
+        from swerve.driver.control_table import CONFIG_DIR
 
         kwargs.setdefault("emulator_config", str(CONFIG_DIR / "emulator.yaml"))
         self._kwargs = dict(kwargs, robot_config=str(Path(robot_config)))

@@ -2,7 +2,7 @@
 
 ::
 
-    from emulator.robot_emulator import robot_emulator
+    from swerve.emulator.robot_emulator import robot_emulator
 
     with robot_emulator(time_scale=0) as emu:         # 0: no clock, step with emu.advance()
         ...                                           # open emu.port with driver.bus.Bus
@@ -39,14 +39,14 @@ from typing import Callable, Mapping
 
 import numpy as np
 
-from driver.errors import ConfigError
-from emulator.faults import Faults
-from emulator.physics import units as u
-from emulator.physics.params import PhysicsConfig, SensorParams, load_config
-from emulator.physics.robot import RobotPhysics, load_robot_geometry
-from emulator.physics.servo_model import ServoModel
-from emulator.server import Emulator
-from emulator.servo import VirtualServo
+from swerve.driver.errors import ConfigError
+from swerve.emulator.faults import Faults
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
+from swerve.emulator.physics.robot import RobotPhysics, load_robot_geometry
+from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.server import Emulator
+from swerve.emulator.servo import VirtualServo
 
 log = logging.getLogger(__name__)
 

@@ -25,17 +25,17 @@ import time
 from dataclasses import dataclass, fields
 from typing import Callable, Iterable, Mapping
 
-from driver.control_table import table_for
-from driver.errors import ChecksumError, ConfigError, CorruptPacketError
-from driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
+from swerve.driver.control_table import table_for
+from swerve.driver.errors import ChecksumError, ConfigError, CorruptPacketError
+from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
                             parse_sync_read, parse_sync_write)
-from driver.parser import PacketParser
-from driver.robot_config import load_robot_config
+from swerve.driver.parser import PacketParser
+from swerve.driver.robot_config import load_robot_config
 
-from emulator.faults import Faults
-from emulator.pty_link import PtyLink
-from emulator.servo import BAUD_RATES, Dynamics, VirtualServo
+from swerve.emulator.faults import Faults
+from swerve.emulator.pty_link import PtyLink
+from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
 

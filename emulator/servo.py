@@ -11,11 +11,11 @@ from __future__ import annotations
 import logging
 from typing import Mapping, Protocol
 
-from driver.control_table import ControlTable, HardwareError, OperatingMode, Reg
-from driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
+from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg
+from swerve.driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
                             Instruction, InstructionPacket, StatusPacket, parse_address_length)
 
-from emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
+from swerve.emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
                              WriteRejected)
 
 log = logging.getLogger(__name__)

@@ -2,7 +2,7 @@
 import subprocess
 import sys
 
-from tools import cli
+from swerve.tools import cli
 
 
 def test_every_subcommand_is_registered():
@@ -13,7 +13,7 @@ def test_every_subcommand_is_registered():
 
 
 def test_help_runs_as_a_console_script():
-    out = subprocess.run([sys.executable, "-m", "tools.cli", "--help"], capture_output=True, text=True,
+    out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "--help"], capture_output=True, text=True,
                          timeout=60)
     assert out.returncode == 0
     for name in ("emulate", "scan", "synth", "sim", "run", "demo", "tune"):

@@ -11,7 +11,7 @@ import argparse
 import importlib
 import sys
 
-from driver.errors import SwerveError
+from swerve.driver.errors import SwerveError
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
 COMMANDS = ("emulate", "scan", "synth", "sim", "run", "demo", "tune", "plot", "export_csv")
@@ -22,7 +22,7 @@ def _load(name: str):
 
     (tests/test_cli.py asserts that every name in COMMANDS is present, so nothing is hidden.)
     """
-    full = f"tools.commands.{name}"
+    full = f"swerve.tools.commands.{name}"
     try:
         return importlib.import_module(full)
     except ModuleNotFoundError as exc:

@@ -43,10 +43,10 @@ class RunRequest:
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
-    from controller.design import synthesize
-    from controller.gains_io import load_gains
-    from controller.reference import build_reference, load_trajectory
-    from controller.tracking import TrackingLaw
+    from swerve.controller.design import synthesize
+    from swerve.controller.gains_io import load_gains
+    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.tracking import TrackingLaw
 
     traj = load_trajectory(trajectory, geom)
     if gains_path is not None:
@@ -59,7 +59,7 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
 
 def simulated_poses(law, start) -> np.ndarray:
     """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
-    from controller.simulate import simulate
+    from swerve.controller.simulate import simulate
 
     poses = simulate(law, start).states[:, :3]
     law.reset()
@@ -78,7 +78,7 @@ def wall_clock_guards(cfg, time_scale: float):
     import dataclasses
     import math
 
-    from driver.robot_config import BUS_WATCHDOG_MAX_S
+    from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
 
     if time_scale <= 1.0:
         return cfg
@@ -89,11 +89,11 @@ def wall_clock_guards(cfg, time_scale: float):
 
 def run_tracking(req: RunRequest):
     """Run one trajectory; returns :class:`controller.online.RunResult` (``aborted`` set on a stop)."""
-    from controller.kinematics import from_robot_config
-    from controller.online import TrackingLoop
-    from driver.bus import Bus
-    from driver.robot_config import DEFAULT_PATH, load_robot_config
-    from driver.wheelset import WheelSet
+    from swerve.controller.kinematics import from_robot_config
+    from swerve.controller.online import TrackingLoop
+    from swerve.driver.bus import Bus
+    from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
+    from swerve.driver.wheelset import WheelSet
 
     cfg_path = Path(req.config) if req.config else DEFAULT_PATH
     cfg = wall_clock_guards(load_robot_config(cfg_path), req.time_scale)
@@ -105,7 +105,7 @@ def run_tracking(req: RunRequest):
     with contextlib.ExitStack() as stack:
         true_pose = None
         if req.emulate:
-            from emulator.process import EmulatorProcess
+            from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
                 cfg_path, time_scale=req.time_scale, faults=req.faults, start_pose=tuple(start[:3]),
@@ -151,8 +151,8 @@ def run_tracking(req: RunRequest):
 
 def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, cfg_path: Path):
     """Open the run log and return the loop's ``on_cycle`` callback."""
-    from tools.logs.bag import RunLogWriter
-    from tools.logs.record import CycleRecord
+    from swerve.tools.logs.bag import RunLogWriter
+    from swerve.tools.logs.record import CycleRecord
 
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
                 time_scale=req.time_scale, port="emulator" if req.emulate else (req.port or cfg.link.port),

@@ -10,7 +10,7 @@ from typing import Any, Mapping
 
 import yaml
 
-from driver.errors import ConfigError
+from swerve.driver.errors import ConfigError
 
 BESSEL_PLACEMENTS = ("velocity_feedback", "reference", "none")
 BESSEL_NORMS = ("mag", "phase", "delay")

@@ -11,7 +11,7 @@ from typing import Mapping
 
 import numpy as np
 
-from driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_config
+from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_config
 
 from . import units as u
 from .body import RobotBody

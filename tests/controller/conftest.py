@@ -6,9 +6,9 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controller.kinematics import Geometry, Limits, load_robot
-from controller.paths import CirclePath
-from controller.reference import Trajectory, build_reference, load_trajectory
+from swerve.controller.kinematics import Geometry, Limits, load_robot
+from swerve.controller.paths import CirclePath
+from swerve.controller.reference import Trajectory, build_reference, load_trajectory
 
 
 @pytest.fixture(scope="session")
@@ -43,8 +43,8 @@ def numpy_reference(ref, t, phi):
     """What :meth:`Reference.sample` must return at the times ``t`` (n,) in the frames
     ``phi`` (n,), computed with the vectorised functions: states (n, 5), inputs (n, 3),
     xd (n, 5), ud (n, 3); the heading on the branch of the grid's ``states[index(t), 2]``."""
-    from controller.chained import wrap_angle
-    from controller.reference import chained_desired, desired_states
+    from swerve.controller.chained import wrap_angle
+    from swerve.controller.reference import chained_desired, desired_states
 
     t = np.clip(t, 0.0, ref.tf_s)
     states, inputs, extra = desired_states(ref.trajectory.path, t, ref.geom)

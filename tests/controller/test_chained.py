@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from controller.chained import (chained_inputs, chained_rhs, from_chained, inputs_from_chained,
+from swerve.controller.chained import (chained_inputs, chained_rhs, from_chained, inputs_from_chained,
                                 singularity_margin, to_chained, wrap_angle)
-from controller.kinematics import Geometry, rk4_step, state_derivative
+from swerve.controller.kinematics import Geometry, rk4_step, state_derivative
 
 G = Geometry()
 RNG = np.random.default_rng(5)

@@ -3,8 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from controller.reference import TRAJECTORY_DIR
-from tools.cli import main
+from swerve.controller.reference import TRAJECTORY_DIR
+from swerve.tools.cli import main
 
 KEYS = ["rms_position_error_m", "max_position_error_m", "final_position_error_m",
         "max_abs_v1_mps", "max_abs_steer_rate_radps", "cost"]

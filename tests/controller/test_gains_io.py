@@ -3,10 +3,10 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controller.design import synthesize
-from controller.errors import ControllerError
-from controller.gains_io import load_gains, save_gains
-from controller.reference import load_trajectory
+from swerve.controller.design import synthesize
+from swerve.controller.errors import ControllerError
+from swerve.controller.gains_io import load_gains, save_gains
+from swerve.controller.reference import load_trajectory
 
 
 

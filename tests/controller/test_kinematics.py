@@ -2,8 +2,8 @@ import numpy as np
 import pytest
 import yaml
 
-from controller.errors import ControllerError
-from controller.kinematics import (ROBOT_YAML, Geometry, drive_angular_speed, load_robot,
+from swerve.controller.errors import ControllerError
+from swerve.controller.kinematics import (ROBOT_YAML, Geometry, drive_angular_speed, load_robot,
                                    rk4_step, state_derivative, symmetric_steering,
                                    wheel_commands)
 

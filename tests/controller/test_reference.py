@@ -3,11 +3,11 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controller.chained import chained_inputs, to_chained
-from controller.errors import ControllerError, SingularityError
-from controller.kinematics import Geometry, Limits, state_derivative
-from controller.paths import LinePath
-from controller.reference import (TRAJECTORY_DIR, build_reference, frame_schedule,
+from swerve.controller.chained import chained_inputs, to_chained
+from swerve.controller.errors import ControllerError, SingularityError
+from swerve.controller.kinematics import Geometry, Limits, state_derivative
+from swerve.controller.paths import LinePath
+from swerve.controller.reference import (TRAJECTORY_DIR, build_reference, frame_schedule,
                                   load_trajectory, sample_at)
 
 

@@ -2,10 +2,10 @@ import numpy as np
 import pytest
 from scipy.linalg import solve_discrete_are
 
-from controller.errors import ControllerError
-from controller.ltv import cost, error_system, initial_error, policy_cost_matrices
-from controller.riccati import finite_horizon_lqr
-from controller.synthesis import (BETA_METHODS, conjugate_gradient, cost_and_gradient,
+from swerve.controller.errors import ControllerError
+from swerve.controller.ltv import cost, error_system, initial_error, policy_cost_matrices
+from swerve.controller.riccati import finite_horizon_lqr
+from swerve.controller.synthesis import (BETA_METHODS, conjugate_gradient, cost_and_gradient,
                                   frozen_time_lqr_gains, initial_error_set)
 
 RNG = np.random.default_rng(44)
@@ -86,7 +86,7 @@ def test_riccati_cost_is_exact(ref_name, request):
 
 
 def test_riccati_approaches_the_stationary_lqr_on_the_line(robot):
-    from controller.reference import build_reference, load_trajectory
+    from swerve.controller.reference import build_reference, load_trajectory
 
     ref = build_reference(load_trajectory("line"), *robot)
     Ad, Bd, Q, R, tau = problem(ref)
@@ -163,8 +163,8 @@ def test_horizon_continuation_reaches_jstar(robot):
     """Cold start K = 0 with horizon continuation: within 1 % of J* on a 600-step line."""
     import dataclasses
 
-    from controller.reference import build_reference, load_trajectory
-    from controller.synthesis import conjugate_gradient_continuation
+    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.synthesis import conjugate_gradient_continuation
 
     traj = load_trajectory("line")
     traj = dataclasses.replace(traj, n_steps=600, tf_s=600 * traj.tau_s)

@@ -3,13 +3,13 @@ import dataclasses
 import numpy as np
 import pytest
 
-from controller.chained import inputs_from_chained, to_chained
-from controller.design import synthesize
-from controller.errors import ControllerError, SingularityError
-from controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
-from controller.simulate import metrics, simulate
-from controller.ltv import chained_error
-from controller.tracking import STATE_MARGIN, TrackingLaw
+from swerve.controller.chained import inputs_from_chained, to_chained
+from swerve.controller.design import synthesize
+from swerve.controller.errors import ControllerError, SingularityError
+from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.simulate import metrics, simulate
+from swerve.controller.ltv import chained_error
+from swerve.controller.tracking import STATE_MARGIN, TrackingLaw
 
 
 

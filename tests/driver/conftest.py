@@ -49,7 +49,7 @@ def emu(target):
 
 @pytest.fixture
 def bus(target):
-    from driver.bus import Bus
+    from swerve.driver.bus import Bus
 
     with Bus(target.url, target.baud, timeout_margin_s=target.margin_s) as b:
         yield b

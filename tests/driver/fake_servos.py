@@ -12,10 +12,10 @@ import select
 import threading
 import tty
 
-from driver import packets as pk
-from driver.control_table import table_for
-from driver.packets import BROADCAST_ID, FastStatus, Instruction, StatusPacket
-from driver.parser import PacketParser
+from swerve.driver import packets as pk
+from swerve.driver.control_table import table_for
+from swerve.driver.packets import BROADCAST_ID, FastStatus, Instruction, StatusPacket
+from swerve.driver.parser import PacketParser
 
 
 class FakeServos:

@@ -9,11 +9,11 @@ import time
 
 import pytest
 
-from driver.bus import Bus, PingResult
-from driver.control_table import HardwareError, Reg
-from driver.errors import (CorruptPacketError, DxlTimeoutError, OutOfRangeError, RegisterError,
+from swerve.driver.bus import Bus, PingResult
+from swerve.driver.control_table import HardwareError, Reg
+from swerve.driver.errors import (CorruptPacketError, DxlTimeoutError, OutOfRangeError, RegisterError,
                            ServoError)
-from driver.packets import ErrorNumber, Instruction
+from swerve.driver.packets import ErrorNumber, Instruction
 
 IDS = list(range(1, 9))
 

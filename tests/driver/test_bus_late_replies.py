@@ -7,9 +7,9 @@ latency timer for that reason.)
 """
 import pytest
 
-from driver.bus import Bus
-from driver.control_table import Reg
-from driver.errors import DxlTimeoutError
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.driver.errors import DxlTimeoutError
 
 
 def test_late_reply_is_drained_not_misattributed(emu):

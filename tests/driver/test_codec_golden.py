@@ -1,9 +1,9 @@
 """Golden vectors from the e-Manual (shared/reference/dynamixel-protocol2.md §1-2), both directions."""
 import pytest
 
-from driver import packets as P
-from driver.errors import ChecksumError, CorruptPacketError
-from driver.packets import FastStatus, InstructionPacket, StatusPacket
+from swerve.driver import packets as P
+from swerve.driver.errors import ChecksumError, CorruptPacketError
+from swerve.driver.packets import FastStatus, InstructionPacket, StatusPacket
 
 
 def h(s: str) -> bytes:

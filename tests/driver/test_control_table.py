@@ -3,8 +3,8 @@ import math
 
 import pytest
 
-from driver.control_table import Reg, load_table, models, table_for
-from driver.errors import ConfigError, OutOfRangeError, RegisterError
+from swerve.driver.control_table import Reg, load_table, models, table_for
+from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
 
 @pytest.mark.parametrize("name,number,gear", [("xh430-w210", 1010, 212.6), ("xh430-w350", 1000, 353.5),

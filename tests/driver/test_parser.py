@@ -1,9 +1,9 @@
 """Incremental parser: arbitrary chunking, garbage, truncation, bad CRC; hypothesis round trips."""
 from hypothesis import given, settings, strategies as st
 
-from driver import packets as P
-from driver.packets import InstructionPacket, StatusPacket
-from driver.parser import PacketParser
+from swerve.driver import packets as P
+from swerve.driver.packets import InstructionPacket, StatusPacket
+from swerve.driver.parser import PacketParser
 
 ids = st.integers(0, 252)
 payload = st.one_of(st.binary(max_size=64),

@@ -7,8 +7,8 @@ import math
 import pytest
 import yaml
 
-from driver.errors import ConfigError
-from driver.robot_config import DEFAULT_PATH, load_robot_config, parse_robot_config
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config, parse_robot_config
 
 RAW = yaml.safe_load(DEFAULT_PATH.read_text())
 

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import pytest
 
-from tools.cli import main
+from swerve.tools.cli import main
 
 
 def test_scan_lists_servos(emu, capsys):

@@ -16,7 +16,7 @@ import pytest
 
 dxl = pytest.importorskip("dynamixel_sdk")
 
-from driver import packets as pk  # noqa: E402
+from swerve.driver import packets as pk  # noqa: E402
 
 STUFFED = [0xFF, 0xFF, 0xFD, 0xFF]  # data that needs byte stuffing
 

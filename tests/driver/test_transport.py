@@ -6,9 +6,9 @@ import warnings
 
 import pytest
 
-from driver import packets as pk
-from driver.errors import TransportError
-from driver.transport import (Transport, latency_fix_command, latency_timer_ms, open_port,
+from swerve.driver import packets as pk
+from swerve.driver.errors import TransportError
+from swerve.driver.transport import (Transport, latency_fix_command, latency_timer_ms, open_port,
                               packet_timeout_s)
 
 
@@ -117,8 +117,8 @@ def test_closed_port_raises_transport_error():
 
 def test_bus_ignores_its_own_echo():
     """On loop:// the only thing that comes back is our instruction: not a reply."""
-    from driver.bus import Bus
-    from driver.errors import DxlTimeoutError
+    from swerve.driver.bus import Bus
+    from swerve.driver.errors import DxlTimeoutError
 
     with Bus("loop://", default_model="xh430-w210", timeout_margin_s=0.05) as bus:
         with pytest.raises(DxlTimeoutError) as ei:

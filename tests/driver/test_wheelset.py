@@ -9,11 +9,11 @@ import math
 
 import pytest
 
-from driver.bus import Bus
-from driver.control_table import Reg
-from driver.errors import ConfigError, DxlTimeoutError, OutOfRangeError
-from driver.robot_config import load_robot_config
-from driver.wheelset import WheelSet, WheelState
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.driver.errors import ConfigError, DxlTimeoutError, OutOfRangeError
+from swerve.driver.robot_config import load_robot_config
+from swerve.driver.wheelset import WheelSet, WheelState
 
 CFG = load_robot_config()
 VEL = 0.023980823922402087   # rad/s per Goal/Present Velocity unit

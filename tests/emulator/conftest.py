@@ -11,8 +11,8 @@ import sys
 
 import pytest
 
-from driver.control_table import table_for
-from emulator import Emulator
+from swerve.driver.control_table import table_for
+from swerve.emulator import Emulator
 
 TIMEOUT = "timeout"
 MODEL = "xh430-w210"
@@ -139,7 +139,7 @@ class DriverClient:
     name = "driver"
 
     def __init__(self, port: str, baud: int = 1_000_000):
-        from driver.bus import Bus
+        from swerve.driver.bus import Bus
 
         self.bus = Bus(port, baud, default_model=MODEL, timeout_margin_s=DRIVER_MARGIN_S)
 
@@ -147,7 +147,7 @@ class DriverClient:
         self.bus.close()
 
     def _call(self, fn, *args):
-        from driver.errors import CorruptPacketError, DxlTimeoutError, ServoError
+        from swerve.driver.errors import CorruptPacketError, DxlTimeoutError, ServoError
 
         try:
             return fn(*args), 0
@@ -175,7 +175,7 @@ class DriverClient:
         return self._err(self.bus.write_bytes, id_, address, bytes(data))
 
     def reg_write(self, id_, address, data):
-        from driver import packets as pk
+        from swerve.driver import packets as pk
 
         return self._err(self.bus._with_retries, self.bus._simple, pk.reg_write(id_, address, bytes(data)))
 

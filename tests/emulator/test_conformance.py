@@ -10,8 +10,8 @@ import time
 
 import pytest
 
-from driver.control_table import HardwareError, Reg
-from driver.packets import ErrorNumber
+from swerve.driver.control_table import HardwareError, Reg
+from swerve.driver.packets import ErrorNumber
 
 from .conftest import TABLE, TIMEOUT
 
@@ -346,7 +346,7 @@ def test_swerve_scan_finds_all_eight(emulator):
     import sys
     from pathlib import Path
 
-    proc = subprocess.run([sys.executable, "-m", "tools.cli", "scan", "--port", emulator.port,
+    proc = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "scan", "--port", emulator.port,
                            "--ids", "0-20", "--timeout-margin-ms", "100"],
                           cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True,
                           timeout=120)

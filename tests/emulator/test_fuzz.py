@@ -11,9 +11,9 @@ import time
 
 import serial
 
-from driver import packets as pk
-from driver.control_table import Reg
-from emulator import Emulator
+from swerve.driver import packets as pk
+from swerve.driver.control_table import Reg
+from swerve.emulator import Emulator
 
 STREAMS = 2000
 SEED = 20261122

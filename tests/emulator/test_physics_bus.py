@@ -13,12 +13,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from driver.bus import Bus
-from driver.control_table import Reg
-from emulator.physics import units as u
-from emulator.physics.params import load_config
-from emulator.physics.steptest import StepMetrics, step_metrics
-from emulator.robot_emulator import _INPUTS, robot_emulator
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.steptest import StepMetrics, step_metrics
+from swerve.emulator.robot_emulator import _INPUTS, robot_emulator
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine

@@ -3,9 +3,9 @@ import time
 
 import pytest
 
-from driver.bus import Bus
-from driver.errors import ConfigError, DxlTimeoutError
-from emulator.process import EmulatorProcess
+from swerve.driver.bus import Bus
+from swerve.driver.errors import ConfigError, DxlTimeoutError
+from swerve.emulator.process import EmulatorProcess
 
 
 def test_child_emulator_serves_the_bus_and_shares_the_pose():
@@ -40,7 +40,7 @@ def test_bad_config_is_reported_from_the_child(tmp_path):
 def test_emulator_process_freezes_its_start_up_heap():
     import gc
 
-    from emulator.server import freeze_startup_heap
+    from swerve.emulator.server import freeze_startup_heap
 
     try:
         freeze_startup_heap()

@@ -9,12 +9,12 @@ import subprocess
 import sys
 from pathlib import Path
 
-from driver.bus import Bus
-from driver.robot_config import load_robot_config
-from driver.wheelset import WheelSet
+from swerve.driver.bus import Bus
+from swerve.driver.robot_config import load_robot_config
+from swerve.driver.wheelset import WheelSet
 
 ROOT = Path(__file__).resolve().parents[2]
-CLI = [sys.executable, "-m", "tools.cli", "emulate"]
+CLI = [sys.executable, "-m", "swerve.tools.cli", "emulate"]
 
 
 def test_emulate_physics_publishes_the_true_pose_beside_the_bus(tmp_path):

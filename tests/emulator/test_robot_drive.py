@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from driver.bus import Bus
-from driver.control_table import Reg
-from driver.errors import ConfigError
-from driver.robot_config import load_robot_config
-from driver.wheelset import WheelSet
-from emulator.physics.params import SensorParams
-from emulator.robot_emulator import _HandOverLock, parse_noise, read_status, robot_emulator, true_pose
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import load_robot_config
+from swerve.driver.wheelset import WheelSet
+from swerve.emulator.physics.params import SensorParams
+from swerve.emulator.robot_emulator import _HandOverLock, parse_noise, read_status, robot_emulator, true_pose
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine

@@ -6,13 +6,13 @@ import time
 
 import pytest
 
-from driver import packets as pk
-from driver.control_table import Reg, table_for
-from driver.errors import ConfigError
-from driver.packets import ErrorNumber
-from emulator import Emulator, Faults
-from emulator.memory import ServoMemory, WriteRejected
-from emulator.servo import VirtualServo
+from swerve.driver import packets as pk
+from swerve.driver.control_table import Reg, table_for
+from swerve.driver.errors import ConfigError
+from swerve.driver.packets import ErrorNumber
+from swerve.emulator import Emulator, Faults
+from swerve.emulator.memory import ServoMemory, WriteRejected
+from swerve.emulator.servo import VirtualServo
 
 TABLE = table_for("xh430-w210")
 

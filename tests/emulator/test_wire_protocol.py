@@ -6,11 +6,11 @@ import time
 import pytest
 import serial
 
-from driver import packets as pk
-from driver.control_table import HardwareError, Reg
-from driver.packets import ErrorNumber
-from driver.parser import PacketParser
-from emulator import Emulator
+from swerve.driver import packets as pk
+from swerve.driver.control_table import HardwareError, Reg
+from swerve.driver.packets import ErrorNumber
+from swerve.driver.parser import PacketParser
+from swerve.emulator import Emulator
 
 QUIET_S = 0.15      # how long "no reply" is listened for
 

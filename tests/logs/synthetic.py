@@ -10,7 +10,7 @@ import time
 
 import numpy as np
 
-from tools.logs import CycleFlag, CycleRecord, RunLogWriter
+from swerve.tools.logs import CycleFlag, CycleRecord, RunLogWriter
 
 TAU_S = 0.016
 META = {"trajectory": "circle", "gains_file": "gains/circle.npz", "time_scale": 1.0,

@@ -3,7 +3,7 @@ import numpy as np
 from mcap.reader import make_reader
 from rosbags.highlevel import AnyReader
 
-from tools.logs.bag import TOPICS
+from swerve.tools.logs.bag import TOPICS
 
 
 def test_independent_mcap_reader_sees_summary_and_standard_schemas(run_bag):

@@ -8,8 +8,8 @@ from pathlib import Path
 import pytest
 from rosbags.highlevel import AnyReader
 
-from tools.cli import main
-from tools.logs import read_log, repair_log
+from swerve.tools.cli import main
+from swerve.tools.logs import read_log, repair_log
 
 SCRIPT = Path(__file__).with_name("synthetic.py")
 

@@ -4,9 +4,9 @@ import csv
 import numpy as np
 import pytest
 
-from tools.cli import main
-from tools.logs import CycleRecord, RunLogWriter, export_csv, plot_run, read_log
-from tools.logs.record import CYCLE_SIZE
+from swerve.tools.cli import main
+from swerve.tools.logs import CycleRecord, RunLogWriter, export_csv, plot_run, read_log
+from swerve.tools.logs.record import CYCLE_SIZE
 
 
 def test_csv_has_one_row_per_cycle_and_units(run_bag, run_records, tmp_path):

@@ -2,8 +2,8 @@
 import numpy as np
 import pytest
 
-from tools.logs import CYCLE_FIELDS, CycleRecord, RunLogWriter, read_log
-from tools.logs.record import CYCLE_SIZE, pack, unpack
+from swerve.tools.logs import CYCLE_FIELDS, CycleRecord, RunLogWriter, read_log
+from swerve.tools.logs.record import CYCLE_SIZE, pack, unpack
 import synthetic
 
 
@@ -54,7 +54,7 @@ def test_wrong_shape_is_refused():
 
 
 def test_existing_path_is_not_overwritten(run_bag):
-    from driver.errors import ConfigError
+    from swerve.driver.errors import ConfigError
 
     with pytest.raises(ConfigError, match="exists already"):
         RunLogWriter(run_bag, {})

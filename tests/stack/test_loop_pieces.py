@@ -2,9 +2,9 @@
 import numpy as np
 import pytest
 
-from controller.kinematics import Geometry, rk4_step
-from controller.loop_timer import Ticker
-from controller.odometry import Odometry, model_inputs
+from swerve.controller.kinematics import Geometry, rk4_step
+from swerve.controller.loop_timer import Ticker
+from swerve.controller.odometry import Odometry, model_inputs
 
 
 class FakeClock:
@@ -110,9 +110,9 @@ def test_odometry_equals_its_algorithm_written_with_numpy():
 
 def test_cycle_dict_is_a_cycle_record():
     """The loop's on_cycle dict: CycleRecord fields, float64 arrays, NaN while unmeasured."""
-    from controller.online import TrackingLoop
-    from driver.wheelset import WheelState
-    from tools.logs import CycleRecord
+    from swerve.controller.online import TrackingLoop
+    from swerve.driver.wheelset import WheelState
+    from swerve.tools.logs import CycleRecord
 
     meas = WheelState(1.0, (1.0, 2.0, 3.0, 4.0), (0.0,) * 4, (0.1, 0.2, 0.3, 0.4), (0.0,) * 4,
                       (0.5, 0.6, 0.7, 0.8), (-0.5, -0.6, -0.7, -0.8))
@@ -136,7 +136,7 @@ def test_cycle_dict_is_a_cycle_record():
 def test_collector_is_paused_inside_a_timed_loop_and_restored_after():
     import gc
 
-    from controller.loop_timer import collector_paused
+    from swerve.controller.loop_timer import collector_paused
 
     assert gc.isenabled()
     with collector_paused():

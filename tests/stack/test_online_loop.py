@@ -4,14 +4,14 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from controller.kinematics import Geometry, Limits, rk4_step
-from controller.ltv import error_system
-from controller.gains_io import GainSchedule
-from controller.online import LoopAbort, TrackingLoop
-from controller.reference import build_reference, load_trajectory
-from controller.riccati import finite_horizon_lqr
-from controller.tracking import TrackingLaw
-from driver.errors import DxlTimeoutError, ServoError
+from swerve.controller.kinematics import Geometry, Limits, rk4_step
+from swerve.controller.ltv import error_system
+from swerve.controller.gains_io import GainSchedule
+from swerve.controller.online import LoopAbort, TrackingLoop
+from swerve.controller.reference import build_reference, load_trajectory
+from swerve.controller.riccati import finite_horizon_lqr
+from swerve.controller.tracking import TrackingLaw
+from swerve.driver.errors import DxlTimeoutError, ServoError
 
 
 class FakeClock:

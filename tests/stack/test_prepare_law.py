@@ -1,10 +1,10 @@
 """Loading a gain schedule for a run: the reference is rebuilt in the schedule's own frames."""
-from controller.design import synthesize
-from controller.gains_io import save_gains
-from controller.reference import load_trajectory
-from driver.robot_config import load_robot_config
-from controller.kinematics import from_robot_config
-from tools.robot_run import prepare_law
+from swerve.controller.design import synthesize
+from swerve.controller.gains_io import save_gains
+from swerve.controller.reference import load_trajectory
+from swerve.driver.robot_config import load_robot_config
+from swerve.controller.kinematics import from_robot_config
+from swerve.tools.robot_run import prepare_law
 
 
 def test_gains_for_the_plain_law_load_with_fixed_frames(tmp_path):

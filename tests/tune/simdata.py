@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from emulator.physics import units as u
-from emulator.physics.params import MotorParams, SensorParams
-from emulator.physics.servo_model import ServoModel
-from emulator.physics.steptest import table
-from tools.tune.identify import PwmRecord
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import MotorParams, SensorParams
+from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.steptest import table
+from swerve.tools.tune.identify import PwmRecord
 
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
 

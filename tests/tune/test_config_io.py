@@ -4,9 +4,9 @@ from pathlib import Path
 
 import pytest
 
-from driver.errors import ConfigError
-from driver.robot_config import load_robot_config
-from tools.tune.config_io import update_gains_text, write_gains
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import load_robot_config
+from swerve.tools.tune.config_io import update_gains_text, write_gains
 
 ROBOT = Path("configs/robot.yaml")
 

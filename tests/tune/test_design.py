@@ -4,8 +4,8 @@ import math
 import numpy as np
 import pytest
 
-from emulator.physics.params import load_config
-from tools.tune.design import (DesignError, Plant, Spec, design_position, design_velocity,
+from swerve.emulator.physics.params import load_config
+from swerve.tools.tune.design import (DesignError, Plant, Spec, design_position, design_velocity,
                                predict_velocity)
 
 

@@ -8,15 +8,15 @@ from pathlib import Path
 import pytest
 import yaml
 
-from driver.bus import Bus
-from driver.control_table import Reg
-from driver.robot_config import load_robot_config
-from emulator.physics.params import load_config
-from tools import cli
-from tools.tune.design import DesignError, Spec
-from tools.tune.emulated import make_emulator
-from tools.tune.experiments import Limits, NotMovingError, StallError
-from tools.tune.pipeline import tune_servo
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.physics.params import load_config
+from swerve.tools import cli
+from swerve.tools.tune.design import DesignError, Spec
+from swerve.tools.tune.emulated import make_emulator
+from swerve.tools.tune.experiments import Limits, NotMovingError, StallError
+from swerve.tools.tune.pipeline import tune_servo
 
 pytestmark = pytest.mark.slow
 ROBOT, EMULATOR = Path("configs/robot.yaml"), Path("configs/emulator.yaml")
@@ -121,7 +121,7 @@ def test_range_limit_stops_the_experiment(rc):
 
 
 def test_gains_failing_verification_are_not_kept(rc, monkeypatch):
-    import tools.tune.pipeline as pipeline
+    import swerve.tools.tune.pipeline as pipeline
 
     monkeypatch.setattr(pipeline, "check_spec", lambda *a, **k: (False, ["forced failure"]))
     cfg = load_config(EMULATOR)

@@ -4,9 +4,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from emulator.physics import units as u
-from emulator.physics.params import MotorParams, load_config
-from tools.tune.identify import FITTED, identify, simulate_open_loop
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import MotorParams, load_config
+from swerve.tools.tune.identify import FITTED, identify, simulate_open_loop
 
 from .simdata import PLAN, pwm_record
 
@@ -46,7 +46,7 @@ def test_thirty_percent_more_inertia_is_seen(table1):
 
 
 def test_exact_solution_matches_the_emulator_motor_without_noise(table1):
-    from emulator.physics.params import SensorParams
+    from swerve.emulator.physics.params import SensorParams
     p = table1.drive_motor
     rec = pwm_record(p, GEAR, PLAN, sensors=SensorParams(), dt_s=5e-5)
     sim = simulate_open_loop(p, GEAR, rec.t_s, rec.switch_t_s, rec.voltage_v)

@@ -28,16 +28,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from controller.design import synthesize
-    from controller.gains_io import save_gains
-    from controller.reference import load_trajectory
-    from controller.simulate import metrics, simulate
-    from controller.tracking import TrackingLaw
-    from driver.robot_config import load_robot_config
-    from tools.logs.bag import read_log
-    from tools.logs.plots import plot_run
-    from controller.kinematics import from_robot_config
-    from tools.robot_run import RunRequest, run_tracking
+    from swerve.controller.design import synthesize
+    from swerve.controller.gains_io import save_gains
+    from swerve.controller.reference import load_trajectory
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.tools.logs.bag import read_log
+    from swerve.tools.logs.plots import plot_run
+    from swerve.controller.kinematics import from_robot_config
+    from swerve.tools.robot_run import RunRequest, run_tracking
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

@@ -10,7 +10,7 @@ import signal
 import sys
 import threading
 
-from driver.errors import ConfigError
+from swerve.driver.errors import ConfigError
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N)"
@@ -67,8 +67,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from emulator import Emulator
-    from emulator.server import freeze_startup_heap
+    from swerve.emulator import Emulator
+    from swerve.emulator.server import freeze_startup_heap
 
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
@@ -79,8 +79,8 @@ def run(args: argparse.Namespace) -> int:
         if args.physics:
             if ids is not None or args.model is not None:
                 raise ConfigError("with --physics the IDs and model come from --config")
-            from driver.control_table import CONFIG_DIR
-            from emulator.robot_emulator import robot_emulator
+            from swerve.driver.control_table import CONFIG_DIR
+            from swerve.emulator.robot_emulator import robot_emulator
 
             emu = robot_emulator(args.config or CONFIG_DIR / "robot.yaml",
                                  args.emulator_config or CONFIG_DIR / "emulator.yaml",

@@ -16,7 +16,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.logs import export_csv, read_log
+    from swerve.tools.logs import export_csv, read_log
 
     log = read_log(args.log)
     if log.recovery_note:

@@ -41,10 +41,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from tools.robot_run import RunRequest, run_tracking
+    from swerve.tools.robot_run import RunRequest, run_tracking
 
     if not args.time_scale > 0:
-        from driver.errors import ConfigError
+        from swerve.driver.errors import ConfigError
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     log = None if args.no_log else (
         Path(args.log) if args.log else

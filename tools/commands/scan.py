@@ -32,9 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from driver.bus import Bus
-    from driver.errors import DxlError
-    from driver.transport import STANDARD_BAUDS
+    from swerve.driver.bus import Bus
+    from swerve.driver.errors import DxlError
+    from swerve.driver.transport import STANDARD_BAUDS
 
     bauds = STANDARD_BAUDS if args.all_bauds else (args.baud,)
     total = 0

@@ -28,7 +28,7 @@ def add_arguments(parser) -> None:
 def _parse_x0(text: str):
     import numpy as np
 
-    from controller.errors import ControllerError
+    from swerve.controller.errors import ControllerError
 
     try:
         vals = [float(v) for v in text.split(",")]
@@ -46,13 +46,13 @@ def run(args) -> int:
 
     import numpy as np
 
-    from controller.design import synthesize
-    from controller.errors import ControllerError
-    from controller.gains_io import load_gains
-    from controller.kinematics import ROBOT_YAML, load_robot
-    from controller.reference import build_reference, load_trajectory
-    from controller.simulate import metrics, simulate
-    from controller.tracking import TrackingLaw
+    from swerve.controller.design import synthesize
+    from swerve.controller.errors import ControllerError
+    from swerve.controller.gains_io import load_gains
+    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
 
     geom, limits = load_robot(args.robot or ROBOT_YAML)
     traj = load_trajectory(args.trajectory, geom)
@@ -75,7 +75,7 @@ def run(args) -> int:
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
                x0=x0.tolist(), synthesis_cost=gains.cost, **m)
     if args.plot:
-        from controller.plots import plot_run
+        from swerve.controller.plots import plot_run
 
         out["figures"] = [str(p) for p in plot_run(res, ref, gains, args.plot, traj.name)]
     if args.json:

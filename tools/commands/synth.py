@@ -44,11 +44,11 @@ def run(args) -> int:
     import sys
     from pathlib import Path
 
-    from controller.design import synthesize
-    from controller.errors import ControllerError
-    from controller.gains_io import save_gains
-    from controller.kinematics import ROBOT_YAML, load_robot
-    from controller.reference import load_trajectory
+    from swerve.controller.design import synthesize
+    from swerve.controller.errors import ControllerError
+    from swerve.controller.gains_io import save_gains
+    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.controller.reference import load_trajectory
 
     geom, limits = load_robot(args.robot or ROBOT_YAML)
     traj = load_trajectory(args.trajectory, geom)

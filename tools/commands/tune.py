@@ -56,16 +56,16 @@ def run(args: argparse.Namespace) -> int:
 
     from tqdm import tqdm
 
-    from driver.bus import Bus
-    from driver.control_table import Reg
-    from driver.errors import ConfigError, DxlTimeoutError, SwerveError
-    from driver.robot_config import load_robot_config
-    from emulator.physics.params import load_config
-    from tools.tune.config_io import write_gains
-    from tools.tune.design import Spec
-    from tools.tune.experiments import Limits
-    from tools.tune.pipeline import tune_servo
-    from tools.tune.report import write_report
+    from swerve.driver.bus import Bus
+    from swerve.driver.control_table import Reg
+    from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.emulator.physics.params import load_config
+    from swerve.tools.tune.config_io import write_gains
+    from swerve.tools.tune.design import Spec
+    from swerve.tools.tune.experiments import Limits
+    from swerve.tools.tune.pipeline import tune_servo
+    from swerve.tools.tune.report import write_report
 
     rc = load_robot_config(args.robot_config)
     prior_cfg = load_config(args.prior)
@@ -92,10 +92,10 @@ def run(args: argparse.Namespace) -> int:
 
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from tools.tune.emulated import NOISE, make_emulator
+            from swerve.tools.tune.emulated import NOISE, make_emulator
 
             if args.emulator == "robot":
-                from emulator.robot_emulator import robot_emulator
+                from swerve.emulator.robot_emulator import robot_emulator
 
                 noise = (f"position={NOISE.position_noise_std_pulse},current={NOISE.current_noise_std_a}"
                          + (f",seed={args.seed}" if args.seed is not None else "")) if args.noise else None

@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from driver.errors import ConfigError
+from swerve.driver.errors import ConfigError
 
 from .record import CYCLE_FIELDS, CYCLE_SIZE, LAYOUT_VERSION, CycleRecord, pack, unpack
 

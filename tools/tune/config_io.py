@@ -13,8 +13,8 @@ from pathlib import Path
 
 import yaml
 
-from driver.errors import ConfigError
-from driver.robot_config import parse_robot_config
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import parse_robot_config
 
 _GAINS = re.compile(r"^(?P<indent>[ \t]+)gains:[ \t]*\{(?P<body>[^}]*)\}(?P<tail>.*)$")
 

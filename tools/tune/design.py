@@ -18,11 +18,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import brentq
 
-from driver.errors import SwerveError
-from emulator.physics import units as u
-from emulator.physics.params import FirmwareParams, MotorParams
-from emulator.physics.servo_model import ServoModel
-from emulator.physics.steptest import StepMetrics, simulate, step_metrics, table, velocity_step
+from swerve.driver.errors import SwerveError
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import FirmwareParams, MotorParams
+from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.steptest import StepMetrics, simulate, step_metrics, table, velocity_step
 
 VELOCITY_P_GRID = (50, 100, 150, 200, 300, 400, 600, 800)
 GAIN_MAX = 16383

@@ -12,11 +12,11 @@ from typing import Callable
 
 import numpy as np
 
-from driver.robot_config import RobotConfig
-from emulator import Emulator
-from emulator.physics import units as u
-from emulator.physics.params import PhysicsConfig, SensorParams
-from emulator.physics.servo_model import ServoModel
+from swerve.driver.robot_config import RobotConfig
+from swerve.emulator import Emulator
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import PhysicsConfig, SensorParams
+from swerve.emulator.physics.servo_model import ServoModel
 
 #: ``--noise``: encoder noise before quantisation (pulse) and current-sensor noise (A), std.
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)

@@ -22,10 +22,10 @@ from typing import Callable
 
 import numpy as np
 
-from driver.control_table import OperatingMode, Reg
-from driver.errors import DxlError, SwerveError
-from emulator.physics.params import MotorParams
-from tools.tune.identify import PwmRecord
+from swerve.driver.control_table import OperatingMode, Reg
+from swerve.driver.errors import DxlError, SwerveError
+from swerve.emulator.physics.params import MotorParams
+from swerve.tools.tune.identify import PwmRecord
 
 STATE_FIRST, STATE_LAST = Reg.REALTIME_TICK, Reg.PRESENT_INPUT_VOLTAGE
 TICK_WRAP_MS = 32768

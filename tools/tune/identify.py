@@ -28,8 +28,8 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 from scipy.optimize import least_squares
 
-from emulator.physics.motor import state_space
-from emulator.physics.params import MotorParams
+from swerve.emulator.physics.motor import state_space
+from swerve.emulator.physics.params import MotorParams
 
 FITTED = ("resistance_ohm", "back_emf_v_s_per_rad", "inertia_kg_m2", "friction_nm_s_per_rad")
 FIXED_REASONS = {

@@ -10,13 +10,13 @@ from typing import Callable
 
 import numpy as np
 
-from driver.control_table import Reg
-from emulator.physics.params import FirmwareParams, MotorParams
-from emulator.physics.steptest import StepMetrics, step_metrics
-from tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
-from tools.tune.design import predict_position, predict_velocity
-from tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
-from tools.tune.identify import Identification, PwmRecord, identify
+from swerve.driver.control_table import Reg
+from swerve.emulator.physics.params import FirmwareParams, MotorParams
+from swerve.emulator.physics.steptest import StepMetrics, step_metrics
+from swerve.tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
+from swerve.tools.tune.design import predict_position, predict_velocity
+from swerve.tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
+from swerve.tools.tune.identify import Identification, PwmRecord, identify
 
 BRAKE_S = 0.08                 # PWM 0 (motor short-circuited) between the driven steps
 STEP_S_MAX = 0.2

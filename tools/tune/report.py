@@ -19,8 +19,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-from tools.tune.identify import simulate_open_loop  # noqa: E402
-from tools.tune.pipeline import TuneResult  # noqa: E402
+from swerve.tools.tune.identify import simulate_open_loop  # noqa: E402
+from swerve.tools.tune.pipeline import TuneResult  # noqa: E402
 
 
 def _clean(x):

@@ -5,9 +5,9 @@ from pathlib import Path
 
 import pytest
 
-from emulator.physics.params import load_config
-from emulator.physics.robot import load_robot_geometry
-from emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.robot import load_robot_geometry
+from swerve.emulator.physics.servo_model import ServoModel
 
 ROOT = Path(__file__).resolve().parents[3]
 

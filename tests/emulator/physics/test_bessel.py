@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 from scipy import signal
 
-from emulator.physics.bessel import BesselFilter, bessel_coefficients
+from swerve.emulator.physics.bessel import BesselFilter, bessel_coefficients
 
 DT = 1.0 / 2000          # physics step, s (2 kHz)
 

@@ -6,7 +6,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from emulator.physics.body import RobotBody, contact_matrix, paper_model_rates, wheel_velocities
+from swerve.emulator.physics.body import RobotBody, contact_matrix, paper_model_rates, wheel_velocities
 
 A = B = 0.1125
 CORNERS = [(A, B), (-A, B), (-A, -B), (A, -B)]     # robot.yaml order: FL, RL, RR, FR

@@ -3,9 +3,9 @@ import math
 
 import pytest
 
-from emulator.physics import units as u
-from emulator.physics.firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
-from emulator.physics.servo_model import PULSE_PER_S2_PER_ACC_UNIT, PULSE_PER_S_PER_VEL_UNIT
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
+from swerve.emulator.physics.servo_model import PULSE_PER_S2_PER_ACC_UNIT, PULSE_PER_S_PER_VEL_UNIT
 
 DT = 1.0 / 2000          # physics step, s (2 kHz)
 

@@ -5,8 +5,8 @@ from pathlib import Path
 import pytest
 import yaml
 
-from driver.errors import ConfigError
-from emulator.physics.params import load_config, parse_config
+from swerve.driver.errors import ConfigError
+from swerve.emulator.physics.params import load_config, parse_config
 
 ROOT = Path(__file__).resolve().parents[3]
 DOC = yaml.safe_load((ROOT / "configs" / "emulator.yaml").read_text())

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 import yaml
 
-from emulator.physics import units as u
-from emulator.physics.robot import BodyWorld, RobotPhysics, load_robot_geometry
-from emulator.physics.steptest import table
-from driver.errors import ConfigError
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.robot import BodyWorld, RobotPhysics, load_robot_geometry
+from swerve.emulator.physics.steptest import table
+from swerve.driver.errors import ConfigError
 
 DT = 1.0 / 2000
 ROOT = Path(__file__).resolve().parents[3]

@@ -4,8 +4,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from emulator.physics import units as u
-from emulator.physics.steptest import position_step, simulate, table, velocity_step
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.steptest import position_step, simulate, table, velocity_step
 
 DT = 1.0 / 2000          # physics step, s (2 kHz)
 
@@ -217,7 +217,7 @@ def test_clear_multi_turn_and_reboot_rewrap_present_position(steer):
 
 def test_prepare_leaves_no_discretisation_for_the_first_steps(drive):
     """After prepare(dt) neither torque-on nor coasting steps compute a matrix exponential."""
-    from emulator.physics import motor
+    from swerve.emulator.physics import motor
 
     m = drive()
     m.external_load(0.0, 1.234e-3)                    # an inertia no other test uses
