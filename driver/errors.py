@@ -17,13 +17,10 @@ instead of showing a traceback. Errors carry their facts as fields::
 """
 from __future__ import annotations
 
+from swerve.configs.errors import ConfigError, SwerveError
 
-class SwerveError(Exception):
-    """Base of every error the project raises on purpose."""
-
-
-class ConfigError(SwerveError, ValueError):
-    """A configuration, data or trajectory file (or argument) is malformed."""
+__all__ = ["SwerveError", "ConfigError", "DxlError", "TransportError", "DxlTimeoutError",
+           "CorruptPacketError", "ChecksumError", "ServoError", "RegisterError", "OutOfRangeError"]
 
 
 class DxlError(SwerveError):
