@@ -19,7 +19,7 @@ from benchutil import cpu_model
 
 
 def main() -> None:
-    from swerve.tools.robot_run import RunRequest, run_tracking
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scales", default="1,2,3,4,5,6,8,10")
