@@ -150,3 +150,14 @@ def test_collector_is_paused_inside_a_timed_loop_and_restored_after():
     finally:
         gc.enable()
 
+
+
+def test_wall_clock_sleeps_until_its_deadline_and_is_a_clock():
+    from swerve.tools.run.ticker import Ticker, WallClock
+
+    clock = WallClock()
+    assert isinstance(Ticker(0.016).clock, WallClock)   # the default clock
+    t = clock.now() + 0.002
+    clock.sleep_until(t)
+    assert clock.now() >= t
+    clock.sleep_until(t - 1.0)                      # a deadline already past returns at once
