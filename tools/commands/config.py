@@ -34,7 +34,8 @@ def run(args: argparse.Namespace) -> int:
     target = Path(args.dir).expanduser() if args.dir else user_robot_file().parent
     existing = [target / name for name in FILES if (target / name).exists()]
     if existing:
-        raise ConfigError(f"{', '.join(map(str, existing))} already exist(s); not overwriting "
+        raise ConfigError(f"{' and '.join(map(str, existing))} already "
+                          f"exist{'s' if len(existing) == 1 else ''}; not overwriting "
                           "(move it away or choose another DIR)")
     try:
         target.mkdir(parents=True, exist_ok=True)
