@@ -55,8 +55,7 @@ def test_parser_resyncs_after_bad_crc_and_truncation():
     truncated = StatusPacket(4, 0, b"\x07" * 30).encode()[:12]  # claims more bytes than follow
     parser = PacketParser()
     out = parser.feed(b"\x00\xff\x12" + bytes(bad) + good1.encode() + truncated + good2.encode())
-    assert out == [good1]           # good2 is inside the truncated frame's claimed length
-    out += parser.flush()           # the line went idle: abandon the truncated header
+    # good2's header inside the truncated frame's claimed body ends that frame at once
     assert out == [good1, good2]
     errs = parser.take_errors()
     assert any("CRC" in str(e) for e in errs)
@@ -80,7 +79,8 @@ def test_parser_keeps_split_header():
 def test_flush_leaves_nothing_pending():
     parser = PacketParser()
     good = P.ping(3)
-    assert parser.feed(b"\xff\xff\xfd\x00\x01\x20\x00" + good.encode() + b"\xff\xff") == []
-    assert parser.flush() == [good]
+    assert parser.feed(b"\xff\xff\xfd\x00\x01\x20\x00" + good.encode() + b"\xff\xff") == [good]
+    assert parser.feed(b"\xfd\x00\x01\x20\x00\x03\x01") == []    # a frame cut short
+    assert parser.flush() == []
     assert parser.pending == 0
     assert parser.feed(P.ping(4).encode()) == [P.ping(4)]
