@@ -104,6 +104,7 @@ class Bus:
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
         self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
+        self._spans: dict[tuple, tuple[ControlTable, int, int]] = {}   # sync read plans
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -133,6 +134,7 @@ class Bus:
     def set_model(self, id_: int, model: str | int | ControlTable) -> None:
         """Declare the model of servo ``id_`` (name, number or table) so no Ping is needed."""
         self._tables[id_] = model if isinstance(model, ControlTable) else table_for(model)
+        self._spans.clear()
 
     def register(self, id_: int, reg: RegLike) -> Register:
         """The :class:`Register` named ``reg`` for servo ``id_`` (RegisterError if unknown)."""
@@ -141,6 +143,7 @@ class Bus:
     def _learn(self, res: PingResult) -> None:
         try:
             self._tables[res.id] = table_for(res.model_number)
+            self._spans.clear()
         except ConfigError:
             pass
 
@@ -378,6 +381,7 @@ class Bus:
         """Factory Reset (``option``: ResetOption; default keeps ID and baud rate)."""
         self._with_retries(self._simple, pk.factory_reset(id_, option), retry=False)
         self._tables.pop(id_, None)
+        self._spans.clear()
 
     def clear(self, id_: int) -> None:
         """Clear multi-turn position (only when stopped, else ServoError Result Fail)."""
@@ -412,8 +416,15 @@ class Bus:
         Returns ``{id: {register name: raw}}`` for every register fully inside the span.
         """
         ids = list(ids)
-        t = self._group_table(ids)
-        address, length = t.span(first, last if last is not None else first)
+        key = (tuple(ids), first, last)
+        plan = self._spans.get(key)
+        if plan is None:
+            t = self._group_table(ids)
+            plan = (t, *t.span(first, last if last is not None else first))
+            if len(self._spans) >= _REQUEST_CACHE_SIZE:
+                self._spans.clear()
+            self._spans[key] = plan
+        t, address, length = plan
 
         def once():
             return self._sync_read_once(ids, address, length, fast)
