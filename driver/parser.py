@@ -15,6 +15,7 @@ than a bounded number of times; :attr:`PacketParser.scanned_bytes` counts the wo
 """
 from __future__ import annotations
 
+from collections import deque
 from typing import Sequence
 
 from swerve.driver.errors import CorruptPacketError
@@ -23,6 +24,8 @@ from swerve.driver.protocol import BROADCAST_ID, HEADER, MAX_ID, MAX_LENGTH, PRE
 
 _STATUS = int(Instruction.STATUS)
 _CRC_BYTES = 2
+#: Rejection reasons kept between :meth:`PacketParser.take_errors` calls (all are counted).
+MAX_KEPT_ERRORS = 64
 
 
 class PacketParser:
@@ -30,7 +33,7 @@ class PacketParser:
 
     ``feed(data)`` returns the packets completed by ``data``. Frames that fail their CRC or
     cannot be decoded are dropped; the reason is kept in :attr:`errors` (drain with
-    :meth:`take_errors`) and counted, and parsing resumes *inside* the bad frame, so a good
+    :meth:`take_errors`; the latest :data:`MAX_KEPT_ERRORS`) and counted, and parsing resumes *inside* the bad frame, so a good
     packet that a truncated one swallowed is still found.
 
     A combined Fast Sync/Bulk Read reply (status, ID 0xFE) is not byte-stuffed, so it can
@@ -41,7 +44,7 @@ class PacketParser:
     def __init__(self, max_length: int = MAX_LENGTH):
         self._buf = bytearray()
         self.max_length = max_length
-        self.errors: list[CorruptPacketError] = []
+        self.errors: deque[CorruptPacketError] = deque(maxlen=MAX_KEPT_ERRORS)
         self.dropped_bytes = 0
         self.bad_frames = 0
         #: Bytes examined by header searches and CRC checks since creation (a work counter).
@@ -69,7 +72,8 @@ class PacketParser:
 
     def take_errors(self) -> list[CorruptPacketError]:
         """Return and clear the errors seen since the last call."""
-        errs, self.errors = self.errors, []
+        errs = list(self.errors)
+        self.errors.clear()
         return errs
 
     def feed(self, data: bytes) -> list[Packet | FastStatus]:

@@ -153,6 +153,26 @@ def test_missing_servo_times_out_naming_it(bus, emu):
     assert bus.read(4, Reg.ID) == 4
 
 
+def test_vanished_servo_is_named_first_and_the_rest_cut_off(bus, emu):
+    bus.sync_read(IDS, Reg.PRESENT_POSITION)   # learn the models (no Ping in the failing read)
+    emu.faults.vanish(3)
+    with pytest.raises(DxlTimeoutError) as ei:
+        bus.sync_read(IDS, Reg.PRESENT_POSITION)
+    err = ei.value
+    assert err.ids == (3, 4, 5, 6, 7, 8)       # every ID that did not answer
+    assert err.first_missing == 3 and err.cut_off
+    assert str(err).startswith("servo ID 3 stopped answering")
+    assert "ID 4, 5, 6, 7, 8 queued behind it" in str(err) and "cut off" in str(err)
+
+
+def test_silent_servo_in_a_single_read_is_not_a_chain(bus, emu):
+    bus.ping(2)
+    emu.faults.vanish(2)
+    with pytest.raises(DxlTimeoutError, match=r"^no reply from servo ID 2 to READ") as ei:
+        bus.read(2, Reg.PRESENT_POSITION)
+    assert ei.value.first_missing == 2 and not ei.value.cut_off
+
+
 def test_hardware_alert_attaches_decoded_bits(bus, emu):
     emu.faults.raise_hardware_error(2, HardwareError.OVERLOAD | HardwareError.OVERHEATING)
     with pytest.raises(ServoError) as ei:

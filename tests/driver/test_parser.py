@@ -1,4 +1,5 @@
 """Incremental parser: arbitrary chunking, garbage, truncation, bad CRC; hypothesis round trips."""
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from swerve.driver import packets as P
@@ -84,3 +85,74 @@ def test_flush_leaves_nothing_pending():
     assert parser.flush() == []
     assert parser.pending == 0
     assert parser.feed(P.ping(4).encode()) == [P.ping(4)]
+
+
+# --- hostile input: the work must stay linear in the bytes fed ---------------------------------
+
+MIB = 1 << 20
+#: Header whose LENGTH (0x0FA0) exceeds any packet a servo buffers.
+BOMB_HUGE = b"\xff\xff\xfd\x00\x01\xa0\x0f"
+#: Header whose LENGTH (1008) is legal: only the next header inside its body exposes it.
+BOMB_LEGAL = b"\xff\xff\xfd\x00\x01\xf0\x03"
+#: A scan/CRC budget per byte fed: header searches plus one checksum pass, with slack.
+WORK_PER_BYTE = 3
+
+
+def _feed_chunks(parser, data, chunk=4096):
+    out = []
+    for i in range(0, len(data), chunk):
+        out += parser.feed(data[i:i + chunk])
+    return out
+
+
+def _mutated_frames(rng, nbytes):
+    out = bytearray()
+    while len(out) < nbytes:
+        frame = bytearray(StatusPacket(rng.randrange(253), 0, rng.randbytes(rng.randrange(40))).encode())
+        for _ in range(rng.randrange(1, 4)):
+            frame[rng.randrange(len(frame))] ^= 1 << rng.randrange(8)
+        out += frame[:rng.randrange(4, len(frame) + 1)]
+    return bytes(out)
+
+
+def test_max_length_is_the_sdk_packet_limit():
+    # dynamixel-sdk protocol2_packet_handler: TXPACKET_MAX_LEN = RXPACKET_MAX_LEN = 1024 bytes
+    assert P.MAX_LENGTH + 7 == 1024
+
+
+@pytest.mark.parametrize("kind", ["bomb_huge", "bomb_legal", "bomb_mixed", "random", "mutated"])
+def test_parser_finds_the_packet_after_1mib_of_garbage_in_linear_work(kind):
+    import random
+
+    rng = random.Random(7)
+    garbage = {
+        "bomb_huge": lambda: BOMB_HUGE * (MIB // len(BOMB_HUGE)),
+        "bomb_legal": lambda: BOMB_LEGAL * (MIB // len(BOMB_LEGAL)),
+        "bomb_mixed": lambda: (BOMB_HUGE + BOMB_LEGAL + b"\xff\xff\xfd\x00\xfe\x20\x00\x55")
+        * (MIB // 22),
+        "random": lambda: rng.randbytes(MIB),
+        "mutated": lambda: _mutated_frames(rng, MIB),
+    }[kind]()
+    good = StatusPacket(1, 0, b"\x10\x20\x30\x40")
+    parser = PacketParser()
+    out = _feed_chunks(parser, garbage + good.encode())
+    assert out[-1:] == [good]
+    fed = len(garbage) + len(good.encode())
+    assert parser.scanned_bytes <= WORK_PER_BYTE * fed, (parser.scanned_bytes, fed)
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.lists(st.one_of(st.binary(max_size=200), st.just(BOMB_HUGE), st.just(BOMB_LEGAL),
+                          st.builds(lambda n, k: StatusPacket(n, 0, bytes(k)).encode()[:-1],
+                                    ids, st.integers(0, 30))),
+                max_size=200),
+       st.integers(1, 64))
+def test_parser_work_is_linear_for_any_garbage(pieces, chunk):
+    garbage = b"".join(pieces)
+    good = P.ping(5)
+    parser = PacketParser()
+    out = _feed_chunks(parser, garbage + good.encode(), chunk)
+    assert out[-1:] == [good]
+    # each chunk may rescan a header prefix and a few bytes of a waiting header
+    fed = len(garbage) + len(good.encode())
+    assert parser.scanned_bytes <= WORK_PER_BYTE * fed + 16 * (fed // chunk + 1)
