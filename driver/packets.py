@@ -42,11 +42,33 @@ def _make_crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _make_crc_table()
 
 
+def _make_crc_table16(t: tuple[int, ...]) -> list[int]:
+    """Table for two bytes per step: ``crc' = table[crc ^ (b0 << 8 | b1)]``."""
+    return [((t[h] << 8) & 0xFFFF) ^ t[lo ^ (t[h] >> 8)] for h in range(256) for lo in range(256)]
+
+
+_CRC_TABLE16 = _make_crc_table16(_CRC_TABLE)
+_WORDS: dict[int, struct.Struct] = {}     # big-endian 16-bit word unpackers by word count
+
+
 def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
-    """CRC-16 of ``data`` as Dynamixel Protocol 2.0 defines it; ``crc`` continues a running CRC."""
-    table = _CRC_TABLE
-    for b in data:
-        crc = ((crc << 8) ^ table[((crc >> 8) ^ b) & 0xFF]) & 0xFFFF
+    """CRC-16 of ``data`` as Dynamixel Protocol 2.0 defines it; ``crc`` continues a running CRC.
+
+    Works two bytes per step (a 65,536-entry table), with the last odd byte done alone.
+    """
+    n = len(data)
+    half = n >> 1
+    if half:
+        fmt = _WORDS.get(half)
+        if fmt is None:
+            fmt = struct.Struct(f">{half}H")
+            if half <= MAX_LENGTH:
+                _WORDS[half] = fmt
+        table = _CRC_TABLE16
+        for w in fmt.unpack_from(data):
+            crc = table[crc ^ w]
+    if n & 1:
+        crc = ((crc << 8) ^ _CRC_TABLE[(crc >> 8) ^ data[n - 1]]) & 0xFFFF
     return crc
 
 
@@ -227,9 +249,11 @@ class FastStatus:
             raise CorruptPacketError(
                 f"fast read reply is {len(frame)} bytes, expected {PREFIX_BYTES + expect} "
                 f"for lengths {list(lengths)}")
-        id_, body = split_frame(frame)
-        if id_ != BROADCAST_ID or body[0] != _STATUS:
+        if not frame.startswith(HEADER) or (frame[5] | frame[6] << 8) != expect:
+            raise CorruptPacketError(f"bad header or LENGTH in fast read reply {frame[:7].hex(' ')}")
+        if frame[4] != BROADCAST_ID or frame[PREFIX_BYTES] != _STATUS:
             raise CorruptPacketError("not a fast sync/bulk read reply (ID must be 0xFE, instruction 0x55)")
+        # the running CRC after the last entry is the frame's CRC: one pass checks both
         entries, pos, crc = [], PREFIX_BYTES + 1, crc16(frame[:PREFIX_BYTES + 1])
         for n in lengths:
             end = pos + 2 + n

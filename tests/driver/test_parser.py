@@ -35,6 +35,22 @@ def test_stuffing_inverts_and_removes_headers(body):
         i = stuffed.find(b"\xff\xff\xfd", i + 4)
 
 
+def _crc16_bitwise(data, crc=0):
+    for b in data:
+        crc ^= b << 8
+        for _ in range(8):
+            crc = ((crc << 1) ^ 0x8005) if crc & 0x8000 else crc << 1
+            crc &= 0xFFFF
+    return crc
+
+
+@given(st.binary(max_size=300), st.binary(max_size=9))
+def test_crc16_matches_the_bitwise_definition_and_continues(data, more):
+    assert P.crc16(data) == _crc16_bitwise(data)
+    assert P.crc16(more, P.crc16(data)) == _crc16_bitwise(data + more)
+    assert P.crc16(memoryview(data)) == P.crc16(bytearray(data)) == _crc16_bitwise(data)
+
+
 @settings(max_examples=200)
 @given(st.lists(st.tuples(ids, payload), min_size=1, max_size=6), st.lists(st.integers(1, 40), min_size=1),
        st.binary(max_size=30))
