@@ -157,6 +157,8 @@ class Transport:
                 pass
 
     def _failed(self, what: str, exc: BaseException | str) -> TransportError:
+        if isinstance(exc, termios.error) and len(exc.args) == 2:  # args (errno, text)
+            exc = f"[Errno {exc.args[0]}] {exc.args[1]}"
         return TransportError(f"serial port {self.url}: {what} failed: {exc} "
                               f"(adapter unplugged or port closed?)")
 
