@@ -51,9 +51,10 @@ class DxlTimeoutError(DxlError, TimeoutError):
         self.timeout_s = float(timeout_s)
         what = f"{instruction_name(self.instruction)} within {self.timeout_s * 1e3:.1f} ms"
         if self.cut_off:
-            rest = ", ".join(map(str, self.ids[1:]))
-            msg = (f"servo ID {self.first_missing} stopped answering ({what}); "
-                   f"ID {rest} queued behind it in the reply chain were cut off")
+            rest = self.ids[1:]
+            who = (f"ID {rest[0]} queued behind it in the reply chain was" if len(rest) == 1 else
+                   f"IDs {', '.join(map(str, rest))} queued behind it in the reply chain were")
+            msg = f"servo ID {self.first_missing} stopped answering ({what}); {who} cut off"
         else:
             msg = f"no reply from servo ID {', '.join(map(str, self.ids)) or '-'} to {what}"
         super().__init__(msg + (f" ({detail})" if detail else ""))

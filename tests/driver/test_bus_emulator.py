@@ -162,7 +162,7 @@ def test_vanished_servo_is_named_first_and_the_rest_cut_off(bus, emu):
     assert err.ids == (3, 4, 5, 6, 7, 8)       # every ID that did not answer
     assert err.first_missing == 3 and err.cut_off
     assert str(err).startswith("servo ID 3 stopped answering")
-    assert "ID 4, 5, 6, 7, 8 queued behind it" in str(err) and "cut off" in str(err)
+    assert "IDs 4, 5, 6, 7, 8 queued behind it" in str(err) and "cut off" in str(err)
 
 
 def test_silent_servo_in_a_single_read_is_not_a_chain(bus, emu):
