@@ -9,12 +9,11 @@ from __future__ import annotations
 import functools
 import math
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from pathlib import Path
 
-import yaml
-
 from swerve.configs import shipped_dir
+from swerve.configs.loader import read_yaml
 from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
 CONFIG_DIR = shipped_dir()
@@ -85,8 +84,11 @@ class Reg(StrEnum):
     EXTERNAL_PORT_DATA_3 = "external_port_data_3"
 
 
-class OperatingMode:
-    """Values of Operating Mode (11)."""
+class OperatingMode(IntEnum):
+    """Values of Operating Mode (11), e-Manual "Operating Mode(11)".
+
+    ``robot.yaml`` names them in lower case (``operating_mode: velocity``).
+    """
 
     CURRENT = 0
     VELOCITY = 1
@@ -94,6 +96,11 @@ class OperatingMode:
     EXTENDED_POSITION = 4
     CURRENT_BASED_POSITION = 5
     PWM = 16
+
+
+#: The modes in which Goal Position (116) drives the servo.
+POSITION_MODES = (OperatingMode.POSITION, OperatingMode.EXTENDED_POSITION,
+                  OperatingMode.CURRENT_BASED_POSITION)
 
 
 class HardwareError:
@@ -299,12 +306,7 @@ def _register_from_dict(d: dict, where: str) -> Register:
 def load_table(path: str | Path) -> ControlTable:
     """Load one model file; raises :class:`ConfigError` naming the file and the problem."""
     path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"cannot read control table {path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
+    doc = read_yaml(path, what="control table").data
     if not isinstance(doc, dict) or not isinstance(doc.get("registers"), list):
         raise ConfigError(f"{path}: expected a mapping with a 'registers' list")
     regs: dict[str, Register] = {}
@@ -365,3 +367,43 @@ def model_name(model_number: int) -> str:
         return table_for(int(model_number)).model
     except ConfigError:
         return f"unknown ({model_number})"
+
+
+#: The model whose table gives the X-series constants shared by every model file.
+REFERENCE_MODEL = "xh430-w210"
+
+
+def _baud_rates_bps() -> tuple[int, ...]:
+    """Baud Rate (8) value -> bps, from ``values_bps`` of the model files (all must agree).
+
+    e-Manual, XH430-W210 "Baud Rate(8)": 0 = 9,600, 1 = 57,600 (factory default), 2 = 115,200,
+    3 = 1M, 4 = 2M, 5 = 3M, 6 = 4M, 7 = 4.5M bps.
+    """
+    tables = models()
+    ref = tables[REFERENCE_MODEL][Reg.BAUD_RATE]
+    values = tuple(int(v) for v in ref.extra.get("values_bps", ()))
+    if len(values) != ref.max + 1:
+        raise ConfigError(f"{REFERENCE_MODEL}: baud_rate.values_bps must list {ref.max + 1} rates")
+    for t in tables.values():
+        if tuple(t[Reg.BAUD_RATE].extra.get("values_bps", ())) != values:
+            raise ConfigError(f"{t.model}: baud_rate.values_bps differs from {REFERENCE_MODEL}'s")
+    return values
+
+
+#: Baud Rate (8) item value -> bits per second (index = raw value).
+BAUD_RATES_BPS: tuple[int, ...] = _baud_rates_bps()
+#: The factory-default rate (Baud Rate default, 57,600 bps).
+DEFAULT_BAUD_BPS: int = BAUD_RATES_BPS[models()[REFERENCE_MODEL][Reg.BAUD_RATE].default]
+#: Order in which a scan tries the rates: the factory default first, then the others fastest
+#: first (a try at a fast rate costs the least time).
+SCAN_BAUDS_BPS: tuple[int, ...] = (DEFAULT_BAUD_BPS,) + tuple(
+    sorted((b for b in BAUD_RATES_BPS if b != DEFAULT_BAUD_BPS), reverse=True))
+
+
+def baud_index(bps: int) -> int:
+    """Baud Rate item value for ``bps``; raises :class:`ConfigError` if the X series lacks it."""
+    try:
+        return BAUD_RATES_BPS.index(int(bps))
+    except ValueError:
+        raise ConfigError(f"{bps} bps is not an X-series baud rate "
+                          f"({', '.join(map(str, BAUD_RATES_BPS))})") from None
