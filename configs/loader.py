@@ -217,9 +217,9 @@ class Section:
         """The value of ``key`` unchecked (``default`` if absent; required if no default)."""
         m = self._mapping()
         self._read.add(key)
-        if key not in m or (m[key] is None and default is not REQUIRED):
+        if key not in m or m[key] is None:
             if default is REQUIRED:
-                self.fail("missing", key)
+                self.fail("missing" if key not in m else "missing (the value is null)", key)
             return default
         return m[key]
 
@@ -285,16 +285,16 @@ class Section:
                min: float | None = None, max: float | None = None) -> float:
         """A finite number (float); ``positive`` (> 0), ``nonneg`` (>= 0), ``min``..``max``."""
         value = self.raw(key, default)
-        if value is default and default is not REQUIRED:
-            return default
+        if value is None:
+            return None
         return self._number_value(value, key, positive=positive, nonneg=nonneg, min=min, max=max)
 
     def integer(self, key: str | int, default: Any = REQUIRED, *, min: int | None = None,
                 max: int | None = None) -> int:
         """An integer (a float such as ``3.0`` is refused) within ``min``..``max``."""
         value = self.value[key] if isinstance(key, int) else self.raw(key, default)
-        if value is default and default is not REQUIRED:
-            return default
+        if value is None:
+            return None
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(f"expected an integer, got {_kind(value)}", key)
         if (min is not None and value < min) or (max is not None and value > max):
@@ -311,8 +311,8 @@ class Section:
     def string(self, key: str, default: Any = REQUIRED, *, nonempty: bool = True) -> str:
         """A string (``nonempty``: not ``""``)."""
         value = self.raw(key, default)
-        if value is default and default is not REQUIRED:
-            return default
+        if value is None:
+            return None
         if not isinstance(value, str) or (nonempty and not value.strip()):
             self.fail(f"expected a {'non-empty ' if nonempty else ''}string, got {_kind(value)}", key)
         return value
@@ -330,8 +330,9 @@ class Section:
                 max: float | None = None) -> tuple[float, ...]:
         """A list of finite numbers (``length`` checked), each bounded like :meth:`number`."""
         value = self.raw(key, default)
-        if value is default and default is not REQUIRED:
-            return tuple(default)
+        if value is None:
+            return None
+        value = list(value) if isinstance(value, tuple) else value
         if not isinstance(value, list) or (length is not None and len(value) != length):
             want = f"a list of {length} numbers" if length is not None else "a list of numbers"
             self.fail(f"expected {want}, got {_kind(value) if not isinstance(value, list) else value}", key)
@@ -344,8 +345,9 @@ class Section:
                  allowed: Sequence[int] | None = None) -> tuple[int, ...]:
         """A list of integers (``length`` checked), each in ``min``..``max`` or in ``allowed``."""
         value = self.raw(key, default)
-        if value is default and default is not REQUIRED:
-            return tuple(default)
+        if value is None:
+            return None
+        value = list(value) if isinstance(value, tuple) else value
         if not isinstance(value, list) or (length is not None and len(value) != length):
             want = f"a list of {length} integers" if length is not None else "a list of integers"
             self.fail(f"expected {want}, got {_kind(value) if not isinstance(value, list) else value}", key)

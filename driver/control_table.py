@@ -390,6 +390,8 @@ def _baud_rates_bps() -> tuple[int, ...]:
     return values
 
 
+#: Highest servo ID (ID item 7, e-Manual: 0 ~ 252; 253-254 are reserved and broadcast).
+ID_MAX: int = models()[REFERENCE_MODEL][Reg.ID].max
 #: Baud Rate (8) item value -> bits per second (index = raw value).
 BAUD_RATES_BPS: tuple[int, ...] = _baud_rates_bps()
 #: The factory-default rate (Baud Rate default, 57,600 bps).

@@ -159,7 +159,7 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
         wheels.append(WheelConfig(
             name=w.string("name"), x_m=w.number("x_m", min=-OFFSET_MAX_M, max=OFFSET_MAX_M),
             y_m=w.number("y_m", min=-OFFSET_MAX_M, max=OFFSET_MAX_M),
-            drive_id=ids["drive_id"], steer_id=ids["steer_id"], axle=w.string("axle", ""),
+            drive_id=ids["drive_id"], steer_id=ids["steer_id"], axle=w.string("axle", "", nonempty=False),
             drive_direction=ddir[k], steer_direction=sdir[k], center_pulse=centers[k]))
         w.check_unknown()
     dgroup = _group(drive, table)
