@@ -80,10 +80,11 @@ class Document:
 
 
 def _line_map(node: yaml.Node, path: _Path, out: dict[_Path, int]) -> None:
-    out[path] = node.start_mark.line + 1
+    out.setdefault(path, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
         for k, v in node.value:
             key = k.value if isinstance(k, yaml.ScalarNode) else str(k.value)
+            out[path + (key,)] = k.start_mark.line + 1      # a section's line is its key's
             _line_map(v, path + (key,), out)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
@@ -97,7 +98,10 @@ def _yaml_problem(exc: yaml.YAMLError) -> tuple[int | None, str]:
 
 
 def parse_yaml_text(text: str, file: str, error: type[ConfigError] = ConfigError) -> Document:
-    """Parse YAML ``text`` (named ``file`` in messages), keeping the line of every value."""
+    """Parse YAML ``text`` (named ``file`` in messages), keeping the line of every key.
+
+    A mapping entry's line is the line of its key; a list item's is the item's first line.
+    """
     loader = yaml.SafeLoader(text)
     try:
         node = loader.get_single_node()
