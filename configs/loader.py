@@ -10,7 +10,8 @@ Either gives a :class:`Section`, whose typed accessors check one key each and ra
 Unknown keys are a **warning**, not an error: :meth:`Section.check_unknown` emits a
 :class:`ConfigWarning` (``FILE:LINE: KEY: unknown key, ignored``) for every key the parser did
 not read, so a file written for a newer version still loads, while a typo is still reported.
-Numbers must be finite (``.nan`` and ``.inf`` are refused); bounds are given per key.
+A key given twice in one mapping is an error. Numbers must be finite (``.nan`` and ``.inf`` are
+refused); bounds are given per key.
 """
 from __future__ import annotations
 
@@ -79,16 +80,22 @@ class Document:
         return top
 
 
-def _line_map(node: yaml.Node, path: _Path, out: dict[_Path, int]) -> None:
+def _line_map(node: yaml.Node, path: _Path, out: dict[_Path, int], file: str,
+              error: type[ConfigError]) -> None:
     out.setdefault(path, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
+        seen: set[str] = set()
         for k, v in node.value:
             key = k.value if isinstance(k, yaml.ScalarNode) else str(k.value)
+            if key in seen:     # PyYAML would silently keep the last one
+                raise config_error(file, k.start_mark.line + 1, dotted(path + (key,)),
+                                   f"duplicate key (first on line {out[path + (key,)]})", error)
+            seen.add(key)
             out[path + (key,)] = k.start_mark.line + 1      # a section's line is its key's
-            _line_map(v, path + (key,), out)
+            _line_map(v, path + (key,), out, file, error)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
-            _line_map(v, path + (i,), out)
+            _line_map(v, path + (i,), out, file, error)
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> tuple[int | None, str]:
@@ -113,7 +120,7 @@ def parse_yaml_text(text: str, file: str, error: type[ConfigError] = ConfigError
         loader.dispose()
     lines: dict[_Path, int] = {}
     if node is not None:
-        _line_map(node, (), lines)
+        _line_map(node, (), lines, file, error)
     else:
         lines[()] = 1
     return Document(data, file, lines, error)
@@ -329,34 +336,35 @@ class Section:
             self.fail(f"expected one of {', '.join(map(str, names))}; got {_kind(value)}", key)
         return choices[value] if isinstance(choices, Mapping) else value
 
-    def numbers(self, key: str, length: int | None = None, default: Any = REQUIRED, *,
-                positive: bool = False, nonneg: bool = False, min: float | None = None,
-                max: float | None = None) -> tuple[float, ...]:
-        """A list of finite numbers (``length`` checked), each bounded like :meth:`number`."""
+    def _list(self, key: str, length: int | None, default: Any, what: str) -> "Section | None":
+        """The list under ``key`` (``length`` checked) as a section, or ``None`` if absent."""
         value = self.raw(key, default)
         if value is None:
             return None
         value = list(value) if isinstance(value, tuple) else value
         if not isinstance(value, list) or (length is not None and len(value) != length):
-            want = f"a list of {length} numbers" if length is not None else "a list of numbers"
+            want = f"a list of {length} {what}" if length is not None else f"a list of {what}"
             self.fail(f"expected {want}, got {_kind(value) if not isinstance(value, list) else value}", key)
-        lst = Section(self.doc, self.path + (key,), value)
+        return Section(self.doc, self.path + (key,), value)
+
+    def numbers(self, key: str, length: int | None = None, default: Any = REQUIRED, *,
+                positive: bool = False, nonneg: bool = False, min: float | None = None,
+                max: float | None = None) -> tuple[float, ...] | None:
+        """A list of finite numbers (``length`` checked), each bounded like :meth:`number`."""
+        lst = self._list(key, length, default, "numbers")
+        if lst is None:
+            return None
         return tuple(lst._number_value(v, i, positive=positive, nonneg=nonneg, min=min, max=max)
-                     for i, v in enumerate(value))
+                     for i, v in enumerate(lst.value))
 
     def integers(self, key: str, length: int | None = None, default: Any = REQUIRED, *,
                  min: int | None = None, max: int | None = None,
-                 allowed: Sequence[int] | None = None) -> tuple[int, ...]:
+                 allowed: Sequence[int] | None = None) -> tuple[int, ...] | None:
         """A list of integers (``length`` checked), each in ``min``..``max`` or in ``allowed``."""
-        value = self.raw(key, default)
-        if value is None:
+        lst = self._list(key, length, default, "integers")
+        if lst is None:
             return None
-        value = list(value) if isinstance(value, tuple) else value
-        if not isinstance(value, list) or (length is not None and len(value) != length):
-            want = f"a list of {length} integers" if length is not None else "a list of integers"
-            self.fail(f"expected {want}, got {_kind(value) if not isinstance(value, list) else value}", key)
-        lst = Section(self.doc, self.path + (key,), value)
-        out = tuple(lst.integer(i, min=min, max=max) for i in range(len(value)))
+        out = tuple(lst.integer(i, min=min, max=max) for i in range(len(lst.value)))
         if allowed is not None:
             for i, v in enumerate(out):
                 if v not in allowed:

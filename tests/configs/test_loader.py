@@ -31,6 +31,19 @@ def _replace(text: str, old: str, new: str) -> str:
     return text.replace(old, new)
 
 
+def _check_file_error(tmp_path, base: str, old: str, new: str, name: str, load, error, key: str,
+                      problem: str, needle: str | None = None) -> None:
+    """Write ``base`` with ``old`` -> ``new`` to ``name``; ``load`` must raise ``error`` on the
+    line holding ``needle`` (default: the last line of ``new``), naming ``key``."""
+    text = _replace(base, old, new)
+    p = tmp_path / name
+    p.write_text(text)
+    with pytest.raises(error) as ei:
+        load(p)
+    line = _line_of(text, needle or new.strip().splitlines()[-1])
+    assert re.search(problem, _one_line(ei.value, p, line, key)), str(ei.value)
+
+
 def _one_line(exc: ConfigError, file, line, key) -> str:
     msg = str(exc)
     assert "\n" not in msg
@@ -72,13 +85,8 @@ ROBOT_BAD = [
 @pytest.mark.parametrize("old, new, key, needle, problem", ROBOT_BAD,
                          ids=[f"{b[2]}={b[1].split(':', 1)[1].strip()[:20]}" for b in ROBOT_BAD])
 def test_robot_file_errors_name_file_line_and_key(tmp_path, old, new, key, needle, problem):
-    text = _replace(ROBOT, old, new)
-    p = tmp_path / "robot.yaml"
-    p.write_text(text)
-    with pytest.raises(ConfigError) as ei:
-        load_robot_config(p)
-    line = _line_of(text, needle or new.strip())
-    assert re.search(problem, _one_line(ei.value, p, line, key)), str(ei.value)
+    _check_file_error(tmp_path, ROBOT, old, new, "robot.yaml", load_robot_config, ConfigError, key, problem,
+                      needle)
 
 
 def test_unknown_key_is_a_warning_naming_file_line_and_key(tmp_path):
@@ -110,6 +118,7 @@ def test_shipped_files_have_no_unknown_keys():
     (b"- 1\n- 2\n", 1, r"expected a mapping at the top level, got list"),
     (b"just text\n", 1, r"expected a mapping at the top level, got str"),
     (b"geometry:\n  a_m: [1, 2\n", 3, r"not valid YAML: expected ',' or ']'"),
+    (b"geometry:\n  a_m: 1.0\n  b_m: 1.0\n  a_m: 2.0\n", 4, r"geometry\.a_m: duplicate key \(first on line 2\)"),
 ])
 def test_malformed_files(tmp_path, content, line, problem):
     p = tmp_path / "robot.yaml"
@@ -145,13 +154,7 @@ EMU_BAD = [
 
 @pytest.mark.parametrize("old, new, key, problem", EMU_BAD, ids=[b[2] for b in EMU_BAD])
 def test_emulator_file_errors(tmp_path, old, new, key, problem):
-    text = _replace(EMULATOR, old, new)
-    p = tmp_path / "emulator.yaml"
-    p.write_text(text)
-    with pytest.raises(ConfigError) as ei:
-        load_config(p)
-    line = _line_of(text, new.strip().splitlines()[0])
-    assert re.search(problem, _one_line(ei.value, p, line, key)), str(ei.value)
+    _check_file_error(tmp_path, EMULATOR, old, new, "emulator.yaml", load_config, ConfigError, key, problem)
 
 
 def test_missing_top_level_section_names_the_first_line(tmp_path):
@@ -181,13 +184,7 @@ TRAJ = "name: t\ntf_s: 16\ntau_s: 0.016\npath: {type: circle, radius_m: 1.0}\n"
      r"expected a list of 2 numbers"),
 ])
 def test_trajectory_file_errors(tmp_path, old, new, key, problem):
-    text = _replace(TRAJ, old, new)
-    p = tmp_path / "t.yaml"
-    p.write_text(text)
-    with pytest.raises(ControllerError) as ei:
-        load_trajectory(p)
-    line = _line_of(text, new.splitlines()[-1])
-    assert re.search(problem, _one_line(ei.value, p, line, key)), str(ei.value)
+    _check_file_error(tmp_path, TRAJ, old, new, "t.yaml", load_trajectory, ControllerError, key, problem)
 
 
 def test_trajectory_binary_file(tmp_path):
