@@ -257,6 +257,14 @@ class Section:
         lst = Section(self.doc, self.path + (key,), value)
         return [lst.item(i) for i in range(len(value))]
 
+    def unread(self) -> dict:
+        """The entries of this mapping that no accessor has read (marks them read)."""
+        if not isinstance(self.value, Mapping):
+            return {}
+        out = {k: v for k, v in self.value.items() if k not in self._read}
+        self._read.update(out)
+        return out
+
     def check_unknown(self, strict: bool = False) -> None:
         """Report keys nobody read: a :class:`ConfigWarning` each (``strict``: an error)."""
         if not isinstance(self.value, Mapping):

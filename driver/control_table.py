@@ -6,6 +6,7 @@ once, and raises :class:`~driver.errors.OutOfRangeError` instead of clamping.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
@@ -13,7 +14,7 @@ from enum import IntEnum, StrEnum
 from pathlib import Path
 
 from swerve.configs import shipped_dir
-from swerve.configs.loader import read_yaml
+from swerve.configs.loader import Section, read_yaml
 from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
 CONFIG_DIR = shipped_dir()
@@ -275,61 +276,58 @@ class ControlTable:
         return a.address, b.address + b.size - a.address
 
 
-def _register_from_dict(d: dict, where: str) -> Register:
-    known = {"name", "address", "size", "access", "area", "default", "min", "max", "signed", "unit",
-             "scale", "limit", "limit_min", "limit_max", "allowed", "divisor"}
-    try:
-        name = str(d["name"])
-        if name not in Reg.__members__.values():
-            raise ConfigError(f"{where}: unknown register name {name!r} (not in driver.control_table.Reg)")
-        if d["access"] not in ("R", "RW") or d["area"] not in ("EEPROM", "RAM"):
-            raise ConfigError(f"{where}: {name}: access must be R|RW and area EEPROM|RAM")
-        if int(d["size"]) not in (1, 2, 4):
-            raise ConfigError(f"{where}: {name}: size must be 1, 2 or 4")
-        return Register(
-            name=name, address=int(d["address"]), size=int(d["size"]), access=d["access"],
-            area=d["area"], default=int(d["default"]),
-            min=None if d.get("min") is None else int(d["min"]),
-            max=None if d.get("max") is None else int(d["max"]),
-            signed=bool(d.get("signed", False)), unit=d.get("unit"),
-            scale=None if d.get("scale") is None else float(d["scale"]),
-            limit=d.get("limit"), limit_min=d.get("limit_min"), limit_max=d.get("limit_max"),
-            allowed=tuple(d["allowed"]) if d.get("allowed") else None,
-            divisor=d.get("divisor"),
-            extra={k: v for k, v in d.items() if k not in known})
-    except (KeyError, TypeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f"{where}: malformed register entry {d!r}: {exc}") from None
+_REG_NAMES = frozenset(Reg.__members__.values())
+
+
+def _register(sec: Section) -> Register:
+    name = sec.string("name")
+    if name not in _REG_NAMES:
+        sec.fail(f"unknown register name {name!r} (not in driver.control_table.Reg)", "name")
+    size = sec.integer("size")
+    if size not in (1, 2, 4):
+        sec.fail(f"size must be 1, 2 or 4, got {size}", "size")
+    allowed = sec.integers("allowed", None, None)
+    reg = Register(
+        name=name, address=sec.integer("address", min=0, max=0xFFFF), size=size,
+        access=sec.choice("access", ("R", "RW")), area=sec.choice("area", ("EEPROM", "RAM")),
+        default=sec.integer("default"), min=sec.integer("min", None), max=sec.integer("max", None),
+        signed=sec.boolean("signed", False), unit=sec.string("unit", None, nonempty=False),
+        scale=sec.number("scale", None, positive=True),
+        limit=sec.string("limit", None), limit_min=sec.string("limit_min", None),
+        limit_max=sec.string("limit_max", None), allowed=tuple(allowed) if allowed else None,
+        divisor=sec.integer("divisor", None, min=1))
+    # keys the Register has no field for (e.g. ``values_bps`` of baud_rate) stay available
+    return dataclasses.replace(reg, extra=sec.unread())
 
 
 def load_table(path: str | Path) -> ControlTable:
-    """Load one model file; raises :class:`ConfigError` naming the file and the problem."""
-    path = Path(path)
-    doc = read_yaml(path, what="control table").data
-    if not isinstance(doc, dict) or not isinstance(doc.get("registers"), list):
-        raise ConfigError(f"{path}: expected a mapping with a 'registers' list")
+    """Load one model file; raises :class:`ConfigError` ``FILE:LINE: KEY: problem``."""
+    top = read_yaml(path, what="control table").root()
     regs: dict[str, Register] = {}
-    for i, d in enumerate(doc["registers"]):
-        if not isinstance(d, dict):
-            raise ConfigError(f"{path}: register #{i} is not a mapping")
-        r = _register_from_dict(d, str(path))
+    entries = []
+    for sec in top.items("registers"):
+        r = _register(sec)
         if r.name in regs:
-            raise ConfigError(f"{path}: register {r.name} is listed twice")
+            sec.fail(f"register {r.name} is listed twice", "name")
         regs[r.name] = r
-    for r in regs.values():
-        for lim in (r.limit, r.limit_min, r.limit_max):
+        entries.append((sec, r))
+    for sec, r in entries:
+        for key in ("limit", "limit_min", "limit_max"):
+            lim = getattr(r, key)
             if lim is not None and lim not in regs:
-                raise ConfigError(f"{path}: {r.name} names unknown limit item {lim!r}")
-    try:
-        table = ControlTable(
-            model=str(doc["model"]), model_number=int(doc["model_number"]),
-            gear_ratio=float(doc["gear_ratio"]), registers=regs,
-            indirect=tuple(IndirectBlock(**b) for b in doc.get("indirect", [])),
-            pulses_per_rev=int(doc.get("encoder_pulses_per_rev", 4096)))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: missing or malformed model field: {exc}") from None
-    _check_overlaps(table, path)
+                sec.fail(f"{r.name} names unknown limit item {lim!r}", key)
+    blocks = []
+    for sec in top.items("indirect", None) if "indirect" in top else ():
+        blocks.append(IndirectBlock(**{k: sec.integer(k, min=0) for k in
+                                       ("address_start", "data_start", "count", "first")}))
+        sec.check_unknown()
+    table = ControlTable(
+        model=top.string("model"), model_number=top.integer("model_number", min=0, max=0xFFFF),
+        gear_ratio=top.number("gear_ratio", positive=True, max=1e4), registers=regs,
+        indirect=tuple(blocks),
+        pulses_per_rev=top.integer("encoder_pulses_per_rev", 4096, min=1))
+    top.check_unknown()
+    _check_overlaps(table, Path(path))
     return table
 
 
