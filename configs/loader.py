@@ -27,6 +27,10 @@ import yaml
 from swerve.configs.errors import ConfigError
 
 
+#: PyYAML's safe loader, in C (libyaml) where installed: same nodes and marks, ~10x faster.
+_SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+
+
 class ConfigWarning(UserWarning):
     """A config file has a key no parser reads (message ``FILE:LINE: KEY: unknown key, ignored``)."""
 
@@ -109,7 +113,7 @@ def parse_yaml_text(text: str, file: str, error: type[ConfigError] = ConfigError
 
     A mapping entry's line is the line of its key; a list item's is the item's first line.
     """
-    loader = yaml.SafeLoader(text)
+    loader = _SafeLoader(text)
     try:
         node = loader.get_single_node()
         data = loader.construct_document(node) if node is not None else None
