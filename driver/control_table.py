@@ -1,6 +1,9 @@
 """X-series control tables, loaded from data files in ``configs/models/`` (one per model).
 
-The driver and the emulator's memory map load the same files. Registers are named by the
+The driver and the emulator's memory map load the same files (through
+:mod:`swerve.configs.loader`, so a malformed entry is reported as ``FILE:LINE: KEY: problem``).
+X-series constants are read from them here once: :data:`BAUD_RATES_BPS`, :data:`ID_MAX`, and
+the SI scales used by the emulator's physics. Registers are named by the
 :class:`Reg` enum (typos fail at import, not on the wire); raw <-> SI conversion happens here
 once, and raises :class:`~driver.errors.OutOfRangeError` instead of clamping.
 """
