@@ -12,16 +12,16 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Iterable, Mapping, Sequence
 
 from swerve.driver.errors import ChecksumError, CorruptPacketError
-from swerve.driver.protocol import (ALERT_BIT, BROADCAST_ID, HEADER, MAX_ID, MAX_LENGTH, PREFIX_BYTES,
-                                    ErrorNumber, Instruction, StatusError, instruction_name)
+from swerve.driver.protocol import (ALERT_BIT, BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, HEADER, MAX_ID,
+                                    MAX_LENGTH, PREFIX_BYTES, ErrorNumber, Instruction, ResetOption,
+                                    StatusError, instruction_name)
 
 # Protocol constants live in swerve.driver.protocol; they are re-exported here for codec users.
-__all__ = ["ALERT_BIT", "BROADCAST_ID", "HEADER", "MAX_ID", "MAX_LENGTH", "ErrorNumber", "Instruction",
-           "StatusError", "instruction_name"]
+__all__ = ["ALERT_BIT", "BACKUP_KEY", "BROADCAST_ID", "CLEAR_MULTI_TURN", "HEADER", "MAX_ID", "MAX_LENGTH",
+           "ErrorNumber", "Instruction", "ResetOption", "StatusError", "instruction_name"]
 
 _STUFF_PATTERN = b"\xff\xff\xfd"
 _STATUS = int(Instruction.STATUS)
@@ -322,24 +322,12 @@ def action(id_: int) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.ACTION)
 
 
-class ResetOption(IntEnum):
-    """Factory Reset parameter."""
-
-    ALL = 0xFF
-    EXCEPT_ID = 0x01
-    EXCEPT_ID_BAUD = 0x02
-
-
 def factory_reset(id_: int, option: int = ResetOption.EXCEPT_ID_BAUD) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.FACTORY_RESET, bytes((int(ResetOption(option)),)))
 
 
 def reboot(id_: int) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.REBOOT)
-
-
-CLEAR_MULTI_TURN = b"\x01DXL\x22"
-BACKUP_KEY = b"CTRL"
 
 
 def clear(id_: int) -> InstructionPacket:

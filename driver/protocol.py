@@ -58,6 +58,20 @@ def instruction_name(code: int | None) -> str:
         return f"unknown instruction 0x{code:02X}"
 
 
+class ResetOption(IntEnum):
+    """Factory Reset (0x06) parameter."""
+
+    ALL = 0xFF
+    EXCEPT_ID = 0x01
+    EXCEPT_ID_BAUD = 0x02
+
+
+#: Clear (0x10) parameters: option 0x01 (multi-turn position) and the fixed key ``44 58 4C 22``.
+CLEAR_MULTI_TURN = b"\x01DXL\x22"
+#: Control Table Backup (0x20) key after the store/restore byte.
+BACKUP_KEY = b"CTRL"
+
+
 class ErrorNumber(IntEnum):
     """Error number in bits 0–6 of a status packet's ERR byte."""
 
