@@ -467,6 +467,13 @@ class Bus:
             got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False, frame=frame,
                                  fast_lengths=lengths)
         except DxlTimeoutError as exc:
+            k = self._transport.parser.fast_entries_received
+            if k is not None and k < len(ids):
+                # the servos send their slices in turn: the first missing slice names the culprit
+                raise DxlTimeoutError(ids[k:], pkt.instruction, exc.timeout_s,
+                                      f"the combined reply stopped after {k} of {len(ids)} slices; "
+                                      f"ID {ids[k]} is missing or does not support fast reads",
+                                      cut_off=True) from None
             raise DxlTimeoutError(ids, pkt.instruction, exc.timeout_s,
                                   "the combined reply was incomplete: one of these servos is "
                                   "missing or does not support fast reads") from None

@@ -19,7 +19,7 @@ from collections import deque
 from typing import Sequence
 
 from swerve.driver.errors import CorruptPacketError
-from swerve.driver.packets import FastStatus, Packet, decode_frame, fast_status_length
+from swerve.driver.packets import FastStatus, Packet, crc16, decode_frame, fast_status_length
 from swerve.driver.protocol import BROADCAST_ID, HEADER, MAX_ID, MAX_LENGTH, PREFIX_BYTES, Instruction
 
 _STATUS = int(Instruction.STATUS)
@@ -52,6 +52,9 @@ class PacketParser:
         self._clean_to = 0           # buf[1:_clean_to] of the frame at buf[0] holds no header
         self._fast_lengths: tuple[int, ...] | None = None
         self._fast_length = -1
+        #: Entries of an expected fast read reply that were complete and CRC-valid when
+        #: :meth:`flush` abandoned it (the servos after them never sent); ``None`` if none.
+        self.fast_entries_received: int | None = None
 
     @property
     def pending(self) -> int:
@@ -69,6 +72,7 @@ class PacketParser:
     def reset(self) -> None:
         """Forget buffered bytes (e.g. before a new transaction)."""
         self._drop(len(self._buf))
+        self.fast_entries_received = None
 
     def take_errors(self) -> list[CorruptPacketError]:
         """Return and clear the errors seen since the last call."""
@@ -89,10 +93,30 @@ class PacketParser:
         partial frame or header prefix left over is stale once the line has gone idle.
         """
         out: list[Packet | FastStatus] = []
+        self._count_fast_entries()
         while self._buf:
             self._drop(max(1, self._clean_to - 3))
             out += self._drain()
         return out
+
+    def _count_fast_entries(self) -> None:
+        """Set :attr:`fast_entries_received` when the front frame is an expected fast reply cut short."""
+        buf, lengths = self._buf, self._fast_lengths
+        if (lengths is None or len(buf) <= PREFIX_BYTES or not buf.startswith(HEADER)
+                or buf[4] != BROADCAST_ID or buf[PREFIX_BYTES] != _STATUS):
+            return
+        k, pos = 0, PREFIX_BYTES + 1
+        crc = crc16(buf[:pos])
+        for n in lengths:
+            end = pos + 2 + n
+            if end + 2 > len(buf):
+                break
+            crc = crc16(buf[pos:end], crc)
+            if crc != buf[end] | buf[end + 1] << 8:
+                break
+            crc = crc16(buf[end:end + 2], crc)
+            k, pos = k + 1, end + 2
+        self.fast_entries_received = k
 
     def _drop(self, n: int) -> None:
         del self._buf[:n]
