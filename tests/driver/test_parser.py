@@ -172,3 +172,16 @@ def test_parser_work_is_linear_for_any_garbage(pieces, chunk):
     # each chunk may rescan a header prefix and a few bytes of a waiting header
     fed = len(garbage) + len(good.encode())
     assert parser.scanned_bytes <= WORK_PER_BYTE * fed + 16 * (fed // chunk + 1)
+
+
+def test_flush_counts_the_slices_of_a_fast_reply_cut_short():
+    fs = P.FastStatus(tuple(StatusPacket(i, 0, bytes((i,)) * 4) for i in (3, 7, 4)))
+    slices = fs.slices()
+    parser = PacketParser()
+    parser.expect_fast([4, 4, 4])
+    assert parser.feed(slices[0] + slices[1]) == []
+    assert parser.flush() == []
+    assert parser.fast_entries_received == 2
+    parser.reset()
+    assert parser.fast_entries_received is None
+    assert parser.feed(b"".join(slices)) == [fs]
