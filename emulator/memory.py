@@ -154,6 +154,14 @@ class ServoMemory:
         """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
         return _MemoryView(self)
 
+    def stored_bytes(self, end: int) -> bytes:
+        """The table's stored bytes ``0 .. end-1``, as written (indirect data not resolved).
+
+        For physics reading its input items each step: one copy instead of a decode per item
+        (no item below the first Indirect Data address is indirect).
+        """
+        return bytes(self._bytes[:end])
+
     def copy(self) -> "ServoMemory":
         """An independent copy (bytes and watchdog state), e.g. to try a write without applying it."""
         self.publish()
