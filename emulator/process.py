@@ -6,7 +6,7 @@ process keeps it from competing with the control loop for one interpreter lock, 
 timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
 shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
 emulator after every run of physics steps (at least every millisecond of wall time while the
-clock runs). The robot file is parsed once, in the parent; the child gets the parsed config.
+clock runs). The child parses the robot file and the physics config, once each.
 
 ::
 
@@ -24,14 +24,14 @@ import signal
 
 from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError, SwerveError
-from swerve.driver.robot_config import RobotConfig, load_robot_config
 
 _START_TIMEOUT_S = 60.0
 
 
-def _child(conn, shared, robot, emulator_config, kwargs: dict) -> None:
+def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
+    from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.robot_emulator import build_emulator
     from swerve.emulator.server import freeze_startup_heap
@@ -41,7 +41,7 @@ def _child(conn, shared, robot, emulator_config, kwargs: dict) -> None:
         shared[0] = emu.sim_time_s
 
     try:
-        emu = build_emulator(robot, load_config(emulator_config), body=True, **kwargs)
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
         emu.observers.append(publish)
         emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
@@ -75,7 +75,7 @@ def _child(conn, shared, robot, emulator_config, kwargs: dict) -> None:
 class EmulatorProcess:
     """:func:`emulator.robot_emulator.build_emulator` with the robot body, in a child process.
 
-    ``robot_config`` is a path (parsed here, once) or a parsed ``RobotConfig``;
+    ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
     ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword
     parameters are those of ``build_emulator`` (``time_scale``, ``faults``, ``noise``,
     ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
@@ -83,11 +83,9 @@ class EmulatorProcess:
     after :meth:`close`, :attr:`final_stats`.
     """
 
-    def __init__(self, robot_config: str | os.PathLike | RobotConfig | None = None,
+    def __init__(self, robot_config: str | os.PathLike | None = None,
                  emulator_config: str | os.PathLike | None = None, **kwargs):
-        if not isinstance(robot_config, RobotConfig):
-            robot_config = load_robot_config(locate_robot_file(robot_config).path)
-        self._robot = robot_config
+        self._robot = str(locate_robot_file(robot_config).path)
         self._emulator_config = str(emulator_config or shipped("emulator.yaml"))
         self._kwargs = kwargs
         self._ctx = mp.get_context("spawn")

@@ -30,10 +30,10 @@ def test_child_emulator_serves_the_bus_and_shares_the_pose():
     assert emu.final_stats["clock"]["steps"] > 0
 
 
-def test_bad_robot_config_is_reported_by_the_parent_parse(tmp_path):
+def test_bad_config_is_reported_from_the_child(tmp_path):
     bad = tmp_path / "robot.yaml"
     bad.write_text("geometry: 3\n")
-    with pytest.raises(ConfigError, match="robot.yaml"):
+    with pytest.raises(ConfigError, match="emulator"):
         EmulatorProcess(bad).start()
 
 
