@@ -145,11 +145,6 @@ class ServoMemory:
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
 
-    def snapshot(self) -> dict[str, int]:
-        """Every item's raw value by name."""
-        self.publish()
-        return {reg.name: self.get(reg.name) for reg in self.table}
-
     def view(self) -> "Mapping[str, int]":
         """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
         return _MemoryView(self)
