@@ -253,7 +253,7 @@ class Emulator:
     @property
     def running(self) -> bool:
         """True while the bus thread serves the pty."""
-        return self._thread is not None
+        return self._thread is not None and self._thread.is_alive()
 
     @property
     def rate_hz(self) -> float:

@@ -79,7 +79,7 @@ def test_fuzzed_streams_never_crash_or_hang():
                     time.sleep(0.002)                   # let idle gaps happen too
             _wait_quiet(emu)
             elapsed = time.monotonic() - t0
-            assert all(t.is_alive() for t in emu._threads)
+            assert emu.running                          # the bus thread survived
             assert emu.stats.dispatch_errors == 0
             assert emu.stats.bad_frames > 0 and emu.stats.packets_received > 0
             # the fuzz may have renumbered, re-bauded or silenced servos: restore, then ping
