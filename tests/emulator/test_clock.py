@@ -86,3 +86,49 @@ def test_clock_for_and_bad_settings():
                 lambda: FrozenClock(-5.0)):
         with pytest.raises(ConfigError):
             bad()
+
+
+class StepsOnRequest:
+    """A clock that only steps when asked (the shape of a lockstep clock), to test the seam."""
+
+    def __init__(self, rate_hz: float = 1000.0):
+        self.rate_hz = rate_hz
+        self.stats = clk.ClockStats(rate_hz=rate_hz)
+        self.owed = 0
+        self.calls = 0
+
+    def request(self, emu, steps: int) -> None:
+        self.owed += steps
+        emu.wake()
+
+    def run(self, world) -> float:
+        self.calls += 1
+        while self.owed:
+            world.step(1.0 / self.rate_hz)
+            self.owed -= 1
+            self.stats.steps += 1
+        return math.inf
+
+
+def _wait(predicate, limit_s: float = 10.0) -> bool:
+    """Poll until ``predicate()``; the limit only ends a failing test."""
+    import time
+
+    end = time.monotonic() + limit_s
+    while not predicate() and time.monotonic() < end:
+        time.sleep(0.001)
+    return predicate()
+
+
+def test_a_clock_passed_in_owns_simulated_time():
+    from swerve.emulator import Emulator, make_servos
+
+    c = StepsOnRequest()
+    with Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=c) as emu:
+        assert _wait(lambda: c.calls > 0)        # the bus thread called it; nothing was owed
+        assert emu.sim_time_s == 0.0
+        c.request(emu, 250)
+        assert _wait(lambda: c.stats.steps == 250)
+        with emu.lock:
+            assert emu.sim_time_s == pytest.approx(0.250)
+            assert emu.servo(1).read("realtime_tick") == 250
