@@ -43,7 +43,7 @@ def baud_index(bps: int) -> int:
 
 
 class Dynamics(Protocol):
-    """What the physics model must provide (issue #4, e.g. ``emulator.physics.ServoModel``).
+    """What the physics model must provide (e.g. ``emulator.physics.ServoModel``).
 
     The servo calls :meth:`advance` every tick and :meth:`outputs` only when someone reads a
     present item, so physics ticks cost no table writes.
