@@ -34,14 +34,14 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
 from swerve.emulator.clock import clock_for
 from swerve.emulator.faults import Faults
-from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
-from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
 from swerve.emulator.server import DEFAULT_BAUD, DEFAULT_MODEL, Emulator, LinkSettings, make_servos
 from swerve.emulator.servo import VirtualServo
 
@@ -176,14 +176,7 @@ def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> t
     if spec is None:
         return base, None
     if isinstance(spec, str):
-        items = {}
-        for part in spec.split(","):
-            if not part.strip():
-                continue
-            key, sep, value = part.partition("=")
-            if not sep:
-                raise ConfigError(f"noise {part!r}: expected key=value (keys: {', '.join(NOISE_KEYS)}, seed)")
-            items[key.strip()] = value.strip()
+        items = dict(parse_key_values(spec, "noise", (*NOISE_KEYS, "seed")))
     else:
         items = dict(spec)
     seed = None
@@ -202,12 +195,6 @@ def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> t
         else:
             raise ConfigError(f"noise: unknown key {key!r} (keys: {', '.join(NOISE_KEYS)}, seed)")
     return dataclasses.replace(base, **fields), seed
-
-
-def _servo_model(physics: PhysicsConfig, model: str, steering: bool, rng: np.random.Generator) -> ServoModel:
-    params = physics.steering_motor if steering else physics.drive_motor
-    return ServoModel(params, physics.gear_ratio(model), physics.supply_voltage_v, physics.firmware,
-                      physics.sensors, physics.thermal, rng)
 
 
 def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | None = None, *,
@@ -288,12 +275,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         models = dict(robot_physics.servos)
         world = RobotWorld(robot_physics)
     else:
-        steering = {w.steer_id: w.center_pulse for w in robot.wheels} if robot is not None else {}
-        models = {}
-        for i in ids:
-            models[i] = _servo_model(physics, model, i in steering, rng)
-            if i in steering:           # steering shafts start at their centre
-                models[i].set_shaft_angle(steering[i] * u.RAD_PER_PULSE)
+        centers = {w.steer_id: w.center_pulse for w in robot.wheels} if robot is not None else {}
+        models = {i: wheel_servo(physics, model, steering=i in centers, center_pulse=centers.get(i), rng=rng)
+                  for i in ids}            # steering shafts start at their centre
     for m in models.values():           # SciPy's first expm would stall the bus at torque-on
         m.prepare(1.0 / rate_hz)
     servos = make_servos(ids, model, baud, **extra,

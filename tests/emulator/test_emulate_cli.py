@@ -10,7 +10,8 @@ import pytest
 
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
-from swerve.tools.commands.emulate import format_ids, parse_ids, parse_port_line
+from swerve.configs.options import parse_ids
+from swerve.tools.commands.emulate import format_ids, parse_port_line
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -77,7 +78,7 @@ def test_bad_arguments_exit_2_with_one_line(args, message):
 
 def test_port_line_round_trips_ids():
     for ids in ([1], [1, 2, 3, 5], [2, 4, 5, 6, 9]):
-        assert parse_ids(format_ids(ids)) == ids
+        assert parse_ids(format_ids(ids), max_id=252) == ids
     assert parse_port_line("PORT /dev/pts/3 BAUD 57600 IDS 1-2,7\n") == ("/dev/pts/3", 57600, [1, 2, 7])
     with pytest.raises(ValueError):
         parse_port_line("PORT /dev/pts/3")

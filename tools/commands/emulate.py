@@ -12,27 +12,12 @@ import signal
 import sys
 import threading
 
+from swerve.configs.options import parse_ids
+from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
-
-
-def parse_ids(text: str) -> list[int]:
-    """``"1-4,7"`` -> ``[1, 2, 3, 4, 7]``; raises ConfigError."""
-    ids: list[int] = []
-    try:
-        for part in text.split(","):
-            part = part.strip()
-            if not part:
-                continue
-            lo, sep, hi = part.partition("-")
-            ids.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
-    except ValueError:
-        raise ConfigError(f"--ids {text!r}: expected IDs like 1-8 or 1,2,5") from None
-    if not ids:
-        raise ConfigError(f"--ids {text!r} names no servo")
-    return ids
 
 
 def format_ids(ids) -> str:
@@ -55,7 +40,7 @@ def parse_port_line(line: str) -> tuple[str, int, list[int]]:
         baud = int(words[3])
     except ValueError:
         raise ConfigError(f"PORT line: bad baud {words[3]!r}") from None
-    return words[1], baud, parse_ids(words[5])
+    return words[1], baud, parse_ids(words[5], "IDS", max_id=ID_MAX)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -103,7 +88,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
-    ids = parse_ids(args.ids) if args.ids else None
+    ids = parse_ids(args.ids, max_id=ID_MAX) if args.ids else None
     if args.frozen and (args.status_file or args.noise or args.emulator_config):
         raise ConfigError("--status-file, --noise and --emulator-config need physics (drop --frozen)")
     if args.physics and (ids is not None or args.model is not None):
