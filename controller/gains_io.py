@@ -19,6 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
+from swerve.configs.atomic import atomic_write
 from swerve.controller.errors import ControllerError
 
 SIGN_CONVENTION = "u = ud + K (x - xd)"
@@ -62,7 +63,8 @@ class GainSchedule:
 def save_gains(path: str | Path, gains: GainSchedule) -> Path:
     """Write a schedule as ``.npz`` or ``.dat`` (chosen by the suffix); returns the path."""
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
+    if p.suffix not in (".npz", ".dat"):
+        raise ControllerError(f"gain file must end in .npz or .dat, got {p.name}")
     meta = gains._meta()
     if p.suffix == ".dat":
         table = np.column_stack([gains.times_s, gains.K.reshape(gains.n_steps, 15),
@@ -70,12 +72,12 @@ def save_gains(path: str | Path, gains: GainSchedule) -> Path:
         cols = " ".join(f"K{r + 1}{c + 1}" for r in range(3) for c in range(5))
         header = (f"swerve gain schedule\nmeta: {json.dumps(meta)}\n"
                   f"columns: t_s {cols} phi_rad")
-        np.savetxt(p, table, fmt="%.9g", header=header)
+        with atomic_write(p, "wb") as fh:
+            np.savetxt(fh, table, fmt="%.9g", header=header)
         return p
-    if p.suffix != ".npz":
-        raise ControllerError(f"gain file must end in .npz or .dat, got {p.name}")
-    np.savez(p, times_s=gains.times_s, K=gains.K, phi_rad=gains.phi_rad, Q=gains.Q, R=gains.R,
-             meta=json.dumps(meta))
+    with atomic_write(p, "wb") as fh:
+        np.savez(fh, times_s=gains.times_s, K=gains.K, phi_rad=gains.phi_rad, Q=gains.Q, R=gains.R,
+                 meta=json.dumps(meta))
     return p
 
 

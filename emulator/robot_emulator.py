@@ -34,6 +34,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from swerve.configs.atomic import write_text
 from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
@@ -159,10 +160,8 @@ class StatusFile:
             self.write(emu)
 
     def write(self, emu: Emulator) -> None:
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
         try:
-            tmp.write_text(json.dumps(status(emu)) + "\n")
-            os.replace(tmp, self.path)
+            write_text(self.path, json.dumps(status(emu)) + "\n", fsync=False, mkdir=False)
         except OSError as exc:
             log.warning("cannot write status file %s: %s", self.path, exc)
 

@@ -85,6 +85,8 @@ def _fmt(v, scale=1e3, digits=1) -> str:
 
 
 def _write_summary(out: Path, rows, time_scale: float, wall_s: float, choice) -> Path:
+    from swerve.configs.atomic import write_text
+
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "
              f"closed loop simulated on model (1)-(5) and run at 62.5 Hz against the emulated robot "
@@ -108,6 +110,6 @@ def _write_summary(out: Path, rows, time_scale: float, wall_s: float, choice) ->
                   f"(ROS 2 bag, MCAP: open with Foxglove or `swerve export-csv`).", ""]
         lines += [f"![{f.stem}]({f.relative_to(out)})" for f in figs]
     path = out / "summary.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path
 

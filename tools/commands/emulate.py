@@ -108,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
     def _on_signal(signum, _frame):
         stop.set()
 
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     try:
         try:
             emu.start()

@@ -6,13 +6,12 @@ file is replaced, so a failure leaves the file untouched.
 """
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import yaml
 
+from swerve.configs.atomic import write_text
 from swerve.configs.loader import parse_yaml_text
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import parse_robot_config
@@ -66,12 +65,4 @@ def write_gains(path: str | Path, group: str, gains: dict[str, int]) -> None:
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
     new = update_gains_text(text, group, gains, str(path))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(new)
-        os.chmod(tmp, path.stat().st_mode & 0o777)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text(path, new, mkdir=False)
