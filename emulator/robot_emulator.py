@@ -240,6 +240,17 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     """
     robot_ids = sorted(robot.drive_ids + robot.steer_ids) if robot is not None else None
     ids = sorted(ids) if ids is not None else (robot_ids or list(range(1, 9)))
+    if not (math.isfinite(time_scale) and time_scale >= 0):
+        raise ConfigError(f"time scale must be a finite number >= 0, got {time_scale}")
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"clock rate must be a finite number > 0 Hz, got {rate_hz}")
+    if isinstance(faults, str):
+        faults = Faults.parse(faults)
+    if faults is not None:
+        stray = sorted((faults.vanished | set(faults.pending_hw_errors)) - set(ids))
+        if stray:
+            raise ConfigError(f"--faults names servo ID {', '.join(map(str, stray))}, not on the emulated bus "
+                              f"(IDs {', '.join(map(str, ids))})")
     model = model or (robot.model if robot is not None else DEFAULT_MODEL)
     baud = int(baud or (robot.link.baud if robot is not None else DEFAULT_BAUD))
     settings = LinkSettings(baud=baud, **link)

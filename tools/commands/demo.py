@@ -10,6 +10,7 @@ import argparse
 import time
 from pathlib import Path
 
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "demo"
@@ -23,7 +24,7 @@ KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m"
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_config_option(parser)
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
-    parser.add_argument("--time-scale", type=float, default=5.0,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=5.0,
                         help="emulated robot seconds per wall second (default 5; BENCHMARKS.md has the "
                              "loop timing per scale on a 2-core machine)")
     parser.add_argument("--trajectories", default=",".join(TRAJECTORIES),

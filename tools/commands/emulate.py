@@ -15,6 +15,7 @@ import threading
 from swerve.configs.options import parse_ids
 from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
+from swerve.tools.argtypes import baud_rate, finite_float, positive_float
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
@@ -49,16 +50,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ids", default=None, help="servo IDs, e.g. 1-8 or 1,2,5 (default: config or 1-8)")
     parser.add_argument("--model", default=None, help="servo model, e.g. xh430-w210 (default: config or xh430-w210)")
     parser.add_argument("--link", default=None, help="also create this symlink to the pty")
-    parser.add_argument("--baud", type=int, default=None,
+    parser.add_argument("--baud", type=baud_rate, default=None,
                         help="servos' initial baud rate in bps (default: config or 1000000)")
     parser.add_argument("--wire-timing", action="store_true",
                         help="pace replies at the baud rate as on a real cable")
     parser.add_argument("--faults", default=None,
                         help="fault injection, e.g. drop=0.05,corrupt=0.01,delay=0.002,vanish=3,"
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
-    parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="simulated seconds per wall second (default 1)")
-    parser.add_argument("--clock-hz", type=float, default=None,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0), default=1.0,
+                        help="simulated seconds per wall second, 0..1000 (0: the clock stands still; default 1)")
+    parser.add_argument("--clock-hz", type=finite_float(1.0, 100_000.0), default=None,
                         help="clock rate, Hz (default: physics.rate_hz of configs/emulator.yaml; "
                              "--frozen: 1000)")
     mode = parser.add_mutually_exclusive_group()

@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "run"
@@ -28,10 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true", help="start the servo emulator on a pty and drive it")
     add_config_option(parser)
-    parser.add_argument("--time-scale", type=float, default=1.0,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=1.0,
                         help="robot seconds per wall second: only for an emulator (--emulate, or --port "
                              "on a `swerve emulate --time-scale S` pty); default 1")
-    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+    parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=None,
                         help="slack on every bus reply deadline (default: 2 ms; 50 ms with --emulate)")
     parser.add_argument("--log", default=None,
                         help="run log (ROS 2 bag directory, MCAP); default out/runs/<trajectory>-<time>")

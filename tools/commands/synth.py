@@ -1,6 +1,7 @@
 """``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
 from __future__ import annotations
 
+from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_config_option
 
 NAME = "synth"
@@ -34,10 +35,10 @@ def add_arguments(parser) -> None:
                         default="continuation",
                         help="paper method: K = 0 with horizon continuation (default), K = 0 "
                              "on the full horizon (as printed), or frozen-time LQR gains")
-    parser.add_argument("--target-ratio", type=float, default=1.001,
+    parser.add_argument("--target-ratio", type=finite_float(0.0), default=1.001,
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
-    parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
+    parser.add_argument("--max-iter", type=int_range(1, 1_000_000), default=500, help="paper method: CG iterations")
     add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
