@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             emu.start()
         except OSError as exc:
-            raise ConfigError(f"cannot open the pty or link: {exc}") from None
+            raise ConfigError(f"cannot open the pty or link: {exc.strerror or exc}") from None
         freeze_startup_heap()
         ids_text = format_ids(s.id for s in emu.servos)
         print(f"PORT {emu.port} BAUD {emu.baud} IDS {ids_text}", flush=True)
