@@ -159,11 +159,14 @@ class StatusFile:
             self._next_t = now + self.period_s
             self.write(emu)
 
-    def write(self, emu: Emulator) -> None:
+    def write(self, emu: Emulator, strict: bool = False) -> None:
+        """Write the file now; a failure raises with ``strict`` (at start), else is logged."""
         try:
             write_text(self.path, json.dumps(status(emu)) + "\n", fsync=False, mkdir=False)
         except OSError as exc:
-            log.warning("cannot write status file %s: %s", self.path, exc)
+            if strict:
+                raise
+            log.warning("status file: %s", exc)
 
 
 def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> tuple[SensorParams, int | None]:
@@ -297,7 +300,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
             s.memory.stale = True
     emu = Emulator(servos, link=settings, clock=clock_for(time_scale, rate_hz), faults=faults, world=world)
     if status_file is not None:
-        emu.observers.append(StatusFile(status_file, status_hz))
+        writer = StatusFile(status_file, status_hz)
+        writer.write(emu, strict=True)      # an unwritable path is an error before anything is served
+        emu.observers.append(writer)
     return emu
 
 
