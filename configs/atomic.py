@@ -48,6 +48,9 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | No
     target = Path(path)
     try:
         if mkdir:
+            for folder in (target.parent, *target.parent.parents):
+                if folder.exists() and not folder.is_dir():
+                    raise NotADirectoryError(20, f"{folder} is not a directory")
             target.parent.mkdir(parents=True, exist_ok=True)
         if target.is_dir():
             raise IsADirectoryError(21, "Is a directory")

@@ -202,7 +202,7 @@ def main(argv: list[str] | None = None) -> int:
             hold_stop_signals()
             if verbose:
                 traceback.print_exc()
-            what = f"{exc.strerror}: {exc.filename}" if exc.strerror and exc.filename else (exc.strerror or exc)
+            what = f"{exc.filename}: {exc.strerror}" if exc.strerror and exc.filename else (exc.strerror or exc)
             print(f"{prefix}: error: {_one_line(what)}", file=sys.stderr)
             return 1
         except Exception as exc:  # noqa: BLE001 - the boundary: a bug becomes one line and a file
