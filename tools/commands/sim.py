@@ -74,6 +74,9 @@ def run(args) -> int:
         raise ControllerError(f"simulation of {traj.name!r} produced non-finite values")
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
                x0=x0.tolist(), synthesis_cost=gains.cost, **m)
+    report = getattr(traj.path, "report", None)
+    if report is not None:
+        out.update(report.as_dict())
     if args.plot:
         from swerve.controller.plots import plot_run
 
