@@ -322,6 +322,13 @@ class FittedPath:
             i = int(np.argmax(seg == 0))
             raise ControllerError(f"samples {i + 1} and {i + 2} are at the same point: the path "
                                   "stops there, which the tracking law cannot follow")
+        d = np.diff(p, axis=0)
+        back = np.einsum("ij,ij->i", d[1:], d[:-1]) <= 0
+        if np.any(back):
+            i = int(np.argmax(back)) + 1
+            raise ControllerError(f"the path stops at t = {t[i]:.3f} s and turns back (a cusp): "
+                                  "the tracking law needs a direction of travel; split the path "
+                                  "there and mark the part driven backwards as reverse")
         s = np.concatenate([[0.0], np.cumsum(seg)])
         L = float(s[-1])
         self.direction = 1 if direction >= 0 else -1
