@@ -115,19 +115,148 @@ def fit_metrics(name: str, blend_m: float = 0.03) -> dict:
     return out
 
 
+def run_case(traj, method: str, start=None) -> dict:
+    """Synthesise (no gain check, so that failures show as numbers), simulate from ``start``
+    (default the trajectory's), and return the metrics plus the requested (unclipped) peaks."""
+    import time
+
+    from swerve.controller.design import synthesize
+    from swerve.controller.kinematics import load_robot
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
+
+    geom, limits = load_robot()
+    start = traj.start_state(geom) if start is None else np.asarray(start, float)
+    t0 = time.perf_counter()
+    ref, gains = synthesize(traj, method, geom, limits, check=False, start=start)
+    t_syn = time.perf_counter() - t0
+    res = simulate(TrackingLaw(ref, gains, limits), start)
+    m = metrics(res, traj.Q, traj.R, traj.tau_s)
+    m.update(requested_max_abs_v1_mps=float(np.abs(res.raw_inputs[:, 0]).max()),
+             requested_max_abs_steer_rate_radps=float(np.abs(res.raw_inputs[:, 1:]).max()),
+             synthesis_s=t_syn, J_ratio=gains.cost / gains.meta["J_star"]
+             if gains.meta.get("J_star") else 1.0)
+    return m
+
+
+def r_sign_table() -> str:
+    """Both readings of R's lost exponent signs on the paper's three cases, Riccati gains."""
+    import dataclasses
+
+    from swerve.controller.reference import load_trajectory
+
+    readings = [("line", None, (1e-4, 1e-2, 1e-2), (1e4, 1e2, 1e2)),
+                ("circle", None, (1e-2, 1e-6, 1e-6), (1e2, 1e6, 1e6)),
+                ("circle", (0.0, -0.1, 0.3, 0.0, 0.0), (1e-2, 1e-6, 1e-6), (1e2, 1e6, 1e6)),
+                ("curvilinear", None, (1.0, 1.0, 1.0), (1.0, 1.0, 1.0))]
+    rows = ["| case | R reading | R diag | requested max \\|v1\\| m/s | requested max \\|ω\\| "
+            "rad/s | saturated steps | rms / max error m (t ≥ tf/4) | final error m |",
+            "|---|---|---|---|---|---|---|---|"]
+    for name, start, neg, pos in readings:
+        base = load_trajectory(name)
+        case = name if start is None else f"{name}, start {start[:3]}"
+        for label, diag in (("negative exponents", neg), ("positive exponents", pos)):
+            if name == "curvilinear" and label.startswith("positive"):
+                continue
+            traj = dataclasses.replace(base, R=np.diag(diag))
+            m = run_case(traj, "riccati", start)
+            rows.append(
+                f"| {case} | {label if name != 'curvilinear' else 'exponents 0 (no sign)'} | "
+                f"{', '.join(f'{v:g}' for v in diag)} | {m['requested_max_abs_v1_mps']:.3f} | "
+                f"{m['requested_max_abs_steer_rate_radps']:.2f} | "
+                f"{100 * m['saturated_fraction']:.1f} % | {m['rms_position_error_m']:.2g} / "
+                f"{m['max_position_error_m']:.2g} | {m['final_position_error_m']:.2g} |")
+            print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+#: Rows of the tracking table: (label, trajectory name or CSV file, start or None).
+TRACK_CASES = [
+    ("line (paper)", "line", None),
+    ("circle (paper, on the path)", "circle", None),
+    ("circle, start 0.1 m off, θ = 0.3", "circle", (0.0, -0.1, 0.3, 0.0, 0.0)),
+    ("curvilinear (paper, 0.1 m off)", "curvilinear", None),
+    ("S-curve 0.3 m (drawn)", "s_curve.csv", None),
+    ("S-curve 0.2 m (drawn)", "s_curve_tight.csv", None),
+    ("square 1 m, 0.2 m corners (drawn)", "square.csv", None),
+    ("lane change (drawn)", "lane_change.csv", None),
+    ("reverse: line, arc, line (drawn)", "reverse_arc.csv", None),
+    ("S-curve, start 0.2 m off (drawn)", "s_curve_offset.csv", None),
+    ("square, start 5 cm off, θ = 0.3", "square.csv", (-0.3, -0.55, 0.3, 0.0, 0.0)),
+]
+
+
+def tracking_table() -> str:
+    """Fit error, and Riccati versus default CG gains in simulation, for :data:`TRACK_CASES`."""
+    import time
+
+    from swerve.controller.design import GainCheckError, check_gains, synthesize
+    from swerve.controller.kinematics import load_robot
+    from swerve.controller.reference import load_trajectory
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
+
+    geom, limits = load_robot()
+    rows = ["| case | fit: curvature dev. 1/m / arc overshoot / position dev. m | Riccati rms / "
+            "max m | Riccati sat. | CG rms / max m | CG sat. | CG J/J*, s | CG check | "
+            "emulator |", "|---|---|---|---|---|---|---|---|---|"]
+    for label, name, start in TRACK_CASES:
+        traj = load_trajectory(TRAJ_DIR / name if name.endswith(".csv") else name, geom)
+        x0 = traj.start_state(geom) if start is None else np.asarray(start, float)
+        rep = getattr(traj.path, "report", None)
+        fit = ("analytic path" if rep is None else
+               f"{rep.curvature_1pm:.1e} / {100 * rep.overshoot:.2f} % / {rep.position_m:.1e}")
+        ref, g_r = synthesize(traj, "riccati", geom, limits, start=x0)
+        t0 = time.perf_counter()
+        ref_p, g_p = synthesize(traj, "paper", geom, limits, check=False, start=x0)
+        t_cg = time.perf_counter() - t0
+        out = []
+        for g in (g_r, g_p):
+            m = metrics(simulate(TrackingLaw(ref, g, limits), x0), traj.Q, traj.R, traj.tau_s)
+            out.append(m)
+        try:
+            check_gains(ref_p, g_p, g_r.K, limits, x0)
+            verdict = "pass"
+        except GainCheckError as exc:
+            verdict = f"fails: {exc.check} at {exc.t_s:.1f} s"
+        (mr, mp) = out
+        rows.append(f"| {label} | {fit} | {mr['rms_position_error_m']:.1e} / "
+                    f"{mr['max_position_error_m']:.1e} | {100 * mr['saturated_fraction']:.1f} % "
+                    f"| {mp['rms_position_error_m']:.1e} / {mp['max_position_error_m']:.1e} | "
+                    f"{100 * mp['saturated_fraction']:.1f} % | "
+                    f"{g_p.cost / g_p.meta['J_star']:.4f}, {t_cg:.1f} | {verdict} | (to fill) |")
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--write-csv", action="store_true")
     ap.add_argument("--fit-only", action="store_true")
     ap.add_argument("--no-write", action="store_true")
+    ap.add_argument("--r-signs", action="store_true", help="only the R-sign comparison")
     args = ap.parse_args()
     if args.write_csv:
         for name in DRAWN:
             print("wrote", write_csv(name))
+    if args.r_signs:
+        print(r_sign_table())
+        return 0
     fits = {name: fit_metrics(name) for name in DRAWN}
     print(json.dumps(fits, indent=1))
-    if args.fit_only:
-        return 0
+    fit_rows = ["| path | method | max \\|κ\\| on straight parts 1/m | arc overshoot | max "
+                "\\|κ − κ drawn\\| away from junctions 1/m |", "|---|---|---|---|---|"]
+    for name, res in fits.items():
+        for method, m in res.items():
+            fit_rows.append(f"| {name} | {method} | {m['max_abs_curvature_on_straight_1pm']:.2g} "
+                            f"| {100 * m['max_curvature_overshoot']:.2f} % | "
+                            f"{m['max_curvature_error_away_from_junctions_1pm']:.2g} |")
+    text = "\n".join(fit_rows)
+    print(text)
+    if not args.fit_only:
+        text += "\n\n" + tracking_table() + "\n\n" + r_sign_table()
+    if not args.no_write:
+        write_section(SECTION, f"{SECTION}\n\n`python bench/bench_trajectories.py`\n\n{text}\n")
     return 0
 
 

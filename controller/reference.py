@@ -24,7 +24,9 @@ from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, fit_
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = Path(__file__).resolve().parent.parent / "configs" / "trajectories"
 
-#: Weights for a CSV path given without a YAML file (the line case's, R exponents negative).
+#: Weights for a CSV path given without a YAML file: the line case's Q, and R with negative
+#: exponents (tight tracking, the tracking law clips what the servos cannot do; a YAML
+#: wrapper sets other weights).
 DEFAULT_Q_DIAG = (1e3, 1.0, 1e2, 1.0, 1e3)
 DEFAULT_R_DIAG = (1e-4, 1e-2, 1e-2)
 #: Sampling period of the robot's loop, s (62.5 Hz).

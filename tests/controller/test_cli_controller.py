@@ -19,7 +19,8 @@ def test_synth_then_sim_json(tmp_path, capsys):
     data = json.loads(capsys.readouterr().out)
     for k in KEYS:
         assert np.isfinite(data[k])
-    assert data["max_position_error_m"] < 1e-4
+    # the line's R (positive exponents) corrects the 45-degree start gently: cm, then converged
+    assert data["max_position_error_m"] < 0.02 and data["final_position_error_m"] < 1e-4
     assert data["method"] == "riccati"
 
 

@@ -11,8 +11,10 @@ from swerve.controller.reference import (TRAJECTORY_DIR, build_reference, desire
                                          frame_schedule, load_trajectory, sample_at)
 
 
-@pytest.mark.parametrize("name,tf,n,q0,r0", [("line", 40, 2500, 1e3, 1e-4),
-                                             ("circle", 56, 3500, 1e4, 1e-2),
+@pytest.mark.parametrize("name,tf,n,q0,r0", [("line", 40, 2500, 1e3, 1e4),
+                                             ("line_r_negative", 40, 2500, 1e3, 1e-4),
+                                             ("circle", 56, 3500, 1e4, 1e2),
+                                             ("circle_r_negative", 56, 3500, 1e4, 1e-2),
                                              ("curvilinear", 140, 8750, 1e2, 1.0)])
 def test_paper_cases(name, tf, n, q0, r0):
     tr = load_trajectory(name)

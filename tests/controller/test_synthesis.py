@@ -88,7 +88,7 @@ def test_riccati_cost_is_exact(ref_name, request):
 def test_riccati_approaches_the_stationary_lqr_on_the_line(robot):
     from swerve.controller.reference import build_reference, load_trajectory
 
-    ref = build_reference(load_trajectory("line"), *robot)
+    ref = build_reference(load_trajectory("line_r_negative"), *robot)
     Ad, Bd, Q, R, tau = problem(ref)
     K, _ = finite_horizon_lqr(Ad, Bd, Q, R, tau)
     P = solve_discrete_are(Ad[0], Bd[0], tau * Q, tau * R)
@@ -166,7 +166,7 @@ def test_horizon_continuation_reaches_jstar(robot):
     from swerve.controller.reference import build_reference, load_trajectory
     from swerve.controller.synthesis import conjugate_gradient_continuation
 
-    traj = load_trajectory("line")
+    traj = load_trajectory("line_r_negative")
     traj = dataclasses.replace(traj, n_steps=600, tf_s=600 * traj.tau_s)
     ref = build_reference(traj, *robot)
     Ad, Bd, Q, R, tau = problem(ref)

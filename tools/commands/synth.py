@@ -23,15 +23,19 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-precondition", action="store_true",
                         help="paper method: no block-Hessian preconditioner (with --init zero: "
                              "the paper exactly as printed, slow)")
-    parser.add_argument("--initial-errors", choices=("both", "auto", "start", "basis"),
-                        default="both",
-                        help="paper method: optimise for the start error and a basis of "
-                             "scaled unit errors (default), the start error alone, the basis "
-                             "alone, or auto (start, or basis when the start error is zero)")
-    parser.add_argument("--init", choices=("continuation", "zero", "frozen-lqr"),
-                        default="continuation",
-                        help="paper method: K = 0 with horizon continuation (default), K = 0 "
-                             "on the full horizon (as printed), or frozen-time LQR gains")
+    parser.add_argument("--initial-errors", choices=("spread", "both", "auto", "start", "basis"),
+                        default="spread",
+                        help="paper method: the errors J sums over: spread (default: the start "
+                             "error and scaled unit errors at t0, and unit errors again every "
+                             "second along the horizon), both (start error and unit errors at "
+                             "t0), start, basis, or auto (start, or basis when it is zero)")
+    parser.add_argument("--init", choices=("frozen-lqr", "continuation", "zero"),
+                        default="frozen-lqr",
+                        help="paper method: frozen-time LQR gains (default), K = 0 with "
+                             "horizon continuation, or K = 0 on the full horizon (as printed)")
+    parser.add_argument("--no-check", action="store_true",
+                        help="paper method: write the gains even if they fail the check "
+                             "(nonlinear closed loop and closed-loop spectrum)")
     parser.add_argument("--target-ratio", type=float, default=1.001,
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
@@ -58,7 +62,8 @@ def run(args) -> int:
                             precondition=not args.no_precondition,
                             initial_errors=args.initial_errors, max_iter=args.max_iter,
                             init=args.init, target_ratio=args.target_ratio,
-                            progress=not args.quiet and sys.stderr.isatty())
+                            progress=not args.quiet and sys.stderr.isatty(),
+                            check=not args.no_check)
     out = Path(args.out) if args.out else Path("out/gains") / f"{traj.name}_{args.method}.npz"
     if out.suffix != ".npz":
         raise ControllerError(f"--out must end in .npz, got {out}")
