@@ -66,3 +66,18 @@ def test_bad_csv_and_mismatched_gains(tmp_path, capsys):
     assert main(["synth", "--trajectory", "line", "--out", str(out), "--quiet"]) == 0
     assert main(["sim", "--trajectory", "circle", "--gains", str(out)]) == 2
     assert "does not fit" in capsys.readouterr().err
+
+
+def test_paper_gains_that_fail_the_check_are_not_written(tmp_path, capsys):
+    """The paper as printed, stopped after two CG iterations: gains near K = 0 leave the 45-degree
+    start error of the line uncorrected, the check names it and no file is written."""
+    out = tmp_path / "bad.npz"
+    argv = ["synth", "--trajectory", "line", "--method", "paper", "--init", "zero",
+            "--no-precondition", "--initial-errors", "start", "--max-iter", "2",
+            "--target-ratio", "0", "--out", str(out), "--quiet"]
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert "gain check 'tracking' fails at t = " in err and len(err.strip().splitlines()) == 1
+    assert not out.exists() and not out.with_suffix(".dat").exists()
+    assert main(argv + ["--no-check"]) == 0           # written on request, for comparison
+    assert out.exists()
