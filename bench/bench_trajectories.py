@@ -87,7 +87,7 @@ def legacy_spline_curvature(t, x, y, tq):
     return (vx * ay - vy * ax) / (vx * vx + vy * vy) ** 1.5
 
 
-def fit_metrics(name: str, blend_m: float = 0.03) -> dict:
+def fit_metrics(name: str, blend_m: float = 0.05) -> dict:
     """Curvature on straight parts, overshoot at arcs, deviation from the drawn samples."""
     segs, start, rev, _, _ = DRAWN[name]
     s, x, y, _ = draw_primitives(segs, start, SPACING_M)

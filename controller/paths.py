@@ -309,7 +309,7 @@ class FittedPath:
     heading opposite to travel, v1 < 0). ``report`` is a :class:`FitReport`.
     """
 
-    def __init__(self, t_s, x_m, y_m, tolerance_m: float = 2e-5, blend_m: float = 0.03,
+    def __init__(self, t_s, x_m, y_m, tolerance_m: float = 2e-5, blend_m: float = 0.05,
                  direction: int = 1):
         from scipy.interpolate import UnivariateSpline
         from scipy.optimize import least_squares
@@ -533,13 +533,13 @@ def read_csv_samples(path: str | Path) -> PathSamples:
 
 
 def read_csv_path(path: str | Path, tolerance_m: float = 2e-5,
-                  blend_m: float = 0.03) -> FittedPath:
+                  blend_m: float = 0.05) -> FittedPath:
     """A :class:`FittedPath` through the samples of a trajectory CSV file."""
     smp = read_csv_samples(path)
     return fit_samples(smp, tolerance_m, blend_m, str(path))
 
 
-def fit_samples(smp: PathSamples, tolerance_m: float = 2e-5, blend_m: float = 0.03,
+def fit_samples(smp: PathSamples, tolerance_m: float = 2e-5, blend_m: float = 0.05,
                 source: str = "path") -> FittedPath:
     """:class:`FittedPath` of :class:`PathSamples`; errors name ``source``."""
     try:

@@ -99,7 +99,7 @@ def _path_from_spec(spec, tf_s, src, base: Path):
                                    float(spec.get("period_s", tf_s)), tf_s)
         if kind == "csv":
             return read_csv_path(base / spec["file"], float(spec.get("tolerance_m", 2e-5)),
-                                 float(spec.get("blend_m", 0.03)))
+                                 float(spec.get("blend_m", 0.05)))
     except (KeyError, TypeError, ValueError) as exc:
         raise ControllerError(f"{src}: bad path specification {spec}: {exc}") from exc
     raise ControllerError(f"{src}: path type must be line, circle, curvilinear or csv, "

@@ -35,8 +35,8 @@ def test_straight_parts_have_zero_curvature(segments):
     for (kind, *_), a, b in zip(segments, starts, edges):
         if kind != "line":
             continue
-        lo = a + (0.02 if a > 0 else 0.0)
-        hi = b - (0.02 if b < edges[-1] else 0.0)
+        lo = a + (0.03 if a > 0 else 0.0)
+        hi = b - (0.03 if b < edges[-1] else 0.0)
         ss = np.linspace(lo, hi, 500)
         assert np.abs(c.curvature(ss)).max() <= 1e-12
     # and the reference built on it steers straight on the drawn straight start
@@ -55,7 +55,7 @@ def test_corner_curvature_overshoot_at_most_5_percent(segments, radius):
     assert peak <= 1.05 / radius
     assert peak >= 0.95 / radius                    # and the arcs keep their drawn curvature
     assert fit.report.overshoot <= 0.05
-    assert fit.report.position_m <= 3e-4             # samples within 0.3 mm of the curve
+    assert fit.report.position_m <= 5e-4             # samples within 0.5 mm of the curve
     # the former quintic smoothing spline of x(t), y(t) overshot by 16-36 % here
 
 
