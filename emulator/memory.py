@@ -20,7 +20,8 @@ from typing import Callable, Iterable, Iterator, Mapping
 
 from swerve.driver.control_table import ControlTable, Reg, Register
 from swerve.driver.errors import RegisterError
-from swerve.driver.packets import ErrorNumber
+from swerve.driver.control_table import OperatingMode
+from swerve.driver.packets import ErrorNumber, ResetOption
 
 #: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
 INDIRECT_TARGET_MIN = 64
@@ -29,8 +30,8 @@ EEPROM_END = 64
 #: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
 WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION)
 #: Factory Reset options: which items survive.
-RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = 0xFF, 0x01, 0x02
-POSITION_MODE = 3
+RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
+POSITION_MODE = OperatingMode.POSITION
 TIME_BASED_PROFILE_BIT = 0x04
 
 
@@ -145,14 +146,17 @@ class ServoMemory:
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
 
-    def snapshot(self) -> dict[str, int]:
-        """Every item's raw value by name."""
-        self.publish()
-        return {reg.name: self.get(reg.name) for reg in self.table}
-
     def view(self) -> "Mapping[str, int]":
         """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
         return _MemoryView(self)
+
+    def stored_bytes(self, end: int) -> bytes:
+        """The table's stored bytes ``0 .. end-1``, as written (indirect data not resolved).
+
+        For physics reading its input items each step: one copy instead of a decode per item
+        (no item below the first Indirect Data address is indirect).
+        """
+        return bytes(self._bytes[:end])
 
     def copy(self) -> "ServoMemory":
         """An independent copy (bytes and watchdog state), e.g. to try a write without applying it."""

@@ -16,7 +16,7 @@ from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_con
 from . import units as u
 from .body import RobotBody
 from .params import PhysicsConfig
-from .servo_model import ServoModel
+from .servo_model import ServoModel, wheel_servo
 
 
 @dataclass(frozen=True)
@@ -56,20 +56,16 @@ class RobotPhysics:
 
     def __init__(self, cfg: PhysicsConfig, geometry: RobotGeometry, rng: np.random.Generator | None = None):
         self.geometry = geometry
-        gear = cfg.gear_ratio(geometry.model)
         rng = rng if rng is not None else np.random.default_rng()
-
-        def servo(params):
-            return ServoModel(params, gear, cfg.supply_voltage_v, cfg.firmware, cfg.sensors, cfg.thermal, rng)
-
         self.servos: dict[int, ServoModel] = {}
         wheel_inertia = cfg.body.total_mass_kg / len(geometry.wheels) * geometry.wheel_radius_m ** 2
         for w in geometry.wheels:
-            self.servos[w.drive_id] = servo(cfg.drive_motor)
+            self.servos[w.drive_id] = wheel_servo(cfg, geometry.model, steering=False, rng=rng)
             if cfg.body.load_enabled:   # the robot's mass, reflected onto each drive shaft
                 self.servos[w.drive_id].external_load(0.0, wheel_inertia)
-            steer = self.servos[w.steer_id] = servo(cfg.steering_motor)
-            steer.set_shaft_angle(w.center_pulse * u.RAD_PER_PULSE)    # start with wheels straight
+            # steering servos start with the wheels straight
+            self.servos[w.steer_id] = wheel_servo(cfg, geometry.model, steering=True,
+                                                  center_pulse=w.center_pulse, rng=rng)
         self.body = RobotBody([(w.x_m, w.y_m) for w in geometry.wheels])
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -87,21 +83,8 @@ class RobotPhysics:
         self.step_body(dt_s)
         return out
 
-    def step_body(self, dt_s: float, _servos: object = None) -> tuple[float, float, float]:
-        """Advance only the body from the servos' present shaft states (servos stepped elsewhere).
-
-        Signature-compatible with the emulator server's ``world.step(dt_s, servos_by_id)`` hook:
-        pass ``world=BodyWorld(robot)`` and ``dynamics=robot.servos``.
-        """
+    def step_body(self, dt_s: float) -> tuple[float, float, float]:
+        """Advance only the body from the servos' present shaft states (servos stepped elsewhere,
+        e.g. by the emulator's servo loop); return the pose."""
         return self.body.step(dt_s, *self.wheel_state())
 
-
-class BodyWorld:
-    """Adapter for an emulator that steps each servo itself: ``step(dt_s, servos)`` moves the body."""
-
-    def __init__(self, robot: RobotPhysics):
-        self.robot = robot
-
-    def step(self, dt_s: float, servos: object = None) -> tuple[float, float, float]:
-        """Advance the body by ``dt_s`` (the servos were already stepped); return the pose."""
-        return self.robot.step_body(dt_s)

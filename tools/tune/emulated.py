@@ -13,10 +13,9 @@ from typing import Callable
 import numpy as np
 
 from swerve.driver.robot_config import RobotConfig
-from swerve.emulator import Emulator
-from swerve.emulator.physics import units as u
+from swerve.emulator import Emulator, LinkSettings, WallClock, make_servos
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams
-from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
 
 #: ``--noise``: encoder noise before quantisation (pulse) and current-sensor noise (A), std.
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
@@ -28,23 +27,21 @@ def servo_models(rc: RobotConfig, cfg: PhysicsConfig, *, noise: bool = False,
     sensors = replace(cfg.sensors, position_noise_std_pulse=NOISE.position_noise_std_pulse,
                       current_noise_std_a=NOISE.current_noise_std_a) if noise else cfg.sensors
     rng = np.random.default_rng(seed)
-    gear = cfg.gear_ratio(rc.model)
     centers = {w.steer_id: w.center_pulse for w in rc.wheels}
 
     def dynamics(servo) -> ServoModel:
-        steering = servo.id in centers
-        model = ServoModel(cfg.steering_motor if steering else cfg.drive_motor, gear, cfg.supply_voltage_v,
-                           cfg.firmware, sensors, cfg.thermal, rng)
-        if steering:
-            model.set_shaft_angle(centers[servo.id] * u.RAD_PER_PULSE)
-        return model
+        return wheel_servo(cfg, rc.model, steering=servo.id in centers, center_pulse=centers.get(servo.id),
+                           sensors=sensors, rng=rng)
 
     return dynamics
 
 
 def make_emulator(rc: RobotConfig, cfg: PhysicsConfig | None, *, noise: bool = False, seed: int | None = None,
                   baud: int | None = None, **kwargs) -> Emulator:
-    """An (unstarted) :class:`Emulator` with every servo of ``rc``; ``cfg=None``: static servos."""
+    """An (unstarted) :class:`Emulator` with every servo of ``rc``, clocked at 1 kHz in real time;
+    ``cfg=None``: static servos. ``kwargs``: :class:`LinkSettings` fields."""
     ids = sorted(set(rc.drive_ids) | set(rc.steer_ids))
     dynamics = servo_models(rc, cfg, noise=noise, seed=seed) if cfg is not None else None
-    return Emulator(ids, rc.model, baud or rc.link.baud, dynamics=dynamics, **kwargs)
+    baud = baud or rc.link.baud
+    return Emulator(make_servos(ids, rc.model, baud, dynamics=dynamics), link=LinkSettings(baud=baud, **kwargs),
+                    clock=WallClock(1.0, 1000.0))
