@@ -11,6 +11,9 @@ from swerve.controller.reference import Reference, Trajectory, build_reference
 from swerve.controller.riccati import finite_horizon_lqr
 
 METHODS = ("riccati", "paper")
+#: Times the paper's method tightens its J/J* target tenfold while its gains fail the spectrum
+#: check (:func:`check_spectrum`).
+REFINE_STAGES = 3
 
 
 def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geometry(),
@@ -78,9 +81,22 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
             res = conjugate_gradient_continuation(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, **opts)
         else:
             res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, K0=K0, **opts)
+        evals, iters, secs = res.evaluations, res.iterations, res.seconds
+        # stopping rule on the spectrum: J/J* alone leaves gains on a few steps unconstrained
+        ratio = target_ratio
+        for _ in range(REFINE_STAGES if check and target_ratio > 0 else 0):
+            try:
+                check_spectrum(Ad, Bd, res.K, Kr, traj.tau_s)
+                break
+            except GainCheckError:
+                ratio = 1 + (ratio - 1) / 10
+                opts.update(target_cost=ratio * J_star)
+                res = conjugate_gradient(Ad, Bd, traj.Q, traj.R, traj.tau_s, X0, K0=res.K, **opts)
+                evals, iters, secs = evals + res.evaluations, iters + res.iterations, \
+                    secs + res.seconds
         K, J = res.K, res.cost
-        meta.update(J_star=J_star, evaluations=res.evaluations, iterations=res.iterations,
-                    seconds=res.seconds, message=res.message, beta=beta,
+        meta.update(J_star=J_star, evaluations=evals, iterations=iters, target_ratio=ratio,
+                    seconds=secs, message=res.message, beta=beta,
                     precondition=precondition, init=init, initial_errors=initial_errors,
                     injected_errors=int(X0.shape[1]))
     gains = GainSchedule(K, ref.phi_rad[:-1].copy(), traj.tau_s, traj.Q, traj.R, traj.name,
@@ -98,11 +114,13 @@ CHECK_RICCATI_FACTOR = 2.0
 CHECK_PERTURBATIONS = ((0.02, 0.0, 0.1), (0.0, -0.02, -0.1), (-0.02, 0.02, 0.0))
 #: Frozen closed-loop eigenvalues against Riccati's: an eigenvalue with a real part below both
 #: ``-CHECK_ALTERNATION`` and Riccati's smallest minus :data:`CHECK_EIG_MARGIN` is a mode that
-#: flips sign every step and decays by less than 20 % per step (Euler poles far faster than
-#: the 62.5 Hz loop, which the sampled robot does not reproduce); the spectral radius may
-#: exceed max(1, Riccati's) by :data:`CHECK_RADIUS_MARGIN` (0.01 per step: growth by 1.9x/s).
+#: flips sign every step and hardly decays (an Euler pole far faster than the 62.5 Hz loop,
+#: which the sampled robot does not reproduce); the spectral radius may exceed max(1,
+#: Riccati's) by :data:`CHECK_RADIUS_MARGIN` (0.01 per step: growth by 1.9x/s). Gains that are
+#: J-optimal to 1e-6 still show eigenvalues down to -0.95 on a few dozen steps of the drawn
+#: square and track like Riccati's, so the bound is near -1; the tracking check decides the rest.
 CHECK_EIG_MARGIN = 0.2
-CHECK_ALTERNATION = 0.8
+CHECK_ALTERNATION = 0.97
 CHECK_RADIUS_MARGIN = 0.01
 #: A spectrum condition fails only if it holds on this many consecutive steps (0.16 s): a
 #: single step's frozen eigenvalues say little about a time-varying loop.
@@ -134,25 +152,12 @@ def closed_loop_spectrum(Ad, Bd, K):
     return np.abs(ev).max(axis=1), ev.real.min(axis=1)
 
 
-def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, start,
-                tol_m: float = CHECK_TRACKING_TOL_M) -> dict:
-    """Refuse gains that the robot should not run (raises :class:`GainCheckError`).
+def check_spectrum(Ad, Bd, K, K_riccati, tau_s: float):
+    """The ``spectrum`` check of :func:`check_gains` (raises :class:`GainCheckError`).
 
-    Checks, in order: ``spectrum`` (frozen closed-loop eigenvalues along the reference against
-    Riccati's for :data:`CHECK_PERSIST_STEPS` consecutive steps, see
-    :data:`CHECK_EIG_MARGIN`, :data:`CHECK_RADIUS_MARGIN`); ``tracking`` (the nonlinear closed loop on model
-    (1)-(5) from ``start`` (5,) and from :data:`CHECK_PERTURBATIONS` of it keeps the position
-    error over t >= tf/4 below ``tol_m`` or :data:`CHECK_RICCATI_FACTOR` times that of
-    Riccati's gains from the same start). Returns the measured numbers.
-    """
-    import dataclasses
-
-    from swerve.controller.simulate import simulate
-    from swerve.controller.tracking import TrackingLaw
-
-    Ad, Bd = error_system(ref)
-    t = ref.times_s[:-1]
-    rho, low = closed_loop_spectrum(Ad, Bd, gains.K)
+    Returns the spectral radius (N,), most negative real part (N,) and Riccati's (N,)."""
+    t = np.arange(K.shape[0]) * tau_s
+    rho, low = closed_loop_spectrum(Ad, Bd, K)
     rho_r, low_r = closed_loop_spectrum(Ad, Bd, K_riccati)
     n = CHECK_PERSIST_STEPS
     i = _first_run(rho > np.maximum(rho_r, 1.0) + CHECK_RADIUS_MARGIN, n)
@@ -165,6 +170,27 @@ def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, 
         raise GainCheckError("spectrum", t[i], f"closed-loop eigenvalue {low[i]:.2f} below "
                              f"{floor:.2f} (Riccati's lowest {low_r.min():.2f}) for {n}+ "
                              "steps: the loop alternates from step to step")
+    return rho, low, low_r
+
+
+def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, start,
+                tol_m: float = CHECK_TRACKING_TOL_M) -> dict:
+    """Refuse gains that the robot should not run (raises :class:`GainCheckError`).
+
+    Checks, in order: ``spectrum`` (:func:`check_spectrum`: frozen closed-loop eigenvalues
+    along the reference against Riccati's for :data:`CHECK_PERSIST_STEPS` consecutive steps,
+    see :data:`CHECK_ALTERNATION`, :data:`CHECK_RADIUS_MARGIN`); ``tracking`` (the nonlinear
+    closed loop on model (1)-(5) from ``start`` (5,) and from :data:`CHECK_PERTURBATIONS` of it
+    keeps the position error over t >= tf/4 below ``tol_m`` or :data:`CHECK_RICCATI_FACTOR`
+    times that of Riccati's gains from the same start). Returns the measured numbers.
+    """
+    import dataclasses
+
+    from swerve.controller.simulate import simulate
+    from swerve.controller.tracking import TrackingLaw
+
+    Ad, Bd = error_system(ref)
+    rho, low, low_r = check_spectrum(Ad, Bd, gains.K, K_riccati, ref.tau_s)
     starts = [np.asarray(start, float)] + [np.asarray(start, float) + np.r_[d, 0.0, 0.0]
                                            for d in CHECK_PERTURBATIONS]
     worst = 0.0
@@ -179,7 +205,8 @@ def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, 
         over = np.flatnonzero(late & ~(e <= bound))
         if over.size:
             i = over[0]
-            what = "the start state" if k == 0 else f"the start perturbed by {CHECK_PERTURBATIONS[k - 1]}"
+            what = ("the start state" if k == 0
+                    else f"the start perturbed by {CHECK_PERTURBATIONS[k - 1]}")
             raise GainCheckError("tracking", res.t_s[i], f"from {what} the position error "
                                  f"is {e[i]:.3g} m > {bound:.3g} m on the nonlinear model")
         worst = max(worst, float(e[late].max()))

@@ -333,7 +333,7 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                            time.perf_counter() - t0, message, history)
 
 
-def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 62):
+def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 8):
     """Initial gains for :func:`conjugate_gradient`: the stationary (infinite-horizon) discrete
     LQR gain of the error system frozen at knots every ``knot_every`` steps, held between knots.
 
