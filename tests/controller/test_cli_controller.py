@@ -27,7 +27,7 @@ def test_synth_then_sim_json(tmp_path, capsys):
 def test_synth_paper_method(tmp_path, capsys):
     out = tmp_path / "c.npz"
     assert main(["synth", "--trajectory", "circle", "--method", "paper", "--max-iter", "3",
-                 "--out", str(out), "--quiet"]) == 0
+                 "--no-check", "--out", str(out), "--quiet"]) == 0
     text = capsys.readouterr().out
     assert "method: paper" in text and "dai-yuan" in text
 

@@ -66,7 +66,7 @@ def run(args) -> int:
         ref = build_reference(traj, geom, limits, frames)
     else:
         ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law,
-                                progress=not args.quiet and sys.stderr.isatty())
+                                progress=not args.quiet and sys.stderr.isatty(), start=x0)
     law = TrackingLaw(ref, gains, limits, governor=not args.no_governor)
     res = simulate(law, x0)
     m = metrics(res, traj.Q, traj.R, traj.tau_s)
