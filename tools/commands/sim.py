@@ -7,7 +7,8 @@ HELP = "simulate LQ trajectory tracking on the kinematic model and report tracki
 
 def add_arguments(parser) -> None:
     parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: controller/README.md, Trajectory files)")
     parser.add_argument("--gains", metavar="FILE",
                         help="gain schedule from 'swerve synth' (.npz/.dat); default: "
                              "synthesise with --method now")

@@ -7,7 +7,8 @@ HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz 
 
 def add_arguments(parser) -> None:
     parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: controller/README.md, Trajectory files)")
     parser.add_argument("--method", choices=("riccati", "paper"), default="riccati",
                         help="riccati: exact finite-horizon optimum (default); "
                              "paper: nonlinear conjugate gradient (42)-(59)")
