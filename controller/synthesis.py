@@ -23,6 +23,10 @@ the paper's printed (55)-(59) has an index typo and drops the ``B K`` term)::
     lambda_N = 0,  lambda_i = 2 tau (Q + K_i'R K_i) x_i + M_i' lambda_{i+1}
     dJ/dK_i = 2 tau R K_i x_i x_i' + Bd_i' lambda_{i+1} x_i'
 
+summed over the errors J sees, in moment form (``lambda_i = 2 P_i x_i``, see
+:func:`cost_and_gradient`), so that errors may also enter later in the horizon
+(:func:`error_injections`): with errors at t0 only, the late gains barely affect J.
+
 Sign convention: ``u = ud + K x~`` (see :mod:`controller.ltv`).
 """
 from __future__ import annotations
