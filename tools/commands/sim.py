@@ -1,6 +1,8 @@
 """``swerve sim``: closed-loop simulation of the tracking law on the nonlinear model (1)-(5)."""
 from __future__ import annotations
 
+from swerve.tools.cli import add_config_option
+
 NAME = "sim"
 HELP = "simulate LQ trajectory tracking on the kinematic model and report tracking errors"
 
@@ -22,11 +24,12 @@ def add_arguments(parser) -> None:
                         help="do not slow the reference while the wheel speed saturates")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--plot", metavar="DIR", help="write PNG figures (paper Figs. 4-9)")
-    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _parse_x0(text: str):
+def parse_x0(text: str):
+    """``--x0 x,y,θ,δ1,δ2`` (m, rad) as an array (5,); a one-line error otherwise."""
     import numpy as np
 
     from swerve.controller.errors import ControllerError
@@ -50,14 +53,16 @@ def run(args) -> int:
     from swerve.controller.design import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.configs import locate_robot_file
     from swerve.controller.reference import build_reference, load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
+    from swerve.tools.run.robot import load_robot
 
-    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    choice = locate_robot_file(args.config)
+    geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
-    x0 = _parse_x0(args.x0) if args.x0 else traj.start_state(geom)
+    x0 = parse_x0(args.x0) if args.x0 else traj.start_state(geom)
     if args.gains:
         gains = load_gains(args.gains)
         frames = gains.meta.get("frames", args.law)
@@ -74,7 +79,8 @@ def run(args) -> int:
     if not all(np.isfinite(v) for v in m.values()):
         raise ControllerError(f"simulation of {traj.name!r} produced non-finite values")
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
-               x0=x0.tolist(), synthesis_cost=gains.cost, **m)
+               x0=x0.tolist(), synthesis_cost=gains.cost, config=str(choice.path),
+               config_source=choice.source, **m)
     report = getattr(traj.path, "report", None)
     if report is not None:
         out.update(report.as_dict())

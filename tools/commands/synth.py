@@ -1,6 +1,8 @@
 """``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
 from __future__ import annotations
 
+from swerve.tools.cli import add_config_option
+
 NAME = "synth"
 HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz + .dat)"
 
@@ -41,7 +43,10 @@ def add_arguments(parser) -> None:
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
     parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
-    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
+                        help="robot start state in m and rad (default: the trajectory's); its "
+                             "error is part of the paper method's cost and of its check")
+    add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -52,11 +57,15 @@ def run(args) -> int:
     from swerve.controller.design import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import save_gains
-    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.configs import locate_robot_file
     from swerve.controller.reference import load_trajectory
+    from swerve.tools.commands.sim import parse_x0
+    from swerve.tools.run.robot import load_robot
 
-    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    choice = locate_robot_file(args.config)
+    geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
+    start = parse_x0(args.x0) if args.x0 else None
     if args.max_iter < 1:
         raise ControllerError("--max-iter must be at least 1")
     ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law, beta=args.beta,
@@ -64,13 +73,14 @@ def run(args) -> int:
                             initial_errors=args.initial_errors, max_iter=args.max_iter,
                             init=args.init, target_ratio=args.target_ratio,
                             progress=not args.quiet and sys.stderr.isatty(),
-                            check=not args.no_check)
+                            check=not args.no_check, start=start)
     out = Path(args.out) if args.out else Path("out/gains") / f"{traj.name}_{args.method}.npz"
     if out.suffix != ".npz":
         raise ControllerError(f"--out must end in .npz, got {out}")
     save_gains(out, gains)
     dat = save_gains(out.with_suffix(".dat"), gains)
     m = gains.meta
+    print(f"config: {choice.describe()}")
     print(f"trajectory: {traj.name}  (N = {traj.n_steps}, tau = {traj.tau_s} s, "
           f"tf = {traj.tf_s:g} s, frames = {args.law}, "
           f"{len(set(gains.phi_rad.round(9)))} chained frame(s))")
