@@ -81,3 +81,15 @@ def test_paper_gains_that_fail_the_check_are_not_written(tmp_path, capsys):
     assert not out.exists() and not out.with_suffix(".dat").exists()
     assert main(argv + ["--no-check"]) == 0           # written on request, for comparison
     assert out.exists()
+
+
+def test_synth_takes_the_start_state(tmp_path, capsys):
+    from swerve.controller.gains_io import load_gains
+
+    out = tmp_path / "l.npz"
+    assert main(["synth", "--trajectory", "line", "--x0", "0,0,0", "--out", str(out)]) == 2
+    assert "--x0 must be 5 finite numbers" in capsys.readouterr().err
+    assert main(["synth", "--trajectory", "line", "--x0", "0.1,0,0.3,0,0", "--out", str(out),
+                 "--quiet"]) == 0
+    err = load_gains(out).meta["initial_error"]
+    assert err[0] == pytest.approx(0.1) and err[4] == pytest.approx(0.0)
