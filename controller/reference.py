@@ -154,20 +154,7 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
     if not p.is_file():
         raise ControllerError(f"trajectory file {p} does not exist")
     if p.suffix.lower() == ".csv":
-<<<<<<< HEAD
-        path = read_csv_path(p)
-        tf = path.t_end_s
-        n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
-        if n < 10:
-            raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
-        if n > N_STEPS_MAX:
-            raise ControllerError(f"{p}: path lasts {tf:g} s, {n} steps of 16 ms, more than the "
-                                  f"{N_STEPS_MAX} a gain schedule may hold")
-        return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
-                          np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), None, str(p))
-=======
         return load_csv_trajectory(p)
->>>>>>> main
     top = read_yaml(p, ControllerError, "trajectory file").root()
     tau = top.number("tau_s", DEFAULT_TAU_S, positive=True, max=10.0)
     tf_given = top.number("tf_s", None, positive=True, max=TRAJ_DURATION_MAX_S)
@@ -205,6 +192,9 @@ def load_csv_trajectory(p: Path) -> Trajectory:
     n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
     if n < 10:
         raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
+    if n > N_STEPS_MAX:
+        raise ControllerError(f"{p}: path lasts {tf:g} s, {n} steps of 16 ms, more than the "
+                              f"{N_STEPS_MAX} a gain schedule may hold")
     start = None if smp.start is None else np.array(smp.start, dtype=float)
     return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
                       np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), start, str(p),
