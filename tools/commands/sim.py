@@ -104,14 +104,10 @@ def run(args) -> int:
     why = failure(res, args.tolerance_m)
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
                x0=x0.tolist(), synthesis_cost=gains.cost, config=str(choice.path),
-<<<<<<< HEAD
                config_source=choice.source, **m, converged=why is None)
-=======
-               config_source=choice.source, **m)
     report = getattr(traj.path, "report", None)
     if report is not None:
         out.update(report.as_dict())
->>>>>>> main
     if args.plot:
         from swerve.controller.plots import plot_run
 
