@@ -11,7 +11,8 @@ Each case runs the real ``swerve`` command in a subprocess and asserts:
 Input classes: NaN, infinities, negative, zero, huge, wrong type, missing file, directory instead
 of a file, binary file, empty file, unwritable output (a read-only file system; a file where a
 folder should be: the tests run as root, which ignores permission bits), emulator faults naming
-absent servos, a link path that exists, trajectories too long to hold.
+absent servos, a link path that exists, trajectories too long to hold, an endless device
+(``/dev/zero``), a named pipe, a YAML "billion laughs" alias bomb.
 """
 from __future__ import annotations
 
@@ -95,6 +96,10 @@ CASES: list[tuple[str, list[str], str | None]] = [
     ("synth-config-binary", ["synth", "--trajectory", "line", "--config", "{W}/binary.yaml"], None),
     ("synth-config-empty", ["synth", "--trajectory", "line", "--config", "{W}/empty.yaml"], None),
     ("synth-config-dir", ["synth", "--trajectory", "line", "--config", "{W}/dir"], None),
+    ("synth-config-endless-device", ["synth", "--trajectory", "line", "--config", "/dev/zero"], None),
+    ("synth-config-fifo", ["synth", "--trajectory", "line", "--config", "{W}/fifo.yaml"], None),
+    ("synth-config-alias-bomb", ["synth", "--trajectory", "line", "--config", "{W}/bomb.yaml"], None),
+    ("synth-trajectory-alias-bomb", ["synth", "--trajectory", "{W}/bomb.yaml"], None),
     # --- sim ------------------------------------------------------------------------------
     ("sim-gains-missing", ["sim", "--trajectory", "line", "--gains", "{W}/missing.npz"], None),
     ("sim-gains-dir", ["sim", "--trajectory", "line", "--gains", "{W}/dir.npz"], None),
@@ -186,6 +191,9 @@ def work(tmp_path_factory) -> Path:
                                 "path: {type: line, start_m: [0.0, 0.0], velocity_mps: [0.05, 0.05]}\n")
     subprocess.run([sys.executable, "-m", "swerve.tools.cli", "synth", "--trajectory", "line", "--out",
                     str(w / "good.npz"), "--quiet"], check=True, capture_output=True, timeout=HANG_GUARD_S)
+    os.mkfifo(w / "fifo.yaml")                       # opening it would block until a writer comes
+    (w / "bomb.yaml").write_text("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
+        f"{c}: &{c} [{', '.join([f'*{p}'] * 9)}]\n" for p, c in zip("abcdefgh", "bcdefghi")))
     (w / "truncated.npz").write_bytes((w / "good.npz").read_bytes()[:3000])
     (w / "truncated.dat").write_bytes((w / "good.dat").read_bytes()[:5000])
     synthetic.write(w / "log", synthetic.records(50))
