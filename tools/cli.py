@@ -14,7 +14,7 @@ import sys
 from swerve.driver.errors import SwerveError
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
-COMMANDS = ("emulate", "scan", "synth", "sim", "run", "demo", "tune", "plot", "export_csv")
+COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "tune", "plot", "export_csv")
 
 
 def _load(name: str):
