@@ -20,14 +20,14 @@ import warnings
 
 import serial
 
+# Baud rates the X series supports, in scan order (factory default first).
+from swerve.driver.control_table import SCAN_BAUDS_BPS as STANDARD_BAUDS
 from swerve.driver.errors import TransportError
 from swerve.driver.packets import Packet
 from swerve.driver.parser import PacketParser
 
 log = logging.getLogger(__name__)
 
-#: Baud rates the X series supports (Baud Rate item 8, index 0..7).
-STANDARD_BAUDS = (57_600, 1_000_000, 115_200, 2_000_000, 3_000_000, 4_000_000, 9_600, 4_500_000)
 
 #: Bits on the wire per byte: start + 8 data + stop.
 BITS_PER_BYTE = 10

@@ -1,6 +1,8 @@
 """Configuration dataclasses for the physics and their YAML loader (``configs/emulator.yaml``).
 
-Malformed input raises :class:`driver.errors.ConfigError` naming the offending key.
+The file is read by :mod:`swerve.configs.loader`: malformed input raises
+:class:`~swerve.configs.errors.ConfigError` ``FILE:LINE: KEY: problem``; a key no parser reads
+gives a :class:`~swerve.configs.loader.ConfigWarning`.
 """
 from __future__ import annotations
 
@@ -8,9 +10,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
+from swerve.configs import shipped
+from swerve.configs.errors import ConfigError
+from swerve.configs.loader import Document, Section, document, read_yaml
+from swerve.driver.control_table import REFERENCE_MODEL, table_for
 
-from swerve.driver.errors import ConfigError
+#: The shipped physics config.
+DEFAULT_PATH = shipped("emulator.yaml")
+#: Plausibility bounds (a larger value is a typo or a wrong unit).
+MOTOR_VALUE_MAX = 1e3
+PULSE_MAX = 1e6
+NOISE_STD_MAX = 1e3
+MASS_MAX_KG = 1e3
+SUPPLY_MAX_V = 48.0
 
 BESSEL_PLACEMENTS = ("velocity_feedback", "reference", "none")
 BESSEL_NORMS = ("mag", "phase", "delay")
@@ -97,131 +109,90 @@ class PhysicsConfig:
             raise ConfigError(f"gear_ratios: no entry for servo model {model!r}") from None
 
 
-def _section(doc: Mapping[str, Any], key: str, required: bool = True) -> Mapping[str, Any]:
-    value = doc.get(key)
-    if value is None and not required:
-        return {}
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
-    return value
-
-
-def _number(sec: Mapping[str, Any], path: str, key: str, *, positive: bool = False,
-            default: float | None = None) -> float:
-    if key not in sec:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: missing")
-        return default
-    value = sec[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{path}.{key}: expected a number, got {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ConfigError(f"{path}.{key}: must be {'> 0' if positive else '>= 0'}, got {value!r}")
-    return float(value)
-
-
-def _motor(sec: Mapping[str, Any], path: str) -> MotorParams:
+def _motor(sec: Section) -> MotorParams:
     names = ("resistance_ohm", "inductance_h", "back_emf_v_s_per_rad", "torque_nm_per_a",
              "inertia_kg_m2")
-    kw = {n: _number(sec, path, n, positive=True) for n in names}
-    kw["friction_nm_s_per_rad"] = _number(sec, path, "friction_nm_s_per_rad")
+    kw = {n: sec.number(n, positive=True, max=MOTOR_VALUE_MAX) for n in names}
+    kw["friction_nm_s_per_rad"] = sec.number("friction_nm_s_per_rad", nonneg=True, max=MOTOR_VALUE_MAX)
+    sec.check_unknown()
     return MotorParams(**kw)
 
 
-def _choice(sec: Mapping[str, Any], path: str, key: str, choices: tuple[str, ...], default: str) -> str:
-    value = sec.get(key, default)
-    if value not in choices:
-        raise ConfigError(f"{path}.{key}: expected one of {choices}, got {value!r}")
-    return value
-
-
-def parse_config(doc: Mapping[str, Any]) -> PhysicsConfig:
-    """Build a :class:`PhysicsConfig` from a parsed YAML mapping.
+def parse_config(doc: Mapping[str, Any] | Document, where: str = "emulator config") -> PhysicsConfig:
+    """Build a :class:`PhysicsConfig` from a :class:`~swerve.configs.loader.Document` or from
+    already-parsed YAML data (named ``where`` in errors).
 
     Raises
     ------
     ConfigError
-        On a missing or malformed key; the message starts with the key's dotted path.
+        On a missing or malformed key: ``FILE:LINE: KEY: problem``.
     """
-    if not isinstance(doc, Mapping):
-        raise ConfigError("emulator config: expected a mapping at the top level")
-    phys = _section(doc, "physics")
-    rate = _number(phys, "physics", "rate_hz", positive=True)
-    if rate < 1000:
-        raise ConfigError(f"physics.rate_hz: must be >= 1000, got {rate:g}")
-    motors = _section(doc, "motors")
-    gears = _section(doc, "gear_ratios")
-    gear_ratios = {str(k).lower(): _number(gears, "gear_ratios", k, positive=True) for k in gears}
-    fw = _section(doc, "firmware", required=False)
-    bes = _section(doc, "bessel", required=False)
+    doc = doc if isinstance(doc, Document) else document(doc, where)
+    top = doc.root()
+    phys = top.section("physics")
+    rate = phys.number("rate_hz", min=1000.0, max=1e6)
+    motors = top.section("motors")
+    gears = top.section("gear_ratios")
+    gear_ratios = {str(k).lower(): gears.number(k, positive=True, max=1e4) for k in gears.keys()}
+    fw = top.section("firmware", required=False)
+    bes = top.section("bessel", required=False)
     d = FirmwareParams()
     firmware = FirmwareParams(
-        gain_time_base_s=_number(fw, "firmware", "gain_time_base_s", positive=True, default=d.gain_time_base_s),
-        anti_windup_gain=_number(fw, "firmware", "anti_windup_gain", default=d.anti_windup_gain),
-        current_loop_time_constant_s=_number(fw, "firmware", "current_loop_time_constant_s",
-                                             positive=True, default=d.current_loop_time_constant_s),
-        in_position_window_pulse=_number(fw, "firmware", "in_position_window_pulse",
-                                         default=d.in_position_window_pulse),
-        following_error_pulse=_number(fw, "firmware", "following_error_pulse",
-                                      positive=True, default=d.following_error_pulse),
-        bessel_cutoff_radps=_number(bes, "bessel", "cutoff_radps", positive=True, default=d.bessel_cutoff_radps),
-        bessel_norm=_choice(bes, "bessel", "norm", BESSEL_NORMS, d.bessel_norm),
-        bessel_placement=_choice(bes, "bessel", "placement", BESSEL_PLACEMENTS, d.bessel_placement),
+        gain_time_base_s=fw.number("gain_time_base_s", d.gain_time_base_s, positive=True, max=1.0),
+        anti_windup_gain=fw.number("anti_windup_gain", d.anti_windup_gain, nonneg=True, max=1e3),
+        current_loop_time_constant_s=fw.number("current_loop_time_constant_s",
+                                               d.current_loop_time_constant_s, positive=True, max=1.0),
+        in_position_window_pulse=fw.number("in_position_window_pulse", d.in_position_window_pulse,
+                                           nonneg=True, max=PULSE_MAX),
+        following_error_pulse=fw.number("following_error_pulse", d.following_error_pulse,
+                                        positive=True, max=PULSE_MAX),
+        bessel_cutoff_radps=bes.number("cutoff_radps", d.bessel_cutoff_radps, positive=True, max=1e5),
+        bessel_norm=bes.choice("norm", BESSEL_NORMS, d.bessel_norm),
+        bessel_placement=bes.choice("placement", BESSEL_PLACEMENTS, d.bessel_placement),
     )
-    sen = _section(doc, "sensors", required=False)
-    sensors = SensorParams(**{k: _number(sen, "sensors", k, default=0.0)
+    sen = top.section("sensors", required=False)
+    sensors = SensorParams(**{k: sen.number(k, 0.0, nonneg=True, max=NOISE_STD_MAX)
                               for k in ("position_noise_std_pulse", "current_noise_std_a",
                                         "voltage_noise_std_v")})
-    th = _section(doc, "thermal", required=False)
+    th = top.section("thermal", required=False)
     td = ThermalParams()
     thermal = ThermalParams(
-        ambient_c=_number(th, "thermal", "ambient_c", default=td.ambient_c),
-        thermal_resistance_k_per_w=_number(th, "thermal", "thermal_resistance_k_per_w", positive=True,
-                                           default=td.thermal_resistance_k_per_w),
-        time_constant_s=_number(th, "thermal", "time_constant_s", positive=True, default=td.time_constant_s),
+        ambient_c=th.number("ambient_c", td.ambient_c, min=-50.0, max=150.0),
+        thermal_resistance_k_per_w=th.number("thermal_resistance_k_per_w", td.thermal_resistance_k_per_w,
+                                             positive=True, max=1e3),
+        time_constant_s=th.number("time_constant_s", td.time_constant_s, positive=True, max=1e6),
     )
-    bo = _section(doc, "body", required=False)
-    load = bo.get("load_enabled", True)
-    if not isinstance(load, bool):
-        raise ConfigError(f"body.load_enabled: expected true/false, got {load!r}")
-    body = BodyParams(mass_kg=_number(bo, "body", "mass_kg", positive=True, default=3.25),
-                      payload_kg=_number(bo, "body", "payload_kg", default=1.5), load_enabled=load)
-    gains_sec = _section(doc, "paper_spec_gains", required=False)
+    bo = top.section("body", required=False)
+    bd = BodyParams()
+    body = BodyParams(mass_kg=bo.number("mass_kg", bd.mass_kg, positive=True, max=MASS_MAX_KG),
+                      payload_kg=bo.number("payload_kg", bd.payload_kg, nonneg=True, max=MASS_MAX_KG),
+                      load_enabled=bo.boolean("load_enabled", bd.load_enabled))
+    gains_sec = top.section("paper_spec_gains", required=False)
+    table = table_for(REFERENCE_MODEL)
     gains = {}
-    for k, v in gains_sec.items():
-        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 16383:
-            raise ConfigError(f"paper_spec_gains.{k}: expected an integer 0..16383, got {v!r}")
-        gains[str(k)] = v
-    return PhysicsConfig(
+    for k in gains_sec.keys():
+        if str(k) not in table or not str(k).endswith("_gain"):
+            gains_sec.fail(f"not a gain register of {table.model}", k)
+        lo, hi = table[str(k)].raw_bounds()
+        gains[str(k)] = gains_sec.integer(k, min=lo, max=hi)
+    cfg = PhysicsConfig(
         rate_hz=rate,
-        supply_voltage_v=_number(phys, "physics", "supply_voltage_v", positive=True),
-        drive_motor=_motor(_subsection(motors, "motors", "drive"), "motors.drive"),
-        steering_motor=_motor(_subsection(motors, "motors", "steering"), "motors.steering"),
+        supply_voltage_v=phys.number("supply_voltage_v", positive=True, max=SUPPLY_MAX_V),
+        drive_motor=_motor(motors.section("drive")),
+        steering_motor=_motor(motors.section("steering")),
         gear_ratios=gear_ratios, firmware=firmware, sensors=sensors, thermal=thermal,
         body=body, paper_spec_gains=gains)
+    for sec in (top, phys, motors, fw, bes, sen, th, bo):
+        sec.check_unknown()
+    return cfg
 
 
-def _subsection(sec: Mapping[str, Any], path: str, key: str) -> Mapping[str, Any]:
-    value = sec.get(key)
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{path}.{key}: expected a mapping, got {type(value).__name__}")
-    return value
-
-
-def load_config(path: str | Path = "configs/emulator.yaml") -> PhysicsConfig:
-    """Read and validate ``configs/emulator.yaml``.
+def load_config(path: str | Path = DEFAULT_PATH) -> PhysicsConfig:
+    """Read and validate an emulator config (default: the shipped ``emulator.yaml``).
 
     Raises
     ------
     ConfigError
-        If the file is missing, not YAML, or has a malformed key.
+        If the file is missing, binary, not YAML, or has a malformed key (``FILE:LINE: KEY: problem``).
     """
-    try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    return parse_config(doc)
+    return parse_config(read_yaml(path, what="emulator config"))

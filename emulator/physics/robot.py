@@ -16,7 +16,7 @@ from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_con
 from . import units as u
 from .body import RobotBody
 from .params import PhysicsConfig
-from .servo_model import ServoModel
+from .servo_model import ServoModel, wheel_servo
 
 
 @dataclass(frozen=True)
@@ -56,20 +56,16 @@ class RobotPhysics:
 
     def __init__(self, cfg: PhysicsConfig, geometry: RobotGeometry, rng: np.random.Generator | None = None):
         self.geometry = geometry
-        gear = cfg.gear_ratio(geometry.model)
         rng = rng if rng is not None else np.random.default_rng()
-
-        def servo(params):
-            return ServoModel(params, gear, cfg.supply_voltage_v, cfg.firmware, cfg.sensors, cfg.thermal, rng)
-
         self.servos: dict[int, ServoModel] = {}
         wheel_inertia = cfg.body.total_mass_kg / len(geometry.wheels) * geometry.wheel_radius_m ** 2
         for w in geometry.wheels:
-            self.servos[w.drive_id] = servo(cfg.drive_motor)
+            self.servos[w.drive_id] = wheel_servo(cfg, geometry.model, steering=False, rng=rng)
             if cfg.body.load_enabled:   # the robot's mass, reflected onto each drive shaft
                 self.servos[w.drive_id].external_load(0.0, wheel_inertia)
-            steer = self.servos[w.steer_id] = servo(cfg.steering_motor)
-            steer.set_shaft_angle(w.center_pulse * u.RAD_PER_PULSE)    # start with wheels straight
+            # steering servos start with the wheels straight
+            self.servos[w.steer_id] = wheel_servo(cfg, geometry.model, steering=True,
+                                                  center_pulse=w.center_pulse, rng=rng)
         self.body = RobotBody([(w.x_m, w.y_m) for w in geometry.wheels])
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
