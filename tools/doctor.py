@@ -23,9 +23,9 @@ from typing import Iterable
 
 from swerve.driver import packets as pk
 from swerve.driver.bus import STATUS_OVERHEAD, Bus, PingResult
-from swerve.driver.control_table import ControlTable, HardwareError, Reg
+from swerve.driver.control_table import HardwareError, Reg, baud_index
 from swerve.driver.errors import CorruptPacketError, DxlError, DxlTimeoutError
-from swerve.driver.robot_config import SERVO_BAUDS, RobotConfig
+from swerve.driver.robot_config import RobotConfig
 from swerve.driver.transport import (BITS_PER_BYTE, STANDARD_BAUDS, latency_fix_command,
                                      latency_timer_ms)
 
@@ -192,8 +192,7 @@ def move_servo(port: str, src: Location, target_id: int, target_baud: int, margi
             bus.write(old_id, Reg.ID, target_id)
             bus.ping(target_id)
         if target_baud != old_baud:
-            table = bus.table(target_id)
-            bus.write(target_id, Reg.BAUD_RATE, baud_index(table, target_baud))
+            bus.write(target_id, Reg.BAUD_RATE, baud_index(target_baud))
     if target_baud != old_baud:
         time.sleep(0.05)        # the servo switches its UART after the reply
     with _open(port, target_baud, margin_s) as bus:
@@ -203,15 +202,6 @@ def move_servo(port: str, src: Location, target_id: int, target_baud: int, margi
             raise DxlError(f"the servo moved from ID {old_id} at {old_baud} bps did not answer as "
                            f"ID {target_id} at {target_baud} bps") from None
     return f"moved the servo at ID {old_id}, {old_baud} bps to ID {target_id}, {target_baud} bps (pinged)"
-
-
-def baud_index(table: ControlTable, bps: int) -> int:
-    """Raw Baud Rate (8) value for ``bps`` from the control table's ``values_bps``."""
-    values = table[Reg.BAUD_RATE].extra.get("values_bps") or SERVO_BAUDS
-    try:
-        return list(values).index(int(bps))
-    except ValueError:
-        raise DxlError(f"{bps} bps is not a baud rate of {table.model} ({list(values)})") from None
 
 
 def check_presence(cfg: RobotConfig, port: str, *, fix: bool, margin_s: float,
