@@ -112,3 +112,28 @@ def test_shipped_layout_names_topics_the_publisher_serves():
     topics = set(TOPICS) | {live.LIVE_TOPIC}
     used = {t for t in topics if f'"{t}' in text}
     assert {"/joint_states", "/reference", "/odom", live.LIVE_TOPIC} <= used
+
+
+def test_emulate_physics_streams_the_true_pose(tmp_path):
+    import subprocess
+    import sys
+
+    proc = subprocess.Popen([sys.executable, "-m", "swerve.tools.cli", "emulate", "--physics", "--live", "0"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        url = None
+        for _ in range(20):
+            line = proc.stderr.readline()
+            if line.startswith("LIVE "):
+                url = line.split()[1]
+                break
+        assert url and url.startswith("ws://127.0.0.1:")
+        channels, got = asyncio.run(_client(url, lambda: None, {"/true_pose"}))
+    finally:
+        proc.terminate()
+        proc.wait(timeout=20)
+    assert proc.returncode == 0
+    from rosbags.typesys import Stores, get_typestore
+
+    msg = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(got["/true_pose"][-1], "geometry_msgs/msg/PoseStamped")
+    assert msg.pose.position.x == pytest.approx(0.0, abs=1e-6) and msg.pose.orientation.w == pytest.approx(1.0)

@@ -6,6 +6,7 @@ open that path with the SDK, the driver or any serial tool at the servos' baud r
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -44,6 +45,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --physics: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,
                         help="with --physics: sensor noise, e.g. position=0.5,current=0.002,seed=1")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="with --physics: stream the true pose (/true_pose) over the Foxglove WebSocket "
+                             "protocol on PORT (127.0.0.1 unless HOST is given)")
     parser.add_argument("--no-baud-check", action="store_true",
                         help="answer whatever line speed the client sets")
     parser.add_argument("-v", "--verbose", action="store_true", help="log dispatch errors (debug)")
@@ -58,8 +62,8 @@ def run(args: argparse.Namespace) -> int:
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
     ids = parse_ids(args.ids, max_id=ID_MAX) if args.ids else None
-    if not args.physics and (args.status_file or args.noise or args.emulator_config):
-        raise ConfigError("--status-file, --noise and --emulator-config need --physics")
+    if not args.physics and (args.status_file or args.noise or args.emulator_config or args.live):
+        raise ConfigError("--status-file, --noise, --emulator-config and --live need --physics")
     try:
         if args.physics:
             if ids is not None or args.model is not None:
@@ -86,11 +90,18 @@ def run(args: argparse.Namespace) -> int:
         stop.set()
 
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stack = contextlib.ExitStack()
     try:
         try:
             emu.start()
         except OSError as exc:
             raise ConfigError(f"cannot open the pty or link: {exc}") from None
+        if args.live:
+            from swerve.tools.live import LivePublisher, PosePump, parse_live
+
+            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator"))
+            stack.callback(PosePump(live, lambda: emu.pose).start().close)
+            print(f"LIVE {live.url}", file=sys.stderr, flush=True)
         freeze_startup_heap()
         print(f"PORT {emu.port}", flush=True)
         if emu.link_path:
@@ -100,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(1.0):
             pass
     finally:
+        stack.close()
         emu.close()
         for s, h in previous.items():
             signal.signal(s, h)
