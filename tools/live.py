@@ -3,8 +3,9 @@
 A :class:`LivePublisher` owns a ``foxglove-sdk`` WebSocket server (its own
 :class:`foxglove.Context`) and one worker thread. The control loop only calls
 :meth:`LivePublisher.publish` (or :meth:`on_cycle`), which puts the cycle's record into a
-bounded queue and returns; when the queue is full the record is dropped and counted, so a slow
-or stalled viewer never delays a cycle. The worker serialises each record into the same ROS 2
+bounded queue (a deque the worker polls every 20 ms, so the loop wakes no thread) and returns;
+when the queue is full the record is dropped and counted, so a slow or stalled viewer never
+delays a cycle. The worker serialises each record into the same ROS 2
 messages (CDR, ``ros2msg`` schemas from the rosbags type store) as the run log
 (:data:`swerve.tools.logs.bag.TOPICS`) and logs them on the server's channels; with no client
 connected it skips the serialisation. One extra JSON topic, ``/swerve/live``, carries named
@@ -20,10 +21,10 @@ Open it in Foxglove: "Open connection" -> Foxglove WebSocket -> ``ws://HOST:PORT
 """
 from __future__ import annotations
 
+import collections
 import json
 import logging
 import math
-import queue
 import threading
 import time
 from importlib import resources
@@ -42,6 +43,8 @@ log = logging.getLogger(__name__)
 DEFAULT_PORT = 8765
 #: Records waiting for the worker before new ones are dropped.
 QUEUE_SIZE = 64
+#: How often the worker looks for new records, s (it is never woken by the loop).
+POLL_S = 0.02
 #: Topic with named numbers for plot panels (JSON).
 LIVE_TOPIC = "/swerve/live"
 LIVE_SCHEMA = {
@@ -128,7 +131,9 @@ class LivePublisher:
                  name: str = "swerve"):
         self.host, self.requested_port, self.name = host, int(port), name
         self._wheels = list(wheels)
-        self._queue: queue.Queue = queue.Queue(maxsize=queue_size)
+        self._items: collections.deque = collections.deque()
+        self._queue_size = int(queue_size)
+        self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._server = None
         self._channels: dict = {}
@@ -175,15 +180,7 @@ class LivePublisher:
     def close(self) -> None:
         """Stop the worker (pending records are dropped) and the server. Idempotent."""
         if self._thread is not None:
-            while True:
-                try:
-                    self._queue.put_nowait(None)
-                    break
-                except queue.Full:
-                    try:
-                        self._queue.get_nowait()
-                    except queue.Empty:
-                        pass
+            self._stop.set()
             self._thread.join(timeout=5.0)
             self._thread = None
         if self._server is not None:
@@ -197,16 +194,18 @@ class LivePublisher:
         self.close()
 
     # --- the loop's side ----------------------------------------------------------------------
-    def publish(self, rec: CycleRecord) -> None:
-        """Queue one record for the viewers; never blocks (a full queue drops it)."""
-        try:
-            self._queue.put_nowait(rec)
-        except queue.Full:
+    def publish(self, rec: CycleRecord | dict) -> None:
+        """Queue one record (or its fields) for the viewers; never blocks and wakes no thread
+        (the worker polls), and a full queue drops the record."""
+        if len(self._items) >= self._queue_size:
             self.dropped += 1
+        else:
+            self._items.append(rec)
 
     def on_cycle(self, fields: dict) -> None:
-        """The loop's ``on_cycle`` callback: the fields of a :class:`CycleRecord`."""
-        self.publish(CycleRecord(**fields))
+        """The loop's ``on_cycle`` callback: the fields of a :class:`CycleRecord` (the record
+        is built by the worker; the caller must not change the arrays afterwards)."""
+        self.publish(fields)
 
     def pose(self, topic: str, stamp_ns: int, pose: Sequence[float]) -> None:
         """Publish one ``PoseStamped`` (e.g. the emulator's ``/true_pose``); from any thread."""
@@ -217,21 +216,24 @@ class LivePublisher:
         return any(ch.has_sinks() for ch in self._channels.values())
 
     def _work(self) -> None:
-        while True:
-            item = self._queue.get()
-            if item is None:
-                return
-            if not self._has_clients():
-                continue
-            try:
-                if isinstance(item, _PoseItem):
-                    self._send_pose(item)
-                else:
-                    self._send(item)
-                self.published += 1
-            except Exception:  # noqa: BLE001 - a bad record must not end the live view
-                self.errors += 1
-                log.exception("live view: could not publish a record")
+        while not self._stop.wait(POLL_S):
+            while self._items:
+                self._send_one(self._items.popleft())
+
+    def _send_one(self, item) -> None:
+        if not self._has_clients():
+            return
+        try:
+            if isinstance(item, _PoseItem):
+                self._send_pose(item)
+            elif isinstance(item, dict):
+                self._send(CycleRecord(**item))
+            else:
+                self._send(item)
+            self.published += 1
+        except Exception:  # noqa: BLE001 - a bad record must not end the live view
+            self.errors += 1
+            log.exception("live view: could not publish a record")
 
     def _send(self, rec: CycleRecord) -> None:
         ns = int(rec.stamp_ns)
