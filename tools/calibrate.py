@@ -24,19 +24,17 @@ import math
 import os
 import re
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import Callable, Protocol, Sequence
 
-import yaml
-
+from swerve.configs.loader import parse_yaml_text
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, SwerveError
 from swerve.driver.robot_config import RobotConfig, WheelConfig, parse_robot_config
 from swerve.driver.wheelset import WheelSet
-from swerve.tools.tune.config_io import _block
+from swerve.tools.tune.config_io import _block, write_text_atomic
 
 #: Pulses per revolution of the X-series encoder (Present Position, 0..4095 in position mode).
 PULSES_PER_REV = 4096
@@ -288,10 +286,7 @@ def update_robot_text(text: str, *, center_pulse: Sequence[int] | None = None,
     if wheel_radius_m is not None:
         _replace_value(lines, "geometry", "wheel_radius_m", f"{float(wheel_radius_m):.6g}", where)
     new = "".join(lines)
-    try:
-        cfg = parse_robot_config(yaml.safe_load(new), where)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{where}: not valid YAML after the edit: {exc}") from None
+    cfg = parse_robot_config(parse_yaml_text(new, where))
     want = with_calibration(cfg, center_pulse=center_pulse, drive_direction=drive_direction,
                             steer_direction=steer_direction,
                             wheel_radius_m=None if wheel_radius_m is None else float(f"{float(wheel_radius_m):.6g}"))
@@ -307,16 +302,7 @@ def write_robot_file(path: str | Path, **values) -> None:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    new = update_robot_text(text, where=str(path), **values)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as fh:
-            fh.write(new)
-        os.chmod(tmp, path.stat().st_mode & 0o777)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, update_robot_text(text, where=str(path), **values))
 
 
 def yaml_snippet(*, center_pulse=None, drive_direction=None, steer_direction=None,
