@@ -445,6 +445,8 @@ class ConsoleOperator:
         import tty
 
         fd = self.stream.fileno()
+        if not os.isatty(fd):
+            raise ConfigError("--jog reads the arrow keys: run it in a terminal (or set the wheels by hand)")
         old = termios.tcgetattr(fd)
         k, step = 0, 4
         try:
