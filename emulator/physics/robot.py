@@ -83,21 +83,8 @@ class RobotPhysics:
         self.step_body(dt_s)
         return out
 
-    def step_body(self, dt_s: float, _servos: object = None) -> tuple[float, float, float]:
-        """Advance only the body from the servos' present shaft states (servos stepped elsewhere).
-
-        Signature-compatible with the emulator server's ``world.step(dt_s, servos_by_id)`` hook:
-        pass ``world=BodyWorld(robot)`` and ``dynamics=robot.servos``.
-        """
+    def step_body(self, dt_s: float) -> tuple[float, float, float]:
+        """Advance only the body from the servos' present shaft states (servos stepped elsewhere,
+        e.g. by the emulator's servo loop); return the pose."""
         return self.body.step(dt_s, *self.wheel_state())
 
-
-class BodyWorld:
-    """Adapter for an emulator that steps each servo itself: ``step(dt_s, servos)`` moves the body."""
-
-    def __init__(self, robot: RobotPhysics):
-        self.robot = robot
-
-    def step(self, dt_s: float, servos: object = None) -> tuple[float, float, float]:
-        """Advance the body by ``dt_s`` (the servos were already stepped); return the pose."""
-        return self.robot.step_body(dt_s)

@@ -8,7 +8,7 @@ import pytest
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
-from swerve.emulator import Emulator
+from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools import doctor
 from swerve.tools.cli import main
 
@@ -23,7 +23,7 @@ def cfg():
 
 @pytest.fixture
 def emu():
-    with Emulator(robot_config=DEFAULT_PATH, time_scale=0) as e:
+    with build_emulator(load_robot_config(DEFAULT_PATH), time_scale=0) as e:
         yield e
 
 

@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true",
                        help="calibrate the emulated robot (started here); see --emulated-robot")
-    parser.add_argument("--config", default=None, help="robot file to calibrate (default configs/robot.yaml)")
+    parser.add_argument("--config", default=None, help="robot file to calibrate (default: $SWERVE_CONFIG, your own, else the shipped one)")
     parser.add_argument("--write", action="store_true",
                         help="edit the robot file in place (comments kept; validated; atomic replace)")
     parser.add_argument("--yes", action="store_true",
@@ -57,15 +57,20 @@ def run(args: argparse.Namespace) -> int:
 
     from swerve.driver.bus import Bus
     from swerve.driver.errors import ConfigError
-    from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
+    from swerve.configs import locate_robot_file
+    from swerve.driver.robot_config import load_robot_config
     from swerve.tools import calibrate as cal
 
     if not args.time_scale > 0 or (args.time_scale != 1.0 and not args.emulate):
         raise ConfigError("--time-scale must be positive and needs --emulate")
     if args.emulated_robot and not args.emulate:
         raise ConfigError("--emulated-robot needs --emulate")
-    cfg_path = args.config or DEFAULT_PATH
+    choice = locate_robot_file(args.config)
+    cfg_path = choice.path
     cfg = load_robot_config(cfg_path)
+    if args.write and choice.source == "shipped":
+        raise ConfigError(f"--write will not edit the shipped robot file {cfg_path}: copy it, then pass "
+                          "--config FILE (or set $SWERVE_CONFIG)")
 
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
@@ -74,13 +79,10 @@ def run(args: argparse.Namespace) -> int:
     values: dict = {}
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from swerve.driver.control_table import CONFIG_DIR
             from swerve.emulator.robot_emulator import robot_emulator
 
-            emu = robot_emulator(args.emulated_robot or cfg_path, CONFIG_DIR / "emulator.yaml",
-                                 time_scale=args.time_scale, rate_hz=1000.0)
-            emu.start()
-            stack.callback(emu.close)
+            emu = stack.enter_context(robot_emulator(args.emulated_robot or cfg_path, body=True,
+                                                     time_scale=args.time_scale, rate_hz=1000.0))
             port = emu.port
         else:
             port = args.port or cfg.link.port
@@ -89,7 +91,13 @@ def run(args: argparse.Namespace) -> int:
         session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log))
         scale = cfg.table["present_position"].scale
         if args.emulate and args.yes:
-            op = cal.EmulatorOperator(emu.status, rad_per_pulse=scale, settle=session.sleep)
+            from swerve.emulator.robot_emulator import status
+
+            def true_state() -> dict:
+                with emu.lock:
+                    return status(emu)
+
+            op = cal.EmulatorOperator(true_state, rad_per_pulse=scale, settle=session.sleep)
         elif args.yes:
             op = cal.DefaultOperator()
         else:

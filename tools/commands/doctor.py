@@ -17,7 +17,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true",
                        help="check an emulated bus of the robot file's servos (started here)")
-    parser.add_argument("--config", default=None, help="robot config (default configs/robot.yaml)")
+    parser.add_argument("--config", default=None, help="robot file (default: $SWERVE_CONFIG, your own, else the shipped one)")
     parser.add_argument("--fix", action="store_true",
                         help="repair what can be repaired: move servos to the file's ID and baud, reboot "
                              "servos with a latched hardware error, write modes/return delay/gains, set "
@@ -32,19 +32,19 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
 
     from swerve.driver.errors import ConfigError
-    from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
+    from swerve.configs import locate_robot_file
+    from swerve.driver.robot_config import load_robot_config
     from swerve.tools.doctor import diagnose
 
     if args.cycles < 1:
         raise ConfigError(f"--cycles must be >= 1, got {args.cycles}")
-    cfg_path = args.config or DEFAULT_PATH
-    cfg = load_robot_config(cfg_path)
+    cfg = load_robot_config(locate_robot_file(args.config).path)
     margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (50.0 if args.emulate else 2.0)
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from swerve.emulator import Emulator
+            from swerve.emulator.robot_emulator import build_emulator
 
-            emu = stack.enter_context(Emulator(robot_config=cfg_path))
+            emu = stack.enter_context(build_emulator(cfg))      # register-only: nothing moves
             port = emu.port
         else:
             port = args.port or cfg.link.port
