@@ -83,7 +83,7 @@ def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch
 
     # Track the circle on the true robot with the shipped file, then with the calibrated one.
     from swerve.emulator import process
-    from swerve.tools.robot_run import RunRequest, run_tracking
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     real = process.EmulatorProcess
     monkeypatch.setattr(process, "EmulatorProcess", lambda _cfg, **kw: real(truth, **kw))
@@ -94,12 +94,12 @@ def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch
         gc.freeze()         # out of the loop's collector passes
         results[name] = run_tracking(RunRequest(trajectory="circle", config=cfg, emulate=True,
                                                 time_scale=TRACK_SCALE))
-    errors = {name: (r.summary["rms_position_error_m"], r.summary["max_position_error_m"])
+    errors = {name: (r.summary.tracking.rms_position_error_m, r.summary.tracking.max_position_error_m)
               for name, r in results.items()}
     print(f"circle vs true pose, rms/max m: before {errors['before']} "
-          f"(completed: {results['before'].summary['completed']}), after {errors['after']}")
+          f"(completed: {results['before'].summary.completed}), after {errors['after']}")
     after = results["after"]
-    assert after.aborted is None, after.summary.get("abort_message")   # before may stop: it cannot follow
-    assert all(r.summary["error_source"] == "true_pose" for r in results.values())
+    assert after.aborted is None, after.summary.abort_message   # before may stop: it cannot follow
+    assert all(r.summary.tracking.error_source == "true_pose" for r in results.values())
     assert errors["after"][0] < 0.5 * errors["before"][0]
     assert errors["after"][1] < errors["before"][1]

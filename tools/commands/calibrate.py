@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.tools.cli import add_config_option
+
 NAME = "calibrate"
 HELP = "measure steering zero, wheel direction signs and wheel radius; print or --write them"
 
@@ -26,7 +28,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true",
                        help="calibrate the emulated robot (started here); see --emulated-robot")
-    parser.add_argument("--config", default=None, help="robot file to calibrate (default: $SWERVE_CONFIG, your own, else the shipped one)")
+    add_config_option(parser)
     parser.add_argument("--write", action="store_true",
                         help="edit the robot file in place (comments kept; validated; atomic replace)")
     parser.add_argument("--yes", action="store_true",

@@ -7,6 +7,8 @@ from __future__ import annotations
 import argparse
 import json
 
+from swerve.tools.cli import add_config_option
+
 NAME = "doctor"
 HELP = ("check the bus against the robot file: latency timer, IDs and baud, model and firmware, "
         "voltage, temperature, hardware errors, settings, timed read/write cycle")
@@ -17,7 +19,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true",
                        help="check an emulated bus of the robot file's servos (started here)")
-    parser.add_argument("--config", default=None, help="robot file (default: $SWERVE_CONFIG, your own, else the shipped one)")
+    add_config_option(parser)
     parser.add_argument("--fix", action="store_true",
                         help="repair what can be repaired: move servos to the file's ID and baud, reboot "
                              "servos with a latched hardware error, write modes/return delay/gains, set "
