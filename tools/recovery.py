@@ -22,7 +22,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Callable
 
-from swerve.driver.errors import CorruptPacketError, DxlError, DxlTimeoutError
+from swerve.driver.errors import CorruptPacketError, DxlError, DxlTimeoutError, SwerveError
 
 log = logging.getLogger(__name__)
 
@@ -45,6 +45,9 @@ class RecoveryEvent:
     def as_dict(self) -> dict:
         return asdict(self)
 
+    def line(self) -> str:
+        return f"{self.t_s:.3f} ID {','.join(map(str, self.ids)) or '-'} {self.step}: {self.detail}"
+
 
 class StopOnFault:
     """Never recover: the loop stops the robot on a servo fault."""
@@ -57,26 +60,33 @@ class StopOnFault:
     def recover(self, fault, wheels, rehome: Callable[[], None]) -> bool:
         return False
 
-    def summary(self) -> dict:
-        return {"on_servo_fault": self.name, "recoveries": 0, "recovery_events": []}
+    def summary(self):
+        """The run summary's :class:`~swerve.tools.run.summary.ServoFaults`."""
+        from swerve.tools.run.summary import ServoFaults
+
+        return ServoFaults(self.name, 0)
 
 
 class RecoverFromFault:
     """Reboot and reconfigure a faulted servo, then let the loop resume (see module doc).
 
-    ``clock``: monotonic seconds (injectable for tests); ``sleep``: how to wait, s.
+    ``bus_margin_s``/``bus_retries``: reply slack and retries while recovering (the loop keeps
+    both small for its own reads; configuration is not time-critical). ``clock``: monotonic
+    seconds (injectable for tests); ``sleep``: how to wait, s.
     """
 
     name = "recover"
 
     def __init__(self, *, max_recoveries: int = MAX_RECOVERIES, window_s: float = WINDOW_S,
-                 reboot_timeout_s: float = REBOOT_TIMEOUT_S, clock: Callable[[], float] = time.monotonic,
+                 reboot_timeout_s: float = REBOOT_TIMEOUT_S, bus_margin_s: float = 0.0,
+                 bus_retries: int = 1, clock: Callable[[], float] = time.monotonic,
                  sleep: Callable[[float], None] = time.sleep):
         if max_recoveries < 1 or window_s <= 0:
             raise ValueError("max_recoveries must be >= 1 and window_s > 0")
         self.max_recoveries = int(max_recoveries)
         self.window_s = float(window_s)
         self.reboot_timeout_s = float(reboot_timeout_s)
+        self.bus_margin_s, self.bus_retries = float(bus_margin_s), int(bus_retries)
         self.clock, self.sleep = clock, sleep
         self.events: list[RecoveryEvent] = []
         self.recoveries = 0
@@ -102,10 +112,12 @@ class RecoverFromFault:
             return False
         self._recent.append(now)
         self._note(ids, "fault", str(fault))
+        bus = wheels.bus
+        saved = bus.retries, bus.timeout_margin_s
+        bus.retries, bus.timeout_margin_s = max(saved[0], self.bus_retries), max(saved[1], self.bus_margin_s)
         try:
             wheels.stop()
             self._note(ids, "stop", "zero wheel speed commanded to every drive servo")
-            bus = wheels.bus
             for i in ids:
                 try:
                     bits = bus.hardware_error(i)
@@ -120,11 +132,14 @@ class RecoverFromFault:
                                        "written from the robot file")
             wheels.enable()
             self._note(ids, "torque", "torque on for all eight servos")
+            bus.retries, bus.timeout_margin_s = saved
             rehome()
-            self._note(ids, "rehome", "steering back at the reference angles")
-        except DxlError as exc:
+            self._note(ids, "rehome", "steering back at the last commanded angles")
+        except SwerveError as exc:       # a bus error, or the loop's abort while re-homing
             self._note(ids, "failed", str(exc))
             return False
+        finally:
+            bus.retries, bus.timeout_margin_s = saved
         self.recoveries += 1
         self._note(ids, "resume", f"recovery {self.recoveries} done; resuming the trajectory")
         return True
@@ -141,16 +156,19 @@ class RecoverFromFault:
                                           "the servo did not come back after its reboot") from None
                 self.sleep(0.05)
 
-    def summary(self) -> dict:
-        return {"on_servo_fault": self.name, "recoveries": self.recoveries,
-                "recovery_events": [e.as_dict() for e in self.events]}
+    def summary(self):
+        """The run summary's :class:`~swerve.tools.run.summary.ServoFaults`."""
+        from swerve.tools.run.summary import ServoFaults
+
+        return ServoFaults(self.name, self.recoveries, tuple(e.line() for e in self.events))
 
 
-def policy(name: str, **kwargs):
-    """The policy for ``--on-servo-fault NAME`` (``stop`` or ``recover``)."""
+def policy(name: str, timeout_margin_s: float = 0.0):
+    """The policy for ``--on-servo-fault NAME`` (``stop`` or ``recover``); ``timeout_margin_s``:
+    the run's reply slack before the loop narrows it, used while recovering."""
     if name == "stop":
         return StopOnFault()
     if name == "recover":
-        return RecoverFromFault(**kwargs)
+        return RecoverFromFault(bus_margin_s=timeout_margin_s)
     from swerve.driver.errors import ConfigError
     raise ConfigError(f"--on-servo-fault {name!r}: expected stop or recover")
