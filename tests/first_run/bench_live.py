@@ -1,4 +1,7 @@
-"""Cost of the live view to a 62.5 Hz loop: ``python tests/first_run/bench_live.py [cycles]``.
+"""Cost of the live view to a 62.5 Hz loop: ``python tests/first_run/bench_live.py [cycles]``;
+``python tests/first_run/bench_live.py run [time_scale]`` compares whole emulated runs of the line
+(loop period p50/p99/max and overruns) without a live view, with one and no client, and with a
+subscribed client.
 
 A stand-in cycle (the tracking law's numpy work and the record's fields, about what
 ``TrackingLoop`` does between bus transactions) runs on 16 ms deadlines three ways: without a live
@@ -100,5 +103,49 @@ def main(cycles: int = 1000) -> None:
                                               f"messages, published {live.published} records"))
 
 
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def runs(scale: float) -> None:
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
+
+    for mode in ("no live view", "live, no client", "live, client"):
+        port = _free_port()
+        req = RunRequest(trajectory="line", emulate=True, time_scale=scale,
+                         live=None if mode == "no live view" else f"127.0.0.1:{port}")
+        stop, counts = threading.Event(), {}
+        th = None
+        if mode == "live, client":
+            def keep_trying():
+                while not stop.is_set():
+                    try:
+                        _subscriber(f"ws://127.0.0.1:{port}", stop, counts)
+                    except OSError:                   # not up yet (or closed at the end)
+                        time.sleep(0.1)
+                    except Exception:  # noqa: BLE001 - websockets' ConnectionClosed at the end
+                        return
+
+            th = threading.Thread(target=keep_trying, daemon=True)
+            th.start()
+        s = run_tracking(req).summary
+        stop.set()
+        if th is not None:
+            th.join(5)
+        t = s.timing
+        extra = "" if s.live is None else (f"; live published {s.live.live_published}, dropped "
+                                           f"{s.live.live_dropped}, client got {counts.get('messages', 0)} messages")
+        print(f"{mode:<16} period p50 {t.loop_period_p50_ms:.2f} p99 {t.loop_period_p99_ms:.2f} max "
+              f"{t.loop_period_max_ms:.2f} ms (target {t.loop_period_target_ms:.2f}), overruns {t.overruns} "
+              f"of {t.loop_cycles}, completed {s.completed}{extra}", flush=True)
+
+
 if __name__ == "__main__":
-    main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
+    if len(sys.argv) > 1 and sys.argv[1] == "run":
+        runs(float(sys.argv[2]) if len(sys.argv) > 2 else 1.0)
+    else:
+        main(int(sys.argv[1]) if len(sys.argv) > 1 else 1000)
