@@ -263,8 +263,8 @@ class TrackingLoop:
                     rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
                                  out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
                     if self.on_cycle is not None:
-                        self.on_cycle(self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas, pose,
-                                                  out.desired_state, truth, flags))
+                        self.on_cycle(self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
+                                                  pose, out.desired_state, truth, flags))
                     k = ticker.wait()
             except LoopAbort as exc:
                 aborted = exc
