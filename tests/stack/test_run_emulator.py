@@ -1,11 +1,11 @@
-"""The full stack over a real pty against the emulated robot (issue 6).
+"""The full stack over a real pty against the emulated robot.
 
 Each test runs the 62.5 Hz loop through the project's driver against the emulator in its own
 process, time-scaled. Error bounds are absolute allowances on top of the ideal-model simulation
 (``swerve sim``), whose errors are ~0 mm on these paths: the emulated robot has servo lag,
 encoder quantisation and bus latency that model (1)-(5) does not (see README, "Full stack").
 
-Time scale: ``SWERVE_TEST_TIME_SCALE`` (default 5, as the issue asks); BENCHMARKS.md has the
+Time scale: ``SWERVE_TEST_TIME_SCALE`` (default 5); BENCHMARKS.md has the
 largest scale at which every deadline is met on the reference machine. Overruns on a loaded
 machine are counted in the summary, not failures. Under a time scale the run stretches the Bus
 Watchdog and the failed-read limit to their wall-clock length (``swerve.tools.run.orchestrate.
@@ -27,7 +27,7 @@ import pytest
 from swerve.driver.robot_config import load_robot_config
 from swerve.tools.run.orchestrate import RunRequest, run_tracking, wall_clock_guards
 
-#: Time scale of the stack tests (the issue asks for >= 5; see BENCHMARKS.md for the limit).
+#: Time scale of the stack tests (see BENCHMARKS.md for the limit).
 SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "5"))
 #: Tracking allowance above the ideal simulation, m (servo lag, quantisation, latency).
 ALLOWANCE_M = 0.03

@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 #: Bus timeout slack when the other end is the emulator (a Python process on a shared CPU), s.
 EMULATOR_TIMEOUT_MARGIN_S = 0.05
-#: Physics rate of the emulated robot in tracking runs, Hz: the lowest the issue allows, so the
+#: Physics rate of the emulated robot in tracking runs, Hz: low enough that the
 #: clock keeps up at time scale 5 (configs/emulator.yaml's 2 kHz is for servo step tests).
 EMULATOR_PHYSICS_RATE_HZ = 1000.0
 
