@@ -4,9 +4,10 @@ A policy object is passed into the loop; the loop calls ``policy.recover(fault, 
 when a read reports a hardware alert, and resumes only if it returns True:
 
 - :class:`StopOnFault` (``stop``, the default) never recovers: the loop stops the robot.
-- :class:`RecoverFromFault` (``recover``) stops the wheels, reboots the faulted servo(s) (a
-  Reboot instruction is the only way to clear Hardware Error Status, e-Manual), waits until
-  each answers a Ping again, restores operating modes, gains, profiles, return delay and the
+- :class:`RecoverFromFault` (``recover``) stops the wheels and waits until they stand still
+  (the torque goes off during the restore, and a rolling robot would coast), reboots the
+  faulted servo(s) (a Reboot instruction is the only way to clear Hardware Error Status,
+  e-Manual), waits until each answers a Ping again, restores operating modes, gains, profiles, return delay and the
   Bus Watchdog from the robot file (:meth:`WheelSet.configure`, torque off), turns the torque
   back on and lets the loop re-home the steering (``rehome()``). The loop does not advance
   the reference while it waits, so the trajectory resumes where it stopped. At most
@@ -29,6 +30,10 @@ log = logging.getLogger(__name__)
 #: Recoveries allowed within :data:`WINDOW_S` before the policy gives up.
 MAX_RECOVERIES = 3
 WINDOW_S = 60.0
+#: Longest wait for the other drive wheels to stop before the torque goes off, s, and the speed
+#: (raw Present Velocity, 0.229 rpm units) that counts as stopped.
+STANDSTILL_TIMEOUT_S = 2.0
+STANDSTILL_RAW = 1
 #: Longest wait for a rebooted servo to answer again, s (a servo restarts within about a second).
 REBOOT_TIMEOUT_S = 3.0
 
@@ -87,6 +92,7 @@ class RecoverFromFault:
         self.window_s = float(window_s)
         self.reboot_timeout_s = float(reboot_timeout_s)
         self.bus_margin_s, self.bus_retries = float(bus_margin_s), int(bus_retries)
+        self.standstill_timeout_s = STANDSTILL_TIMEOUT_S
         self.clock, self.sleep = clock, sleep
         self.events: list[RecoveryEvent] = []
         self.recoveries = 0
@@ -117,7 +123,10 @@ class RecoverFromFault:
         bus.retries, bus.timeout_margin_s = max(saved[0], self.bus_retries), max(saved[1], self.bus_margin_s)
         try:
             wheels.stop()
-            self._note(ids, "stop", "zero wheel speed commanded to every drive servo")
+            waited = self._wait_standstill(wheels, ids)
+            self._note(ids, "stop", "zero wheel speed commanded; " + (
+                f"the other drive wheels stood still after {waited:.2f} s" if waited is not None else
+                f"the other drive wheels still turned after {self.standstill_timeout_s:.1f} s"))
             for i in ids:
                 try:
                     bits = bus.hardware_error(i)
@@ -143,6 +152,22 @@ class RecoverFromFault:
         self.recoveries += 1
         self._note(ids, "resume", f"recovery {self.recoveries} done; resuming the trajectory")
         return True
+
+    def _wait_standstill(self, wheels, faulted) -> float | None:
+        """Wait until the healthy drive servos report zero speed (the torque goes off next, and a
+        robot still rolling would coast); seconds waited, or None at the timeout."""
+        from swerve.driver.control_table import Reg
+
+        ids = [i for i in wheels.drive_ids if i not in faulted]
+        start = self.clock()
+        while ids:
+            vel = wheels.bus.sync_read(ids, Reg.PRESENT_VELOCITY)
+            if all(abs(v[Reg.PRESENT_VELOCITY]) <= STANDSTILL_RAW for v in vel.values()):
+                break
+            if self.clock() - start > self.standstill_timeout_s:
+                return None
+            self.sleep(0.02)
+        return self.clock() - start
 
     def _wait_answer(self, bus, id_: int) -> None:
         end = self.clock() + self.reboot_timeout_s
