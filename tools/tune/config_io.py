@@ -64,5 +64,10 @@ def write_gains(path: str | Path, group: str, gains: dict[str, int]) -> None:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    new = update_gains_text(text, group, gains, str(path))
-    write_text(path, new, mkdir=False)
+    write_text_atomic(path, update_gains_text(text, group, gains, str(path)))
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Replace the file at ``path`` by ``text`` atomically, keeping its mode (see
+    :func:`swerve.configs.atomic.atomic_write`): a reader sees the old or the new file, never half."""
+    write_text(path, text, mkdir=False)
