@@ -162,6 +162,13 @@ CASES: list[tuple[str, list[str], str | None]] = [
     ("plot-out-read-only-fs", ["plot", "{W}/log", "--out", "/proc/swerve-plots"], None),
     ("plot-out-under-a-file", ["plot", "{W}/log", "--out", "{W}/empty.yaml/plots"], None),
     ("plot-sim-binary", ["plot", "{W}/log", "--out", "{W}/plots", "--sim", "{W}/binary.mcap"], None),
+    # --- calibrate / doctor ----------------------------------------------------------------
+    ("calibrate-distance-nan", ["calibrate", "--emulate", "--distance", "nan"], None),
+    ("calibrate-speed-zero", ["calibrate", "--emulate", "--speed", "0"], None),
+    ("calibrate-time-scale-inf", ["calibrate", "--emulate", "--time-scale", "inf"], None),
+    ("doctor-cycles-zero", ["doctor", "--emulate", "--cycles", "0"], None),
+    ("doctor-timeout-nan", ["doctor", "--emulate", "--timeout-margin-ms", "nan"], None),
+    ("doctor-port-missing", ["doctor", "--port", "{W}/no-such-port"], None),
     # --- config ---------------------------------------------------------------------------
     ("config-init-read-only-fs", ["config", "init", "/proc/swerve-config"], None),
     ("config-init-under-a-file", ["config", "init", "{W}/empty.yaml/cfg"], None),
