@@ -75,6 +75,80 @@ class BodyParams:
 
 
 @dataclass(frozen=True)
+class GearFrictionParams:
+    """Gearbox friction at the output shaft (N·m, rad/s); all zero = none (Table 1 viscous only).
+
+    ``τ_f(ω) = sign(ω)·(Tc + (Ts − Tc)·exp(−(ω/ωs)²)) + b·ω`` while slipping; at rest the shaft
+    sticks until the driving torque exceeds ``Ts`` (breakaway).
+    """
+
+    coulomb_nm: float = 0.0
+    static_nm: float = 0.0
+    stribeck_speed_radps: float = 1.0
+    viscous_nm_s_per_rad: float = 0.0
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any friction term is non-zero."""
+        return bool(self.coulomb_nm or self.static_nm or self.viscous_nm_s_per_rad)
+
+    @property
+    def breakaway_nm(self) -> float:
+        """Torque needed to start the shaft from rest, N·m."""
+        return max(self.static_nm, self.coulomb_nm)
+
+
+@dataclass(frozen=True)
+class SupplyParams:
+    """Battery behind the bus: open-circuit voltage is ``physics.supply_voltage_v``."""
+
+    internal_resistance_ohm: float = 0.0
+    idle_current_a: float = 0.0          # per servo, drawn whatever the motor does
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the bus voltage sags under load."""
+        return self.internal_resistance_ohm > 0.0
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """Wheel-ground contact: friction-limited tyres instead of the least-squares kinematic fit."""
+
+    enabled: bool = False
+    friction_coefficient: float = 0.8
+    slip_stiffness_n_s_per_m: float = 300.0      # force per slip speed below saturation
+    lateral_stiffness_ratio: float = 1.0         # lateral / longitudinal slip stiffness
+    yaw_inertia_kg_m2: float = 0.0               # 0: a uniform square plate through the wheels
+    gravity_mps2: float = 9.81
+
+
+@dataclass(frozen=True)
+class ToleranceParams:
+    """Build tolerances the robot file does not know (wheel order of ``robot.yaml``)."""
+
+    wheel_radius_scale: tuple[float, ...] = ()       # true radius / nominal, per wheel
+    steer_zero_offset_rad: tuple[float, ...] = ()    # true straight-ahead minus nominal centre
+    steer_backlash_rad: float = 0.0                  # free play between steering horn and wheel
+    encoder_offset_pulse: tuple[float, ...] = ()     # steering encoders: reading minus true angle
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any tolerance differs from nominal."""
+        return (any(s != 1.0 for s in self.wheel_radius_scale) or any(self.steer_zero_offset_rad)
+                or self.steer_backlash_rad > 0.0 or any(self.encoder_offset_pulse))
+
+
+@dataclass(frozen=True)
+class ProtectionParams:
+    """Firmware protection raised from the physics (Hardware Error Status bits)."""
+
+    enabled: bool = False
+    overload_current_a: float = 1.0      # |armature current| above this counts towards Overload
+    overload_time_s: float = 1.0         # sustained this long: Overload (bit 5)
+
+
+@dataclass(frozen=True)
 class PhysicsConfig:
     """Everything in ``configs/emulator.yaml``."""
 
@@ -88,6 +162,12 @@ class PhysicsConfig:
     thermal: ThermalParams = field(default_factory=ThermalParams)
     body: BodyParams = field(default_factory=BodyParams)
     paper_spec_gains: Mapping[str, int] = field(default_factory=dict)
+    drive_friction: GearFrictionParams = field(default_factory=GearFrictionParams)
+    steering_friction: GearFrictionParams = field(default_factory=GearFrictionParams)
+    supply: SupplyParams = field(default_factory=SupplyParams)
+    contact: ContactParams = field(default_factory=ContactParams)
+    tolerances: ToleranceParams = field(default_factory=ToleranceParams)
+    protection: ProtectionParams = field(default_factory=ProtectionParams)
 
     def gear_ratio(self, model: str) -> float:
         """Gear ratio of a servo model name such as ``"xh430-w210"``."""
@@ -198,7 +278,77 @@ def parse_config(doc: Mapping[str, Any]) -> PhysicsConfig:
         drive_motor=_motor(_subsection(motors, "motors", "drive"), "motors.drive"),
         steering_motor=_motor(_subsection(motors, "motors", "steering"), "motors.steering"),
         gear_ratios=gear_ratios, firmware=firmware, sensors=sensors, thermal=thermal,
-        body=body, paper_spec_gains=gains)
+        body=body, paper_spec_gains=gains, **_realism_sections(doc))
+
+
+def _flag(sec: Mapping[str, Any], path: str, key: str, default: bool) -> bool:
+    value = sec.get(key, default)
+    if not isinstance(value, bool):
+        raise ConfigError(f"{path}.{key}: expected true/false, got {value!r}")
+    return value
+
+
+def _numbers(sec: Mapping[str, Any], path: str, key: str, n: int, *, signed: bool = False
+             ) -> tuple[float, ...]:
+    value = sec.get(key, [])
+    if not isinstance(value, list) or len(value) not in (0, n) or any(
+            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
+        raise ConfigError(f"{path}.{key}: expected a list of {n} numbers, got {value!r}")
+    if not signed and any(v <= 0 for v in value):
+        raise ConfigError(f"{path}.{key}: every value must be > 0, got {value!r}")
+    return tuple(float(v) for v in value)
+
+
+def _friction(sec: Mapping[str, Any], path: str) -> GearFrictionParams:
+    d = GearFrictionParams()
+    f = GearFrictionParams(
+        coulomb_nm=_number(sec, path, "coulomb_nm", default=d.coulomb_nm),
+        static_nm=_number(sec, path, "static_nm", default=d.static_nm),
+        stribeck_speed_radps=_number(sec, path, "stribeck_speed_radps", positive=True,
+                                     default=d.stribeck_speed_radps),
+        viscous_nm_s_per_rad=_number(sec, path, "viscous_nm_s_per_rad", default=d.viscous_nm_s_per_rad))
+    if f.static_nm and f.static_nm < f.coulomb_nm:
+        raise ConfigError(f"{path}.static_nm: must be >= coulomb_nm ({f.coulomb_nm:g}), got {f.static_nm:g}")
+    return f
+
+
+def _realism_sections(doc: Mapping[str, Any]) -> dict[str, Any]:
+    """The optional sections that make the world disagree with the controller's model
+    (``gearbox_friction``, ``supply``, ``contact``, ``tolerances``, ``protection``)."""
+    gf = _section(doc, "gearbox_friction", required=False)
+    sup = _section(doc, "supply", required=False)
+    con = _section(doc, "contact", required=False)
+    tol = _section(doc, "tolerances", required=False)
+    pro = _section(doc, "protection", required=False)
+    cd, pd = ContactParams(), ProtectionParams()
+    return dict(
+        drive_friction=_friction(_section(gf, "drive", required=False), "gearbox_friction.drive"),
+        steering_friction=_friction(_section(gf, "steering", required=False), "gearbox_friction.steering"),
+        supply=SupplyParams(
+            internal_resistance_ohm=_number(sup, "supply", "internal_resistance_ohm", default=0.0),
+            idle_current_a=_number(sup, "supply", "idle_current_a", default=0.0)),
+        contact=ContactParams(
+            enabled=_flag(con, "contact", "enabled", cd.enabled),
+            friction_coefficient=_number(con, "contact", "friction_coefficient", positive=True,
+                                         default=cd.friction_coefficient),
+            slip_stiffness_n_s_per_m=_number(con, "contact", "slip_stiffness_n_s_per_m", positive=True,
+                                             default=cd.slip_stiffness_n_s_per_m),
+            lateral_stiffness_ratio=_number(con, "contact", "lateral_stiffness_ratio", positive=True,
+                                            default=cd.lateral_stiffness_ratio),
+            yaw_inertia_kg_m2=_number(con, "contact", "yaw_inertia_kg_m2", default=cd.yaw_inertia_kg_m2),
+            gravity_mps2=_number(con, "contact", "gravity_mps2", positive=True, default=cd.gravity_mps2)),
+        tolerances=ToleranceParams(
+            wheel_radius_scale=_numbers(tol, "tolerances", "wheel_radius_scale", 4),
+            steer_zero_offset_rad=_numbers(tol, "tolerances", "steer_zero_offset_rad", 4, signed=True),
+            steer_backlash_rad=_number(tol, "tolerances", "steer_backlash_rad", default=0.0),
+            encoder_offset_pulse=_numbers(tol, "tolerances", "encoder_offset_pulse", 4, signed=True)),
+        protection=ProtectionParams(
+            enabled=_flag(pro, "protection", "enabled", pd.enabled),
+            overload_current_a=_number(pro, "protection", "overload_current_a", positive=True,
+                                       default=pd.overload_current_a),
+            overload_time_s=_number(pro, "protection", "overload_time_s", positive=True,
+                                    default=pd.overload_time_s)),
+    )
 
 
 def _subsection(sec: Mapping[str, Any], path: str, key: str) -> Mapping[str, Any]:
