@@ -85,7 +85,8 @@ class RobotPhysics:
                 self.servos[w.drive_id].external_load(0.0, wheel_inertia)
             steer = self.servos[w.steer_id] = servo(cfg.steering_motor, cfg.steering_friction)
             steer.encoder_offset_pulse = enc
-            steer.set_shaft_angle((w.center_pulse - enc) * u.RAD_PER_PULSE)    # reads centre: "straight"
+            # reads its centre ("straight"); a µpulse inside the count, clear of round-off
+            steer.set_shaft_angle((w.center_pulse - enc + (1e-6 if enc else 0.0)) * u.RAD_PER_PULSE)
         xy = [(w.x_m, w.y_m) for w in geometry.wheels]
         self.body: RobotBody | ContactBody = (ContactBody(xy, cfg.body.total_mass_kg, cfg.contact)
                                               if cfg.contact.enabled else RobotBody(xy))
