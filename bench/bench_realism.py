@@ -15,6 +15,7 @@ import argparse
 import contextlib
 import dataclasses
 import json
+import math
 import tempfile
 import time
 from pathlib import Path
@@ -26,6 +27,7 @@ from swerve.configs import shipped
 from swerve.controller.kinematics import from_robot_config
 from swerve.controller.online import TrackingLoop
 from swerve.driver.bus import Bus
+from swerve.driver.errors import ServoError
 from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
@@ -38,7 +40,9 @@ CHOICES = ("ideal", *EFFECTS, "realistic")
 
 
 class LockstepWheels:
-    """A :class:`WheelSet` whose state carries the emulator's simulated time."""
+    """A :class:`WheelSet` whose state carries the emulator's simulated time, and whose goals
+    have reached the servos before simulated time moves on (a Bulk Write gets no reply, so a
+    Ping behind it tells when the emulator has executed it)."""
 
     def __init__(self, wheels: WheelSet, emu: RobotEmulator):
         self.wheels, self.emu = wheels, emu
@@ -48,6 +52,8 @@ class LockstepWheels:
 
     def write_goals(self, drive_radps, steer_rad):
         self.wheels.write_goals(drive_radps, steer_rad)
+        with contextlib.suppress(ServoError):
+            self.wheels.bus.ping(self.wheels.drive_ids[0])
 
     def stop(self):
         self.wheels.stop()
@@ -82,9 +88,14 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
                                       timeout_margin_s=1.0))
         wheels = stack.enter_context(WheelSet(bus, cfg))
         wheels.configure()
+        dt = 1.0 / EMULATOR_PHYSICS_RATE_HZ
+
+        def sleep(s: float) -> None:            # whole physics steps of exactly dt
+            for _ in range(max(1, math.ceil(s / dt - 1e-6))):
+                emu.advance(dt)
+
         loop = TrackingLoop(LockstepWheels(wheels, emu), law, geom, watchdog_s=cfg.bus_watchdog_s,
-                            true_pose=lambda: emu.pose, clock=lambda: emu.sim_time_s,
-                            sleep=lambda s: emu.advance(s) if s > 0 else None)
+                            true_pose=lambda: emu.pose, clock=lambda: emu.sim_time_s, sleep=sleep)
         wheels.enable()
         loop.move_to_start(start[3], start[4])
         cpu0 = time.process_time()

@@ -284,3 +284,20 @@ def test_hot_winding_and_low_voltage_raise_their_bits():
     servo.temperature_c = 85.0
     servo.step(DT, items(u.MODE_PWM, goal_pwm=0))
     assert servo.take_hardware_error() == HardwareError.OVERHEATING | HardwareError.INPUT_VOLTAGE
+
+
+def test_p_only_steering_stops_short_by_the_friction_deadband():
+    """Position P only (the paper's steering gains): near the goal the P output falls below the
+    breakaway PWM and the shaft sticks short by breakaway / Kp pulses; without friction it arrives."""
+    kp_counts_per_pulse = IDEAL.paper_spec_gains["position_p_gain"] / 128
+    f, m = REAL.steering_friction, REAL.steering_motor
+    breakaway_counts = f.breakaway_nm / (GEAR * m.torque_nm_per_a) * m.resistance_ohm / REAL.supply_voltage_v * 885
+    deadband = breakaway_counts / kp_counts_per_pulse                    # 2.0 pulses
+    for cfg, short in ((IDEAL, 0), (REAL, -math.floor(deadband))):
+        servo = ServoModel(m, GEAR, 12.0, cfg.firmware, friction=cfg.steering_friction)
+        servo.set_shaft_angle(2048 * u.RAD_PER_PULSE)
+        for goal in (2048, 2148):
+            for _ in range(600):
+                out = servo.step(DT, items(u.MODE_POSITION, goal_position=goal))
+        assert out["present_position"] - 2148 == short
+        assert servo.shaft_speed_radps == 0.0 or cfg is IDEAL
