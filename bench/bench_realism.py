@@ -36,7 +36,10 @@ from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, s
 from swerve.emulator.robot_emulator import RobotEmulator, robot_emulator
 from swerve.tools.robot_run import EMULATOR_PHYSICS_RATE_HZ, prepare_law
 
-CHOICES = ("ideal", *EFFECTS, "realistic")
+#: The build tolerances one at a time: choice -> key of the ``tolerances`` section.
+TOLERANCE_PARTS = {"radius": "wheel_radius_scale", "steer-zero": "steer_zero_offset_rad",
+                   "backlash": "steer_backlash_rad", "encoder": "encoder_offset_pulse"}
+CHOICES = ("ideal", *EFFECTS, "realistic", *TOLERANCE_PARTS)
 
 
 class LockstepWheels:
@@ -65,6 +68,12 @@ def physics_file(choice: str, tmp: Path) -> Path:
         return resolve_emulator_config(choice)
     real = yaml.safe_load(resolve_emulator_config("realistic").read_text())
     doc = yaml.safe_load(resolve_emulator_config("ideal").read_text())
+    if choice in TOLERANCE_PARTS:
+        key = TOLERANCE_PARTS[choice]
+        doc["tolerances"] = {key: real["tolerances"][key]}
+        path = tmp / f"{choice}.yaml"
+        path.write_text(yaml.safe_dump(doc))
+        return path
     section = {"contact": "contact", "friction": "gearbox_friction", "tolerances": "tolerances",
                "supply": "supply", "protection": "protection"}[choice]
     doc[section] = real[section]
@@ -117,7 +126,8 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--trajectories", nargs="+", default=["line", "circle", "curvilinear"])
-    ap.add_argument("--effects", nargs="+", default=list(CHOICES), choices=CHOICES)
+    ap.add_argument("--effects", nargs="+", default=["ideal", *EFFECTS, "realistic"], choices=CHOICES,
+                    help=f"physics to compare; also the tolerances one by one: {', '.join(TOLERANCE_PARTS)}")
     ap.add_argument("--json", type=Path)
     args = ap.parse_args(argv)
     rows = []
