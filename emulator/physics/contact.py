@@ -27,6 +27,7 @@ import math
 
 import numpy as np
 
+from .body import se2_step
 from .params import ContactParams
 
 
@@ -133,20 +134,8 @@ class ContactBody:
         self.saturated_steps += sat
         self.wheel_steps += len(wheels)
         self.twist = np.array([vx, vy, w])
-        self._move(dt_s, vx, vy, w)
+        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, w), dt_s)
         return self.pose
-
-    def _move(self, dt_s: float, vx: float, vy: float, w: float) -> None:
-        h = w * dt_s
-        if abs(h) > 1e-9:                         # exact SE(2) motion at constant twist
-            s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w
-            dx, dy = s * vx - c * vy, c * vx + s * vy
-        else:
-            dx, dy = vx * dt_s, vy * dt_s
-        ct, st = math.cos(self.theta_rad), math.sin(self.theta_rad)
-        self.x_m += ct * dx - st * dy
-        self.y_m += st * dx + ct * dy
-        self.theta_rad += h
 
     @property
     def pose(self) -> tuple[float, float, float]:
