@@ -15,13 +15,15 @@ from pathlib import Path
 
 import numpy as np
 
+from swerve.configs import shipped
+from swerve.configs.loader import Section, read_yaml
 from swerve.controller.chained import to_chained, wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath, read_csv_path
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
-TRAJECTORY_DIR = Path(__file__).resolve().parent.parent / "configs" / "trajectories"
+TRAJECTORY_DIR = shipped("trajectories")
 
 #: Weights for a CSV path given without a YAML file (the line case's, R exponents negative).
 DEFAULT_Q_DIAG = (1e3, 1.0, 1e2, 1.0, 1e3)
@@ -63,52 +65,52 @@ class Trajectory:
         return desired_states(self.path, np.array([0.0]), geom)[0][0]
 
 
-def _diag(values, n, what, src):
-    try:
-        d = np.array([float(v) for v in values])
-    except (TypeError, ValueError) as exc:
-        raise ControllerError(f"{src}: {what} must be {n} numbers") from exc
-    if d.shape != (n,) or not np.all(np.isfinite(d)) or np.any(d <= 0):
-        raise ControllerError(f"{src}: {what} must be {n} positive numbers, got {values}")
-    return np.diag(d)
+#: Plausibility bounds of trajectory-file keys (a larger value is a typo or a wrong unit).
+TRAJ_DURATION_MAX_S = 1e5
+TRAJ_LENGTH_MAX_M = 1e4
+TRAJ_SPEED_MAX_MPS = 100.0
+WEIGHT_MAX = 1e12
+PATH_TYPES = ("line", "circle", "curvilinear", "csv")
 
 
-def _path_from_spec(spec, tf_s, src, base: Path):
-    kind = spec.get("type")
-    try:
-        if kind == "line":
-            return LinePath(tuple(map(float, spec.get("start_m", (0, 0)))),
-                            tuple(map(float, spec["velocity_mps"])), tf_s)
-        if kind == "circle":
-            return CirclePath(float(spec.get("radius_m", 1.0)),
-                              float(spec.get("period_s", tf_s)), tf_s)
-        if kind == "curvilinear":
-            return CurvilinearPath(float(spec.get("offset_m", 0.6)),
-                                   float(spec.get("period_s", tf_s)), tf_s)
-        if kind == "csv":
-            return read_csv_path(base / spec["file"], float(spec.get("smoothing_m", 1e-4)))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ControllerError(f"{src}: bad path specification {spec}: {exc}") from exc
-    raise ControllerError(f"{src}: path type must be line, circle, curvilinear or csv, "
-                          f"got {kind!r}")
+def _diag(sec: Section, key: str, n: int, default) -> np.ndarray:
+    return np.diag(sec.numbers(key, n, default, positive=True, max=WEIGHT_MAX))
 
 
-def _start_from_spec(spec, path, geom, src):
-    if spec is None:
-        return None
-    try:
-        pose = [float(spec.get(k, 0.0)) for k in ("x_m", "y_m", "theta_rad")]
-        steer = spec.get("steering_rad", "ackermann")
-        if steer == "ackermann":
-            # steering that fits the path's curvature at t = 0 (the paper's circle start)
-            sd = desired_states(path, np.array([0.0]), geom)[0][0]
-            steer = sd[3:]
-        state = np.array(pose + [float(v) for v in steer])
-    except (AttributeError, TypeError, ValueError) as exc:
-        raise ControllerError(f"{src}: bad start state {spec}: {exc}") from exc
-    if state.shape != (5,) or not np.all(np.isfinite(state)):
-        raise ControllerError(f"{src}: start state must be 5 finite numbers, got {spec}")
-    return state
+def _path_from_spec(sec: Section, tf_s: float, base: Path):
+    kind = sec.raw("type")
+    if not isinstance(kind, str) or kind not in PATH_TYPES:
+        sec.fail(f"path type must be {', '.join(PATH_TYPES[:-1])} or {PATH_TYPES[-1]}, got {kind!r}", "type")
+    pos = dict(min=-TRAJ_LENGTH_MAX_M, max=TRAJ_LENGTH_MAX_M)
+    span = dict(positive=True, max=TRAJ_DURATION_MAX_S)
+    if kind == "line":
+        path = LinePath(sec.numbers("start_m", 2, (0.0, 0.0), **pos),
+                        sec.numbers("velocity_mps", 2, min=-TRAJ_SPEED_MAX_MPS, max=TRAJ_SPEED_MAX_MPS),
+                        tf_s)
+    elif kind == "circle":
+        path = CirclePath(sec.number("radius_m", 1.0, positive=True, max=TRAJ_LENGTH_MAX_M),
+                          sec.number("period_s", tf_s, **span), tf_s)
+    elif kind == "curvilinear":
+        path = CurvilinearPath(sec.number("offset_m", 0.6, **pos), sec.number("period_s", tf_s, **span), tf_s)
+    else:
+        path = read_csv_path(base / sec.string("file"), sec.number("smoothing_m", 1e-4, nonneg=True,
+                                                                   max=TRAJ_LENGTH_MAX_M))
+    sec.check_unknown()
+    return path
+
+
+def _start_from_spec(sec: Section, path, geom):
+    pose = [sec.number(k, 0.0, min=-TRAJ_LENGTH_MAX_M, max=TRAJ_LENGTH_MAX_M) for k in ("x_m", "y_m")]
+    pose.append(sec.number("theta_rad", 0.0, min=-100.0, max=100.0))
+    if sec.raw("steering_rad", "ackermann") == "ackermann":
+        # steering that fits the path's curvature at t = 0 (the paper's circle start)
+        steer = desired_states(path, np.array([0.0]), geom)[0][0][3:]
+        if not np.all(np.isfinite(steer)):
+            sec.fail("the path's steering at t = 0 is undefined (path at rest)", "steering_rad")
+    else:
+        steer = sec.numbers("steering_rad", 2, min=-math.pi, max=math.pi)
+    sec.check_unknown()
+    return np.array(pose + [float(v) for v in steer])
 
 
 def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Trajectory:
@@ -117,10 +119,9 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
 
     A CSV file holds ``t,x,y`` samples (s, m, m); it gets ``tau = 0.016 s``,
     ``N = floor(tf / tau)``, :data:`DEFAULT_Q_DIAG`, :data:`DEFAULT_R_DIAG` and starts on the
-    path. Raises :class:`ControllerError` on anything malformed.
+    path. A YAML file is read by :mod:`swerve.configs.loader`. Raises :class:`ControllerError`
+    (``FILE:LINE: KEY: problem`` for a YAML key) on anything malformed.
     """
-    import yaml
-
     text = str(name_or_path)
     p = Path(text)
     if p.suffix.lower() not in (".yaml", ".yml", ".csv"):
@@ -140,32 +141,23 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
             raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
         return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
                           np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), None, str(p))
-    try:
-        cfg = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except (OSError, yaml.YAMLError) as exc:
-        raise ControllerError(f"cannot read trajectory file {p}: {exc}") from exc
-    if not isinstance(cfg, dict) or "path" not in cfg:
-        raise ControllerError(f"{p}: a trajectory file needs a 'path' mapping")
-    try:
-        tau = float(cfg.get("tau_s", DEFAULT_TAU_S))
-        tf_given = cfg.get("tf_s")
-        path0 = _path_from_spec(cfg["path"], float(tf_given or 1.0), p, p.parent)
-        tf = float(tf_given) if tf_given is not None else path0.t_end_s
-        if tf_given is None:
-            pass
-        elif getattr(path0, "t_end_s", tf) != tf and cfg["path"].get("type") != "csv":
-            path0 = _path_from_spec(cfg["path"], tf, p, p.parent)
-        n = int(cfg.get("n_steps", np.floor(tf / tau + 1e-9)))
-    except (TypeError, ValueError) as exc:
-        raise ControllerError(f"{p}: bad tf_s / tau_s / n_steps: {exc}") from exc
-    if not (tau > 0 and n >= 10 and np.isfinite(tf)) or abs(n * tau - tf) > 1e-6 * max(tf, 1):
-        raise ControllerError(f"{p}: need tf_s = n_steps * tau_s (got {tf}, {n}, {tau})")
+    top = read_yaml(p, ControllerError, "trajectory file").root()
+    tau = top.number("tau_s", DEFAULT_TAU_S, positive=True, max=10.0)
+    tf_given = top.number("tf_s", None, positive=True, max=TRAJ_DURATION_MAX_S)
+    spec = top.section("path")
+    path0 = _path_from_spec(spec, tf_given or 1.0, p.parent)
+    tf = tf_given if tf_given is not None else path0.t_end_s
+    n = top.integer("n_steps", int(np.floor(tf / tau + 1e-9)), min=10, max=10_000_000)
+    if abs(n * tau - tf) > 1e-6 * max(tf, 1):
+        top.fail(f"need tf_s = n_steps * tau_s (got {tf:g}, {n}, {tau:g})", "n_steps")
     if tf > getattr(path0, "t_end_s", tf) + 1e-9:
-        raise ControllerError(f"{p}: tf_s = {tf} s is longer than the path ({path0.t_end_s} s)")
-    Q = _diag(cfg.get("Q_diag", DEFAULT_Q_DIAG), 5, "Q_diag", p)
-    R = _diag(cfg.get("R_diag", DEFAULT_R_DIAG), 3, "R_diag", p)
-    start = _start_from_spec(cfg.get("start"), path0, geom, p)
-    return Trajectory(str(cfg.get("name", p.stem)), path0, tf, n, tau, Q, R, start, str(p))
+        top.fail(f"tf_s = {tf:g} s is longer than the path ({path0.t_end_s:g} s)", "tf_s")
+    Q = _diag(top, "Q_diag", 5, DEFAULT_Q_DIAG)
+    R = _diag(top, "R_diag", 3, DEFAULT_R_DIAG)
+    start = _start_from_spec(top.section("start"), path0, geom) if "start" in top else None
+    name = top.string("name", p.stem)
+    top.check_unknown()
+    return Trajectory(name, path0, tf, n, tau, Q, R, start, str(p))
 
 
 def desired_states(path, t, geom: Geometry = Geometry()):

@@ -32,7 +32,7 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
 from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
                            RegisterError, ServoError)
-from swerve.driver.packets import BROADCAST_ID, Instruction, InstructionPacket, StatusPacket
+from swerve.driver.packets import BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket
 from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
@@ -41,6 +41,11 @@ STATUS_OVERHEAD = 11
 BROADCAST_PING_SLOT_S = 0.003
 
 RegLike = str | Reg
+
+#: Reads whose replies form a chain in request order (a silent servo cuts off those after it).
+_CHAINED_READS = frozenset((Instruction.SYNC_READ, Instruction.BULK_READ))
+#: Encoded Sync Read requests kept for reuse (the control loop repeats one request).
+_REQUEST_CACHE_SIZE = 32
 
 
 @dataclass(frozen=True)
@@ -98,6 +103,8 @@ class Bus:
         self.corrupt_frames = 0
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
+        self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
+        self._spans: dict[tuple, tuple[ControlTable, int, int]] = {}   # sync read plans
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -127,6 +134,7 @@ class Bus:
     def set_model(self, id_: int, model: str | int | ControlTable) -> None:
         """Declare the model of servo ``id_`` (name, number or table) so no Ping is needed."""
         self._tables[id_] = model if isinstance(model, ControlTable) else table_for(model)
+        self._spans.clear()
 
     def register(self, id_: int, reg: RegLike) -> Register:
         """The :class:`Register` named ``reg`` for servo ``id_`` (RegisterError if unknown)."""
@@ -135,6 +143,7 @@ class Bus:
     def _learn(self, res: PingResult) -> None:
         try:
             self._tables[res.id] = table_for(res.model_number)
+            self._spans.clear()
         except ConfigError:
             pass
 
@@ -147,20 +156,26 @@ class Bus:
 
     def _exchange(self, pkt: InstructionPacket, expect: Sequence[int], reply_bytes: int,
                   *, window_s: float | None = None, until_all: bool = True,
-                  check: bool = True) -> dict[int, StatusPacket]:
+                  check: bool = True, frame: bytes | None = None,
+                  fast_lengths: Sequence[int] | None = None) -> dict[int, StatusPacket]:
         """Send ``pkt`` and collect one status per ID in ``expect`` (lock held by caller).
 
         Returns ``{id: status}``. Raises DxlTimeoutError for IDs that stayed silent (or
         the corrupt-frame error if one arrived instead), ServoError for an error byte
         when ``check``. ``until_all=False`` (broadcast ping) listens for the whole window.
+        ``frame``: ``pkt`` already encoded. ``fast_lengths``: the data lengths of a fast
+        read; the combined reply is returned as ``{0xFE: FastStatus}``.
         """
-        frame = pkt.encode()
+        transport = self._transport
+        if frame is None:
+            frame = pkt.encode()
         timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
                                                                       len(expect))
         if self._unsettled:  # the last exchange failed: let late replies land before sending
-            self.drained_bytes += self._transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
+            self.drained_bytes += transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
             self._unsettled = False
-        self._transport.write(frame)
+        transport.parser.expect_fast(fast_lengths)
+        transport.write(frame)
         if not expect:
             return {}
         wanted = set(expect)
@@ -168,19 +183,27 @@ class Bus:
         deadline = time.monotonic() + timeout
         corrupt: list[CorruptPacketError] = []
         while not wanted <= got.keys():
-            batch = self._transport.read_packets(deadline)
-            errs = self._transport.parser.take_errors()
-            self.corrupt_frames += len(errs)
-            corrupt += errs
+            batch = transport.read_packets(deadline)
+            if transport.parser.errors:
+                errs = transport.parser.take_errors()
+                self.corrupt_frames += len(errs)
+                corrupt += errs
             if not batch and time.monotonic() >= deadline:
                 break
             for p in batch:
+                if isinstance(p, FastStatus):
+                    if fast_lengths is not None and BROADCAST_ID not in got:
+                        got[BROADCAST_ID] = p
+                    else:
+                        self.stray_replies += 1
+                    continue
                 if not isinstance(p, StatusPacket):
                     continue  # our own echo (loop://, half-duplex adapters) or another host
                 if p.id in wanted and p.id not in got:
                     got[p.id] = p
                 else:
                     self.stray_replies += 1
+        transport.parser.expect_fast(None)
         missing = [i for i in expect if i not in got]
         if (missing and until_all) or corrupt:
             self._unsettled = True
@@ -189,7 +212,12 @@ class Bus:
                 err = corrupt[-1]
                 err.args = (f"{err} (reply to {pkt.name} from ID {', '.join(map(str, missing))})",)
                 raise err
-            raise DxlTimeoutError(missing, pkt.instruction, timeout)
+            # Sync/Bulk Read replies come in request order, each servo waiting for the one
+            # before it: when every ID after the first silent one is silent too, they were
+            # cut off behind it
+            chained = (pkt.instruction in _CHAINED_READS
+                       and list(expect[len(expect) - len(missing):]) == missing)
+            raise DxlTimeoutError(missing, pkt.instruction, timeout, cut_off=chained)
         if check:
             for i in expect:
                 if i in got and got[i].error:
@@ -353,6 +381,7 @@ class Bus:
         """Factory Reset (``option``: ResetOption; default keeps ID and baud rate)."""
         self._with_retries(self._simple, pk.factory_reset(id_, option), retry=False)
         self._tables.pop(id_, None)
+        self._spans.clear()
 
     def clear(self, id_: int) -> None:
         """Clear multi-turn position (only when stopped, else ServoError Result Fail)."""
@@ -387,8 +416,15 @@ class Bus:
         Returns ``{id: {register name: raw}}`` for every register fully inside the span.
         """
         ids = list(ids)
-        t = self._group_table(ids)
-        address, length = t.span(first, last if last is not None else first)
+        key = (tuple(ids), first, last)
+        plan = self._spans.get(key)
+        if plan is None:
+            t = self._group_table(ids)
+            plan = (t, *t.span(first, last if last is not None else first))
+            if len(self._spans) >= _REQUEST_CACHE_SIZE:
+                self._spans.clear()
+            self._spans[key] = plan
+        t, address, length = plan
 
         def once():
             return self._sync_read_once(ids, address, length, fast)
@@ -396,40 +432,55 @@ class Bus:
         raw = self._with_retries(once)
         return {i: self._decode_span(t, address, raw[i]) for i in ids}
 
-    def _sync_read_once(self, ids: list[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
-        pkt = pk.sync_read(address, length, ids, fast=fast)
-        if not fast:
-            got = self._exchange(pkt, ids, (STATUS_OVERHEAD + length) * len(ids))
-            out = {}
-            for i in ids:
-                if len(got[i].params) != length:
-                    raise CorruptPacketError(f"sync read reply from ID {i} carries "
-                                             f"{len(got[i].params)} bytes, expected {length}")
-                out[i] = got[i].params
-            return out
-        return self._fast_exchange(pkt, [(i, length) for i in ids])
+    def _sync_read_request(self, ids: list[int], address: int, length: int,
+                           fast: bool) -> tuple[InstructionPacket, bytes]:
+        key = (address, length, tuple(ids), fast)
+        req = self._requests.get(key)
+        if req is None:
+            pkt = pk.sync_read(address, length, ids, fast=fast)
+            if len(self._requests) >= _REQUEST_CACHE_SIZE:
+                self._requests.clear()
+            req = self._requests[key] = (pkt, pkt.encode())
+        return req
 
-    def _fast_exchange(self, pkt: InstructionPacket, items: list[tuple[int, int]]) -> dict[int, bytes]:
+    def _sync_read_once(self, ids: list[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
+        pkt, frame = self._sync_read_request(ids, address, length, fast)
+        if fast:
+            return self._fast_exchange(pkt, [(i, length) for i in ids], frame)
+        got = self._exchange(pkt, ids, (STATUS_OVERHEAD + length) * len(ids), frame=frame)
+        out = {}
+        for i in ids:
+            data = got[i].params
+            if len(data) != length:
+                raise CorruptPacketError(f"sync read reply from ID {i} carries "
+                                         f"{len(data)} bytes, expected {length}")
+            out[i] = data
+        return out
+
+    def _fast_exchange(self, pkt: InstructionPacket, items: list[tuple[int, int]],
+                       frame: bytes | None = None) -> dict[int, bytes]:
         """Send a fast sync/bulk read and split the single combined reply."""
         ids = [i for i, _ in items]
-        reply_bytes = 10 + sum(n + 4 for _, n in items)
+        lengths = [n for _, n in items]
+        reply_bytes = 10 + sum(n + 4 for n in lengths)
         try:
-            got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False)
+            got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False, frame=frame,
+                                 fast_lengths=lengths)
         except DxlTimeoutError as exc:
+            k = self._transport.parser.fast_entries_received
+            if k is not None and k < len(ids):
+                # the servos send their slices in turn: the first missing slice names the culprit
+                raise DxlTimeoutError(ids[k:], pkt.instruction, exc.timeout_s,
+                                      f"the combined reply stopped after {k} of {len(ids)} slices; "
+                                      f"ID {ids[k]} is missing or does not support fast reads",
+                                      cut_off=True) from None
             raise DxlTimeoutError(ids, pkt.instruction, exc.timeout_s,
                                   "the combined reply was incomplete: one of these servos is "
                                   "missing or does not support fast reads") from None
-        st = got[BROADCAST_ID]
-        body = bytes((Instruction.STATUS, st.error)) + st.params
-        frame = pk.HEADER + bytes((BROADCAST_ID,)) + struct.pack("<H", len(body) + 2) + body
-        frame += struct.pack("<H", pk.crc16(frame))
-        try:
-            fast = pk.FastStatus.decode(frame, [n for _, n in items])
         except CorruptPacketError as exc:
-            # a missing servo truncates the combined reply; name the IDs
             raise CorruptPacketError(f"fast read reply for IDs {ids} is malformed: {exc}") from None
         out = {}
-        for (i, n), e in zip(items, fast.entries):
+        for (i, _), e in zip(items, got[BROADCAST_ID].entries):
             if e.id != i:
                 raise CorruptPacketError(f"fast read reply lists ID {e.id} where ID {i} was expected")
             if e.error:

@@ -1,20 +1,23 @@
 """X-series control tables, loaded from data files in ``configs/models/`` (one per model).
 
-The driver and the emulator's memory map load the same files. Registers are named by the
+The driver and the emulator's memory map load the same files (through
+:mod:`swerve.configs.loader`, so a malformed entry is reported as ``FILE:LINE: KEY: problem``).
+X-series constants are read from them here once: :data:`BAUD_RATES_BPS`, :data:`ID_MAX`, and
+the SI scales used by the emulator's physics. Registers are named by the
 :class:`Reg` enum (typos fail at import, not on the wire); raw <-> SI conversion happens here
 once, and raises :class:`~driver.errors.OutOfRangeError` instead of clamping.
 """
 from __future__ import annotations
 
+import dataclasses
 import functools
 import math
 from dataclasses import dataclass, field
-from enum import StrEnum
+from enum import IntEnum, StrEnum
 from pathlib import Path
 
-import yaml
-
 from swerve.configs import shipped_dir
+from swerve.configs.loader import Section, read_yaml
 from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
 CONFIG_DIR = shipped_dir()
@@ -85,8 +88,11 @@ class Reg(StrEnum):
     EXTERNAL_PORT_DATA_3 = "external_port_data_3"
 
 
-class OperatingMode:
-    """Values of Operating Mode (11)."""
+class OperatingMode(IntEnum):
+    """Values of Operating Mode (11), e-Manual "Operating Mode(11)".
+
+    ``robot.yaml`` names them in lower case (``operating_mode: velocity``).
+    """
 
     CURRENT = 0
     VELOCITY = 1
@@ -94,6 +100,11 @@ class OperatingMode:
     EXTENDED_POSITION = 4
     CURRENT_BASED_POSITION = 5
     PWM = 16
+
+
+#: The modes in which Goal Position (116) drives the servo.
+POSITION_MODES = (OperatingMode.POSITION, OperatingMode.EXTENDED_POSITION,
+                  OperatingMode.CURRENT_BASED_POSITION)
 
 
 class HardwareError:
@@ -268,66 +279,58 @@ class ControlTable:
         return a.address, b.address + b.size - a.address
 
 
-def _register_from_dict(d: dict, where: str) -> Register:
-    known = {"name", "address", "size", "access", "area", "default", "min", "max", "signed", "unit",
-             "scale", "limit", "limit_min", "limit_max", "allowed", "divisor"}
-    try:
-        name = str(d["name"])
-        if name not in Reg.__members__.values():
-            raise ConfigError(f"{where}: unknown register name {name!r} (not in driver.control_table.Reg)")
-        if d["access"] not in ("R", "RW") or d["area"] not in ("EEPROM", "RAM"):
-            raise ConfigError(f"{where}: {name}: access must be R|RW and area EEPROM|RAM")
-        if int(d["size"]) not in (1, 2, 4):
-            raise ConfigError(f"{where}: {name}: size must be 1, 2 or 4")
-        return Register(
-            name=name, address=int(d["address"]), size=int(d["size"]), access=d["access"],
-            area=d["area"], default=int(d["default"]),
-            min=None if d.get("min") is None else int(d["min"]),
-            max=None if d.get("max") is None else int(d["max"]),
-            signed=bool(d.get("signed", False)), unit=d.get("unit"),
-            scale=None if d.get("scale") is None else float(d["scale"]),
-            limit=d.get("limit"), limit_min=d.get("limit_min"), limit_max=d.get("limit_max"),
-            allowed=tuple(d["allowed"]) if d.get("allowed") else None,
-            divisor=d.get("divisor"),
-            extra={k: v for k, v in d.items() if k not in known})
-    except (KeyError, TypeError, ValueError) as exc:
-        if isinstance(exc, ConfigError):
-            raise
-        raise ConfigError(f"{where}: malformed register entry {d!r}: {exc}") from None
+_REG_NAMES = frozenset(Reg.__members__.values())
+
+
+def _register(sec: Section) -> Register:
+    name = sec.string("name")
+    if name not in _REG_NAMES:
+        sec.fail(f"unknown register name {name!r} (not in driver.control_table.Reg)", "name")
+    size = sec.integer("size")
+    if size not in (1, 2, 4):
+        sec.fail(f"size must be 1, 2 or 4, got {size}", "size")
+    allowed = sec.integers("allowed", None, None)
+    reg = Register(
+        name=name, address=sec.integer("address", min=0, max=0xFFFF), size=size,
+        access=sec.choice("access", ("R", "RW")), area=sec.choice("area", ("EEPROM", "RAM")),
+        default=sec.integer("default"), min=sec.integer("min", None), max=sec.integer("max", None),
+        signed=sec.boolean("signed", False), unit=sec.string("unit", None, nonempty=False),
+        scale=sec.number("scale", None, positive=True),
+        limit=sec.string("limit", None), limit_min=sec.string("limit_min", None),
+        limit_max=sec.string("limit_max", None), allowed=tuple(allowed) if allowed else None,
+        divisor=sec.integer("divisor", None, min=1))
+    # keys the Register has no field for (e.g. ``values_bps`` of baud_rate) stay available
+    return dataclasses.replace(reg, extra=sec.unread())
 
 
 def load_table(path: str | Path) -> ControlTable:
-    """Load one model file; raises :class:`ConfigError` naming the file and the problem."""
-    path = Path(path)
-    try:
-        doc = yaml.safe_load(path.read_text())
-    except OSError as exc:
-        raise ConfigError(f"cannot read control table {path}: {exc.strerror}") from None
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML: {exc}") from None
-    if not isinstance(doc, dict) or not isinstance(doc.get("registers"), list):
-        raise ConfigError(f"{path}: expected a mapping with a 'registers' list")
+    """Load one model file; raises :class:`ConfigError` ``FILE:LINE: KEY: problem``."""
+    top = read_yaml(path, what="control table").root()
     regs: dict[str, Register] = {}
-    for i, d in enumerate(doc["registers"]):
-        if not isinstance(d, dict):
-            raise ConfigError(f"{path}: register #{i} is not a mapping")
-        r = _register_from_dict(d, str(path))
+    entries = []
+    for sec in top.items("registers"):
+        r = _register(sec)
         if r.name in regs:
-            raise ConfigError(f"{path}: register {r.name} is listed twice")
+            sec.fail(f"register {r.name} is listed twice", "name")
         regs[r.name] = r
-    for r in regs.values():
-        for lim in (r.limit, r.limit_min, r.limit_max):
+        entries.append((sec, r))
+    for sec, r in entries:
+        for key in ("limit", "limit_min", "limit_max"):
+            lim = getattr(r, key)
             if lim is not None and lim not in regs:
-                raise ConfigError(f"{path}: {r.name} names unknown limit item {lim!r}")
-    try:
-        table = ControlTable(
-            model=str(doc["model"]), model_number=int(doc["model_number"]),
-            gear_ratio=float(doc["gear_ratio"]), registers=regs,
-            indirect=tuple(IndirectBlock(**b) for b in doc.get("indirect", [])),
-            pulses_per_rev=int(doc.get("encoder_pulses_per_rev", 4096)))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise ConfigError(f"{path}: missing or malformed model field: {exc}") from None
-    _check_overlaps(table, path)
+                sec.fail(f"{r.name} names unknown limit item {lim!r}", key)
+    blocks = []
+    for sec in top.items("indirect", None) if "indirect" in top else ():
+        blocks.append(IndirectBlock(**{k: sec.integer(k, min=0) for k in
+                                       ("address_start", "data_start", "count", "first")}))
+        sec.check_unknown()
+    table = ControlTable(
+        model=top.string("model"), model_number=top.integer("model_number", min=0, max=0xFFFF),
+        gear_ratio=top.number("gear_ratio", positive=True, max=1e4), registers=regs,
+        indirect=tuple(blocks),
+        pulses_per_rev=top.integer("encoder_pulses_per_rev", 4096, min=1))
+    top.check_unknown()
+    _check_overlaps(table, Path(path))
     return table
 
 
@@ -365,3 +368,45 @@ def model_name(model_number: int) -> str:
         return table_for(int(model_number)).model
     except ConfigError:
         return f"unknown ({model_number})"
+
+
+#: The model whose table gives the X-series constants shared by every model file.
+REFERENCE_MODEL = "xh430-w210"
+
+
+def _baud_rates_bps() -> tuple[int, ...]:
+    """Baud Rate (8) value -> bps, from ``values_bps`` of the model files (all must agree).
+
+    e-Manual, XH430-W210 "Baud Rate(8)": 0 = 9,600, 1 = 57,600 (factory default), 2 = 115,200,
+    3 = 1M, 4 = 2M, 5 = 3M, 6 = 4M, 7 = 4.5M bps.
+    """
+    tables = models()
+    ref = tables[REFERENCE_MODEL][Reg.BAUD_RATE]
+    values = tuple(int(v) for v in ref.extra.get("values_bps", ()))
+    if len(values) != ref.max + 1:
+        raise ConfigError(f"{REFERENCE_MODEL}: baud_rate.values_bps must list {ref.max + 1} rates")
+    for t in tables.values():
+        if tuple(t[Reg.BAUD_RATE].extra.get("values_bps", ())) != values:
+            raise ConfigError(f"{t.model}: baud_rate.values_bps differs from {REFERENCE_MODEL}'s")
+    return values
+
+
+#: Highest servo ID (ID item 7, e-Manual: 0 ~ 252; 253-254 are reserved and broadcast).
+ID_MAX: int = models()[REFERENCE_MODEL][Reg.ID].max
+#: Baud Rate (8) item value -> bits per second (index = raw value).
+BAUD_RATES_BPS: tuple[int, ...] = _baud_rates_bps()
+#: The factory-default rate (Baud Rate default, 57,600 bps).
+DEFAULT_BAUD_BPS: int = BAUD_RATES_BPS[models()[REFERENCE_MODEL][Reg.BAUD_RATE].default]
+#: Order in which a scan tries the rates: the factory default first, then the others fastest
+#: first (a try at a fast rate costs the least time).
+SCAN_BAUDS_BPS: tuple[int, ...] = (DEFAULT_BAUD_BPS,) + tuple(
+    sorted((b for b in BAUD_RATES_BPS if b != DEFAULT_BAUD_BPS), reverse=True))
+
+
+def baud_index(bps: int) -> int:
+    """Baud Rate item value for ``bps``; raises :class:`ConfigError` if the X series lacks it."""
+    try:
+        return BAUD_RATES_BPS.index(int(bps))
+    except ValueError:
+        raise ConfigError(f"{bps} bps is not an X-series baud rate "
+                          f"({', '.join(map(str, BAUD_RATES_BPS))})") from None

@@ -8,7 +8,7 @@ instead of showing a traceback. Errors carry their facts as fields::
     ├── ConfigError (ValueError)
     └── DxlError
         ├── TransportError (IOError)
-        ├── DxlTimeoutError (TimeoutError)      ids, instruction, timeout_s
+        ├── DxlTimeoutError (TimeoutError)      ids, first_missing, instruction, timeout_s
         ├── CorruptPacketError (ValueError)
         │   └── ChecksumError                    expected, actual, frame
         ├── ServoError                           id, error_number, alert, hardware_error
@@ -18,6 +18,7 @@ instead of showing a traceback. Errors carry their facts as fields::
 from __future__ import annotations
 
 from swerve.configs.errors import ConfigError, SwerveError
+from swerve.driver.protocol import ErrorNumber, StatusError, instruction_name
 
 __all__ = ["SwerveError", "ConfigError", "DxlError", "TransportError", "DxlTimeoutError",
            "CorruptPacketError", "ChecksumError", "ServoError", "RegisterError", "OutOfRangeError"]
@@ -34,18 +35,28 @@ class TransportError(DxlError, IOError):
 class DxlTimeoutError(DxlError, TimeoutError):
     """No (complete) reply arrived before the deadline.
 
-    Attributes: ``ids`` the servo IDs that did not answer, ``instruction`` the
-    instruction code sent, ``timeout_s`` the deadline used.
+    Attributes: ``ids`` every servo ID that did not answer, in request order;
+    ``first_missing`` the first of them; ``cut_off`` True when the others are the servos
+    queued behind it in a Sync/Bulk Read reply chain (each waits for the reply before its
+    own, so one silent servo silences all later ones); ``instruction`` the instruction
+    code sent; ``timeout_s`` the deadline used.
     """
 
-    def __init__(self, ids, instruction: int, timeout_s: float, detail: str = ""):
+    def __init__(self, ids, instruction: int, timeout_s: float, detail: str = "", *,
+                 cut_off: bool = False):
         self.ids = tuple(ids)
+        self.first_missing = self.ids[0] if self.ids else None
+        self.cut_off = bool(cut_off) and len(self.ids) > 1
         self.instruction = int(instruction)
         self.timeout_s = float(timeout_s)
-        from swerve.driver.packets import instruction_name  # local: avoid an import cycle
-
-        msg = (f"no reply from servo ID {', '.join(map(str, self.ids)) or '-'} to "
-               f"{instruction_name(self.instruction)} within {self.timeout_s * 1e3:.1f} ms")
+        what = f"{instruction_name(self.instruction)} within {self.timeout_s * 1e3:.1f} ms"
+        if self.cut_off:
+            rest = self.ids[1:]
+            who = (f"ID {rest[0]} queued behind it in the reply chain was" if len(rest) == 1 else
+                   f"IDs {', '.join(map(str, rest))} queued behind it in the reply chain were")
+            msg = f"servo ID {self.first_missing} stopped answering ({what}); {who} cut off"
+        else:
+            msg = f"no reply from servo ID {', '.join(map(str, self.ids)) or '-'} to {what}"
         super().__init__(msg + (f" ({detail})" if detail else ""))
 
 
@@ -67,15 +78,13 @@ class ChecksumError(CorruptPacketError):
 class ServoError(DxlError):
     """A servo answered with a non-zero error byte.
 
-    Attributes: ``id``; ``error_number`` (:class:`driver.packets.ErrorNumber`, 0 if only the
+    Attributes: ``id``; ``error_number`` (:class:`driver.protocol.ErrorNumber`, 0 if only the
     alert bit is set); ``alert`` (a hardware fault is latched); ``hardware_error`` (the
     decoded Hardware Error Status bits, when they were read, else ``None``).
     """
 
     def __init__(self, id: int, error_byte: int, instruction: int | None = None,
                  hardware_error=None, context: str = ""):
-        from swerve.driver.packets import ErrorNumber, StatusError, instruction_name
-
         st = StatusError.from_byte(error_byte)
         self.id = int(id)
         self.error_byte = int(error_byte)

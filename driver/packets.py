@@ -12,104 +12,19 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass
-from enum import IntEnum
 from typing import Iterable, Mapping, Sequence
 
 from swerve.driver.errors import ChecksumError, CorruptPacketError
+from swerve.driver.protocol import (ALERT_BIT, BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, HEADER, MAX_ID,
+                                    MAX_LENGTH, PREFIX_BYTES, ErrorNumber, Instruction, ResetOption,
+                                    StatusError, instruction_name)
 
-HEADER = b"\xff\xff\xfd\x00"
-BROADCAST_ID = 0xFE
-MAX_ID = 0xFC
-#: Largest LENGTH field accepted by the parser/decoder (bounds memory on garbage input).
-MAX_LENGTH = 4096
+# Protocol constants live in swerve.driver.protocol; they are re-exported here for codec users.
+__all__ = ["ALERT_BIT", "BACKUP_KEY", "BROADCAST_ID", "CLEAR_MULTI_TURN", "HEADER", "MAX_ID", "MAX_LENGTH",
+           "ErrorNumber", "Instruction", "ResetOption", "StatusError", "instruction_name"]
+
 _STUFF_PATTERN = b"\xff\xff\xfd"
-
-
-class Instruction(IntEnum):
-    """Instruction codes (the byte after LENGTH)."""
-
-    PING = 0x01
-    READ = 0x02
-    WRITE = 0x03
-    REG_WRITE = 0x04
-    ACTION = 0x05
-    FACTORY_RESET = 0x06
-    REBOOT = 0x08
-    CLEAR = 0x10
-    CONTROL_TABLE_BACKUP = 0x20
-    STATUS = 0x55
-    SYNC_READ = 0x82
-    SYNC_WRITE = 0x83
-    FAST_SYNC_READ = 0x8A
-    BULK_READ = 0x92
-    BULK_WRITE = 0x93
-    FAST_BULK_READ = 0x9A
-
-
-def instruction_name(code: int | None) -> str:
-    """Human name of an instruction code, e.g. ``"SYNC_READ (0x82)"``."""
-    if code is None:
-        return "?"
-    try:
-        return f"{Instruction(code).name} (0x{code:02X})"
-    except ValueError:
-        return f"unknown instruction 0x{code:02X}"
-
-
-class ErrorNumber(IntEnum):
-    """Error number in bits 0–6 of a status packet's ERR byte."""
-
-    NONE = 0x00
-    RESULT_FAIL = 0x01
-    INSTRUCTION = 0x02
-    CRC = 0x03
-    DATA_RANGE = 0x04
-    DATA_LENGTH = 0x05
-    DATA_LIMIT = 0x06
-    ACCESS = 0x07
-
-    @property
-    def description(self) -> str:
-        """One-line meaning, paraphrasing the e-Manual."""
-        return _ERROR_TEXT.get(self, f"error {int(self)}")
-
-
-_ERROR_TEXT = {
-    ErrorNumber.NONE: "no error",
-    ErrorNumber.RESULT_FAIL: "result fail (instruction could not be processed)",
-    ErrorNumber.INSTRUCTION: "instruction error (undefined instruction, or Action without Reg Write)",
-    ErrorNumber.CRC: "CRC error (the servo received a corrupted packet)",
-    ErrorNumber.DATA_RANGE: "data range error (value outside the item's range)",
-    ErrorNumber.DATA_LENGTH: "data length error (fewer bytes than the item's size)",
-    ErrorNumber.DATA_LIMIT: "data limit error (value outside the configured limit)",
-    ErrorNumber.ACCESS: "access error (read-only/undefined address, or EEPROM write with torque on)",
-}
-
-ALERT_BIT = 0x80
-
-
-@dataclass(frozen=True)
-class StatusError:
-    """Decoded ERR byte: the error number and the hardware alert bit."""
-
-    number: ErrorNumber
-    alert: bool
-
-    @classmethod
-    def from_byte(cls, err: int) -> "StatusError":
-        num = err & 0x7F
-        try:
-            number = ErrorNumber(num)
-        except ValueError:  # undefined numbers keep their value visible
-            number = ErrorNumber.RESULT_FAIL if num else ErrorNumber.NONE
-        return cls(number, bool(err & ALERT_BIT))
-
-    def to_byte(self) -> int:
-        return int(self.number) | (ALERT_BIT if self.alert else 0)
-
-    @property
-    def ok(self) -> bool:
-        return self.number == ErrorNumber.NONE and not self.alert
+_STATUS = int(Instruction.STATUS)
 
 
 # --- CRC-16 (poly 0x8005, init 0x0000, MSB first, no reflection, no final XOR) -------------
@@ -127,11 +42,33 @@ def _make_crc_table() -> tuple[int, ...]:
 _CRC_TABLE = _make_crc_table()
 
 
+def _make_crc_table16(t: tuple[int, ...]) -> list[int]:
+    """Table for two bytes per step: ``crc' = table[crc ^ (b0 << 8 | b1)]``."""
+    return [((t[h] << 8) & 0xFFFF) ^ t[lo ^ (t[h] >> 8)] for h in range(256) for lo in range(256)]
+
+
+_CRC_TABLE16 = _make_crc_table16(_CRC_TABLE)
+_WORDS: dict[int, struct.Struct] = {}     # big-endian 16-bit word unpackers by word count
+
+
 def crc16(data: bytes | bytearray | memoryview, crc: int = 0) -> int:
-    """CRC-16 of ``data`` as Dynamixel Protocol 2.0 defines it; ``crc`` continues a running CRC."""
-    table = _CRC_TABLE
-    for b in data:
-        crc = ((crc << 8) ^ table[((crc >> 8) ^ b) & 0xFF]) & 0xFFFF
+    """CRC-16 of ``data`` as Dynamixel Protocol 2.0 defines it; ``crc`` continues a running CRC.
+
+    Works two bytes per step (a 65,536-entry table), with the last odd byte done alone.
+    """
+    n = len(data)
+    half = n >> 1
+    if half:
+        fmt = _WORDS.get(half)
+        if fmt is None:
+            fmt = struct.Struct(f">{half}H")
+            if half <= MAX_LENGTH:
+                _WORDS[half] = fmt
+        table = _CRC_TABLE16
+        for w in fmt.unpack_from(data):
+            crc = table[crc ^ w]
+    if n & 1:
+        crc = ((crc << 8) ^ _CRC_TABLE[(crc >> 8) ^ data[n - 1]]) & 0xFFFF
     return crc
 
 
@@ -163,22 +100,23 @@ def _frame(id_: int, body: bytes, *, stuffed: bool = True) -> bytes:
 def split_frame(frame: bytes) -> tuple[int, bytes]:
     """Check a complete frame's header, LENGTH and CRC; return ``(id, stuffed body)``.
 
-    Raises :class:`ChecksumError` or :class:`CorruptPacketError` naming what is wrong.
+    The body is INST [ERR] params, as received (still stuffed). Raises
+    :class:`ChecksumError` or :class:`CorruptPacketError` naming what is wrong.
     """
     frame = bytes(frame)
-    if len(frame) < 10:
-        raise CorruptPacketError(f"frame too short ({len(frame)} bytes): {frame.hex(' ')}")
+    n = len(frame)
+    if n < PREFIX_BYTES + 3:
+        raise CorruptPacketError(f"frame too short ({n} bytes): {frame.hex(' ')}")
     if not frame.startswith(HEADER):
         raise CorruptPacketError(f"bad header {frame[:4].hex(' ')} (expected ff ff fd 00)")
-    (length,) = struct.unpack_from("<H", frame, 5)
-    if length < 3 or 7 + length != len(frame):
-        raise CorruptPacketError(
-            f"LENGTH field {length} does not match a {len(frame)}-byte frame")
-    (actual,) = struct.unpack_from("<H", frame, len(frame) - 2)
+    length = frame[5] | frame[6] << 8
+    if length < 3 or PREFIX_BYTES + length != n:
+        raise CorruptPacketError(f"LENGTH field {length} does not match a {n}-byte frame")
+    actual = frame[-2] | frame[-1] << 8
     expected = crc16(frame[:-2])
     if actual != expected:
         raise ChecksumError(expected, actual, frame)
-    return frame[4], frame[7:-2]
+    return frame[4], frame[PREFIX_BYTES:-2]
 
 
 # --- packets -----------------------------------------------------------------------------------
@@ -208,13 +146,13 @@ class InstructionPacket:
 
     @classmethod
     def decode(cls, frame: bytes) -> "InstructionPacket":
-        """Parse one complete instruction frame (raises on a bad CRC, length or header)."""
+        """Parse one complete instruction frame (raises on a bad CRC, length, header or ID)."""
         id_, body = split_frame(frame)
-        body = unstuff(body)
-        if body[0] == Instruction.STATUS:
+        if body[0] == _STATUS:
             raise CorruptPacketError("frame is a status packet, not an instruction")
         if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
             raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
+        body = unstuff(body)
         return cls(id_, body[0], body[1:])
 
     @property
@@ -256,9 +194,13 @@ class StatusPacket:
     def decode(cls, frame: bytes) -> "StatusPacket":
         """Parse one complete (ordinary, stuffed) status frame."""
         id_, body = split_frame(frame)
+        if body[0] != _STATUS or len(body) < 2:
+            raise CorruptPacketError(f"not a status packet (instruction byte 0x{body[0]:02X}, "
+                                     f"{len(body)} body bytes)")
+        if id_ > MAX_ID:
+            raise CorruptPacketError(f"invalid ID {id_} in status frame (a combined fast read "
+                                     f"reply needs FastStatus.decode with the requested lengths)")
         body = unstuff(body)
-        if body[0] != Instruction.STATUS or len(body) < 2:
-            raise CorruptPacketError(f"not a status packet (instruction byte 0x{body[0]:02X})")
         return cls(id_, body[1], body[2:])
 
 
@@ -301,51 +243,57 @@ class FastStatus:
     @classmethod
     def decode(cls, frame: bytes, lengths: Sequence[int]) -> "FastStatus":
         """Parse a combined frame given each entry's data length (as requested)."""
-        id_, body = split_frame(frame)
-        if id_ != BROADCAST_ID or body[:1] != bytes((Instruction.STATUS,)):
-            raise CorruptPacketError("not a fast sync/bulk read reply (ID must be 0xFE, instruction 0x55)")
-        expect = 1 + sum(n + 4 for n in lengths)
-        if len(body) + 2 != expect:
+        frame = bytes(frame)
+        expect = fast_status_length(lengths)
+        if len(frame) != PREFIX_BYTES + expect:
             raise CorruptPacketError(
-                f"fast read reply carries {len(body) + 2 - 1} data bytes, expected {expect - 1} "
+                f"fast read reply is {len(frame)} bytes, expected {PREFIX_BYTES + expect} "
                 f"for lengths {list(lengths)}")
-        entries, pos = [], 8
+        if not frame.startswith(HEADER) or (frame[5] | frame[6] << 8) != expect:
+            raise CorruptPacketError(f"bad header or LENGTH in fast read reply {frame[:7].hex(' ')}")
+        if frame[4] != BROADCAST_ID or frame[PREFIX_BYTES] != _STATUS:
+            raise CorruptPacketError("not a fast sync/bulk read reply (ID must be 0xFE, instruction 0x55)")
+        # the running CRC after the last entry is the frame's CRC: one pass checks both
+        entries, pos, crc = [], PREFIX_BYTES + 1, crc16(frame[:PREFIX_BYTES + 1])
         for n in lengths:
-            err, sid = frame[pos], frame[pos + 1]
-            data = frame[pos + 2:pos + 2 + n]
-            (crc_k,) = struct.unpack_from("<H", frame, pos + 2 + n)
-            want = crc16(frame[:pos + 2 + n])
-            if crc_k != want:
-                raise ChecksumError(want, crc_k, frame)
-            if not 0 <= sid <= MAX_ID:
+            end = pos + 2 + n
+            crc = crc16(frame[pos:end], crc)   # running CRC up to this entry's data
+            crc_k = frame[end] | frame[end + 1] << 8
+            if crc_k != crc:
+                raise ChecksumError(crc, crc_k, frame)
+            sid = frame[pos + 1]
+            if sid > MAX_ID:
                 raise CorruptPacketError(f"invalid ID {sid} inside fast read reply")
-            entries.append(StatusPacket(sid, err, data))
-            pos += n + 4
+            entries.append(StatusPacket(sid, frame[pos], frame[pos + 2:end]))
+            crc = crc16(frame[end:end + 2], crc)
+            pos = end + 2
         return cls(tuple(entries))
+
+
+def fast_status_length(lengths: Sequence[int]) -> int:
+    """LENGTH field of a combined fast read reply with data ``lengths`` (INST + per entry
+    ERR, ID, data, CRC)."""
+    return 1 + sum(n + 4 for n in lengths)
 
 
 Packet = InstructionPacket | StatusPacket
 
 
-def decode_frame(frame: bytes) -> Packet:
-    """Decode any complete frame: a status (0x55) or an instruction.
+def decode_frame(frame: bytes, fast_lengths: Sequence[int] | None = None) -> Packet | FastStatus:
+    """Decode one complete frame with the ``decode`` of its kind.
 
-    A Fast Sync/Bulk Read reply (status with ID 0xFE) is returned as a :class:`StatusPacket`
-    with ``id`` 0xFE, ``error`` = first servo's ERR byte and the *raw* (not unstuffed) rest as
-    ``params``; use :meth:`FastStatus.decode` with the requested lengths to split it.
+    A status with ID 0xFE is a combined fast read reply: :meth:`FastStatus.decode` with
+    the requested ``fast_lengths`` (CorruptPacketError when none were requested). Any other
+    status goes to :meth:`StatusPacket.decode`, everything else to
+    :meth:`InstructionPacket.decode`.
     """
-    id_, body = split_frame(frame)
-    if body[0] == Instruction.STATUS:
-        if len(body) < 2:
-            raise CorruptPacketError("status packet without an error byte")
-        if id_ == BROADCAST_ID:  # fast read reply: not stuffed
-            return StatusPacket(id_, body[1], body[2:])
-        body = unstuff(body)
-        return StatusPacket(id_, body[1], body[2:])
-    body = unstuff(body)
-    if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
-        raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
-    return InstructionPacket(id_, body[0], body[1:])
+    if len(frame) > PREFIX_BYTES and frame[PREFIX_BYTES] == _STATUS:
+        if frame[4] == BROADCAST_ID:
+            if fast_lengths is None:
+                raise CorruptPacketError("combined fast read reply arrived, but none was requested")
+            return FastStatus.decode(frame, fast_lengths)
+        return StatusPacket.decode(frame)
+    return InstructionPacket.decode(frame)
 
 
 # --- builders for every instruction -----------------------------------------------------------
@@ -374,24 +322,12 @@ def action(id_: int) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.ACTION)
 
 
-class ResetOption(IntEnum):
-    """Factory Reset parameter."""
-
-    ALL = 0xFF
-    EXCEPT_ID = 0x01
-    EXCEPT_ID_BAUD = 0x02
-
-
 def factory_reset(id_: int, option: int = ResetOption.EXCEPT_ID_BAUD) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.FACTORY_RESET, bytes((int(ResetOption(option)),)))
 
 
 def reboot(id_: int) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.REBOOT)
-
-
-CLEAR_MULTI_TURN = b"\x01DXL\x22"
-BACKUP_KEY = b"CTRL"
 
 
 def clear(id_: int) -> InstructionPacket:

@@ -3,7 +3,12 @@
 Any URL pyserial knows works: ``/dev/ttyUSB0`` (U2D2), a pty path (the emulator) or
 ``loop://`` (echo). Reads block in ``select()`` (or pyserial's own blocking read for
 ports without a file descriptor) with the time left to a :func:`time.monotonic`
-deadline; nothing spins.
+deadline; nothing spins. On a plain serial device the transport talks to the file
+descriptor directly: one ``write`` per request, and one ``read`` of everything available
+per ``select`` wakeup.
+
+Every OS-level failure of the port (unplugged adapter, ``termios.error``, EIO, a closed
+or invalid descriptor, end of file) is raised as a :class:`TransportError` naming the port.
 
 Reply timeouts come from :func:`packet_timeout_s`: bytes on the wire at the baud rate,
 the servos' Return Delay Time, and the USB-serial latency timer, which on Linux is a
@@ -15,25 +20,31 @@ import logging
 import os
 import re
 import select
+import termios
 import time
 import warnings
 
 import serial
 
+# Baud rates the X series supports, in scan order (factory default first).
+from swerve.driver.control_table import SCAN_BAUDS_BPS as STANDARD_BAUDS
 from swerve.driver.errors import TransportError
-from swerve.driver.packets import Packet
 from swerve.driver.parser import PacketParser
 
 log = logging.getLogger(__name__)
 
-#: Baud rates the X series supports (Baud Rate item 8, index 0..7).
-STANDARD_BAUDS = (57_600, 1_000_000, 115_200, 2_000_000, 3_000_000, 4_000_000, 9_600, 4_500_000)
 
 #: Bits on the wire per byte: start + 8 data + stop.
 BITS_PER_BYTE = 10
 
 #: Fixed slack added to every reply timeout (OS scheduling, servo processing), s.
 DEFAULT_MARGIN_S = 0.002
+
+#: What a dead or closed port raises below us: termios.error is not an OSError, and
+#: select()/fileno() on a closed descriptor raise ValueError.
+_PORT_ERRORS = (OSError, termios.error, serial.SerialException, TypeError, ValueError)
+#: Largest read per wakeup, bytes (several whole replies).
+_READ_CHUNK = 4096
 
 _SYSFS_USB_SERIAL = "/sys/bus/usb-serial/devices"
 _TTYUSB = re.compile(r"^ttyUSB\d+$")
@@ -113,7 +124,7 @@ class Transport:
     ``write(frame)`` discards stale input and sends; ``read_packets(deadline)`` blocks
     until at least one complete packet has arrived or ``deadline`` (a
     :func:`time.monotonic` value) passes. Not thread-safe: :class:`driver.bus.Bus`
-    holds the lock.
+    holds the lock. Every failure of the port is a :class:`TransportError`.
     """
 
     def __init__(self, url: str, baud: int, *, port: serial.SerialBase | None = None):
@@ -121,10 +132,14 @@ class Transport:
         self.baud = int(baud)
         self._port = port if port is not None else open_port(url, baud)
         self.parser = PacketParser()
-        try:
-            self._fd: int | None = self._port.fileno()
-        except (AttributeError, NotImplementedError, OSError, serial.SerialException):
-            self._fd = None
+        # a plain POSIX serial port (U2D2, pty) is driven through its descriptor, which
+        # pyserial opens non-blocking; wrappers (spy://, loop://) keep their own read/write
+        self._fd: int | None = None
+        if type(self._port) is serial.Serial:
+            try:
+                self._fd = self._port.fileno()
+            except (AttributeError, NotImplementedError, OSError, serial.SerialException):
+                self._fd = None
         #: Latency timer of the adapter in ms (0 when not a ttyUSB).
         self.latency_timer_ms = latency_timer_ms(url) or 0 if "://" not in url else 0
 
@@ -134,32 +149,71 @@ class Transport:
 
     def close(self) -> None:
         """Close the port (idempotent)."""
+        self._fd = None
         if self._port is not None and self._port.is_open:
             try:
                 self._port.close()
-            except (OSError, serial.SerialException):
+            except _PORT_ERRORS:
                 pass
+
+    def _failed(self, what: str, exc: BaseException | str) -> TransportError:
+        if isinstance(exc, termios.error) and len(exc.args) == 2:  # args (errno, text)
+            exc = f"[Errno {exc.args[0]}] {exc.args[1]}"
+        return TransportError(f"serial port {self.url}: {what} failed: {exc} "
+                              f"(adapter unplugged or port closed?)")
+
+    def _check_open(self, what: str) -> None:
+        if not self.is_open:
+            raise self._failed(what, "the port is closed")
 
     def write(self, data: bytes) -> None:
         """Drop unread input and buffered partial frames, then send ``data``."""
+        self._check_open("write")
+        self.parser.reset()
+        fd = self._fd
         try:
-            self._port.reset_input_buffer()
-            self.parser.reset()
-            n = self._port.write(data)
-        except (OSError, serial.SerialException, TypeError) as exc:
-            raise TransportError(f"write to {self.url} failed: {exc}") from None
-        if n is not None and n != len(data):
-            raise TransportError(f"write to {self.url}: only {n} of {len(data)} bytes sent")
+            if fd is None:
+                self._port.reset_input_buffer()
+                n = self._port.write(data)
+                if n is not None and n != len(data):
+                    raise self._failed("write", f"only {n} of {len(data)} bytes sent")
+                return
+            termios.tcflush(fd, termios.TCIFLUSH)
+            view, deadline = memoryview(data), None
+            while view:
+                try:
+                    view = view[os.write(fd, view):]
+                except BlockingIOError:  # output queue full: wait until it drains
+                    deadline = deadline or time.monotonic() + max(1.0, len(data) * 20 / self.baud)
+                    remaining = deadline - time.monotonic()
+                    if remaining <= 0 or not select.select([], [fd], [], remaining)[1]:
+                        raise self._failed("write", f"{len(view)} of {len(data)} bytes not sent "
+                                                    f"in time") from None
+        except TransportError:
+            raise
+        except _PORT_ERRORS as exc:
+            raise self._failed("write", exc) from None
 
     def _read_chunk(self, remaining_s: float) -> bytes:
-        port = self._port
-        if self._fd is not None:
-            ready, _, _ = select.select([self._fd], [], [], remaining_s)
-            if not ready:
+        """Whatever arrives within ``remaining_s`` (``b""`` if nothing); raises TransportError."""
+        self._check_open("read")
+        fd = self._fd
+        try:
+            if fd is None:
+                port = self._port
+                port.timeout = remaining_s
+                return port.read(max(1, port.in_waiting))
+            if not select.select([fd], [], [], remaining_s)[0]:
                 return b""
-            return port.read(port.in_waiting or 1)
-        port.timeout = remaining_s
-        return port.read(max(1, port.in_waiting))
+            try:
+                data = os.read(fd, _READ_CHUNK)
+            except BlockingIOError:
+                return b""
+        except _PORT_ERRORS as exc:
+            raise self._failed("read", exc) from None
+        if not data:  # readable but end of file: the device went away
+            raise self._failed("read", "end of file (device disconnected)")
+        return data
 
     def drain_quiet(self, quiet_s: float, max_s: float) -> int:
         """Discard input until the line has been silent for ``quiet_s`` (at most ``max_s``).
@@ -169,35 +223,30 @@ class Transport:
         """
         dropped = 0
         end = time.monotonic() + max_s
-        try:
-            while True:
-                remaining = end - time.monotonic()
-                if remaining <= 0:
-                    break
-                chunk = self._read_chunk(min(quiet_s, remaining))
-                if not chunk:
-                    break
-                dropped += len(chunk)
-        except (OSError, serial.SerialException, TypeError, ValueError) as exc:
-            raise TransportError(f"read from {self.url} failed: {exc}") from None
+        while True:
+            remaining = end - time.monotonic()
+            if remaining <= 0:
+                break
+            chunk = self._read_chunk(min(quiet_s, remaining))
+            if not chunk:
+                break
+            dropped += len(chunk)
         self.parser.reset()
         return dropped
 
-    def read_packets(self, deadline: float) -> list[Packet]:
+    def read_packets(self, deadline: float) -> list:
         """Packets completed by bytes arriving before ``deadline`` (monotonic s).
 
         Returns as soon as at least one packet is complete; returns ``[]`` at the
         deadline (after giving up on a dangling partial frame).
         """
+        parser = self.parser
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
-                return self.parser.flush() if self.parser.pending else []
-            try:
-                chunk = self._read_chunk(remaining)
-            except (OSError, serial.SerialException, TypeError, ValueError) as exc:
-                raise TransportError(f"read from {self.url} failed: {exc}") from None
+                return parser.flush() if parser.pending else []
+            chunk = self._read_chunk(remaining)
             if chunk:
-                packets = self.parser.feed(chunk)
+                packets = parser.feed(chunk)
                 if packets:
                     return packets

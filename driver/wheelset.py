@@ -25,7 +25,7 @@ from typing import Sequence
 
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import OperatingMode, Reg
-from swerve.driver.errors import ConfigError, DxlError, OutOfRangeError
+from swerve.driver.errors import ConfigError, DxlError, OutOfRangeError, SwerveError, TransportError
 from swerve.driver.robot_config import RobotConfig
 
 log = logging.getLogger(__name__)
@@ -186,7 +186,11 @@ class WheelSet:
         self.bus.sync_write(Reg.GOAL_VELOCITY, {i: 0 for i in self.drive_ids})
 
     def safe_shutdown(self) -> list[Exception]:
-        """Zero speeds, then torque off; never raises a bus error, returns what failed."""
+        """Zero speeds, then torque off; never raises a bus error, returns what failed.
+
+        A dead port (:class:`TransportError`) ends the attempt at once: the servos are then
+        left to their Bus Watchdog, which :meth:`left_to_watchdog` describes and the log says.
+        """
         failures: list[Exception] = []
         for step in (self.stop, self.disable):
             try:
@@ -194,10 +198,30 @@ class WheelSet:
             except (DxlError, OSError, ValueError) as exc:
                 log.warning("wheel set shutdown: %s failed: %s", step.__name__, exc)
                 failures.append(exc)
+                if isinstance(exc, TransportError):
+                    break
+        if failures:
+            log.error("wheel set shutdown: %s", self.left_to_watchdog(failures[-1]))
         return failures
+
+    def left_to_watchdog(self, cause: Exception) -> str:
+        """One line saying the servos could not be stopped and what stops them instead."""
+        wd = self.config.bus_watchdog_s
+        fate = (f"they were left to their Bus Watchdog, which stops them {wd:g} s after the last "
+                f"instruction" if wd > 0 else
+                "their Bus Watchdog is off, so they keep their last goals: cut the power")
+        return f"could not stop the servos ({cause}); {fate}"
 
     def __enter__(self) -> "WheelSet":
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
-        self.safe_shutdown()
+        failures = self.safe_shutdown()
+        if not failures:
+            return
+        note = self.left_to_watchdog(failures[-1])
+        if exc is None:
+            raise TransportError(note) if isinstance(failures[-1], TransportError) else DxlError(note)
+        if isinstance(exc, SwerveError):
+            # the one-line message the command prints must say the servos were not stopped
+            exc.args = (f"{exc}; {note}",)

@@ -15,9 +15,13 @@ from __future__ import annotations
 import random
 from typing import Callable
 
+from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 
 from swerve.emulator.servo import hardware_error_bits
+
+#: Keys of the ``--faults`` text form.
+FAULT_KEYS = ("drop", "corrupt", "delay", "vanish", "hwerror", "seed")
 
 
 class Faults:
@@ -94,14 +98,7 @@ class Faults:
             return faults
         seed = None
         hw: list[tuple[int, str]] = []
-        for item in text.split(","):
-            item = item.strip()
-            if not item:
-                continue
-            key, sep, value = item.partition("=")
-            key = key.strip().lower()
-            if not sep:
-                raise ConfigError(f"--faults item {item!r} is not key=value")
+        for key, value in parse_key_values(text, "--faults", FAULT_KEYS):
             try:
                 if key == "drop":
                     faults.drop_rate = float(value)
@@ -114,16 +111,13 @@ class Faults:
                 elif key == "vanish":
                     for v in value.split("+"):
                         faults.vanish(int(v))
-                elif key == "hwerror":
+                else:
                     id_, _, bits = value.partition(":")
                     hw.append((int(id_), bits))
-                else:
-                    raise ConfigError(f"unknown --faults key {key!r} (drop, corrupt, delay, vanish, "
-                                      "hwerror, seed)")
             except ValueError as exc:
                 if isinstance(exc, ConfigError):
                     raise
-                raise ConfigError(f"--faults item {item!r}: {exc}") from None
+                raise ConfigError(f"--faults item {key}={value!r}: {exc}") from None
         faults._rng = random.Random(seed)
         faults._check()
         for id_, bits in hw:

@@ -20,7 +20,8 @@ from typing import Callable, Iterable, Iterator, Mapping
 
 from swerve.driver.control_table import ControlTable, Reg, Register
 from swerve.driver.errors import RegisterError
-from swerve.driver.packets import ErrorNumber
+from swerve.driver.control_table import OperatingMode
+from swerve.driver.packets import ErrorNumber, ResetOption
 
 #: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
 INDIRECT_TARGET_MIN = 64
@@ -29,8 +30,8 @@ EEPROM_END = 64
 #: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
 WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION)
 #: Factory Reset options: which items survive.
-RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = 0xFF, 0x01, 0x02
-POSITION_MODE = 3
+RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
+POSITION_MODE = OperatingMode.POSITION
 TIME_BASED_PROFILE_BIT = 0x04
 
 

@@ -39,6 +39,7 @@ from typing import Callable, Mapping
 
 import numpy as np
 
+from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.emulator.faults import Faults
 from swerve.emulator.physics import units as u
@@ -408,14 +409,7 @@ def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> t
     if spec is None:
         return base, None
     if isinstance(spec, str):
-        items = {}
-        for part in spec.split(","):
-            if not part.strip():
-                continue
-            key, sep, value = part.partition("=")
-            if not sep:
-                raise ConfigError(f"noise {part!r}: expected key=value (keys: {', '.join(NOISE_KEYS)}, seed)")
-            items[key.strip()] = value.strip()
+        items = dict(parse_key_values(spec, "noise", (*NOISE_KEYS, "seed")))
     else:
         items = dict(spec)
     seed = None

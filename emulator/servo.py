@@ -11,7 +11,8 @@ from __future__ import annotations
 import logging
 from typing import Mapping, Protocol
 
-from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg
+from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
+from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg, baud_index
 from swerve.driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
                             Instruction, InstructionPacket, StatusPacket, parse_address_length)
 
@@ -20,8 +21,6 @@ from swerve.emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_
 
 log = logging.getLogger(__name__)
 
-#: Baud Rate item index -> bits per second (e-Manual; also ``values_bps`` in the model file).
-BAUD_RATES = (9600, 57600, 115200, 1_000_000, 2_000_000, 3_000_000, 4_000_000, 4_500_000)
 WATCHDOG_UNIT_S = 0.020
 REALTIME_TICK_WRAP = 32768
 #: Items the physics model returns (written into memory when the bus next reads).
@@ -32,14 +31,6 @@ DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "prese
 BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
                     "profile_acceleration", "profile_velocity")
-
-
-def baud_index(bps: int) -> int:
-    """Baud Rate item value for ``bps``; raises ValueError if X servos do not support it."""
-    try:
-        return BAUD_RATES.index(int(bps))
-    except ValueError:
-        raise ValueError(f"{bps} bps is not an X-series baud rate ({', '.join(map(str, BAUD_RATES))})") from None
 
 
 class Dynamics(Protocol):

@@ -1,6 +1,8 @@
 """Configuration dataclasses for the physics and their YAML loader (``configs/emulator.yaml``).
 
-Malformed input raises :class:`driver.errors.ConfigError` naming the offending key.
+The file is read by :mod:`swerve.configs.loader`: malformed input raises
+:class:`~swerve.configs.errors.ConfigError` ``FILE:LINE: KEY: problem``; a key no parser reads
+gives a :class:`~swerve.configs.loader.ConfigWarning`.
 """
 from __future__ import annotations
 
@@ -8,9 +10,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Mapping
 
-import yaml
+from swerve.configs import shipped
+from swerve.configs.errors import ConfigError
+from swerve.configs.loader import Document, Section, document, read_yaml
+from swerve.driver.control_table import REFERENCE_MODEL, table_for
 
-from swerve.driver.errors import ConfigError
+#: The shipped physics config.
+DEFAULT_PATH = shipped("emulator.yaml")
+#: Plausibility bounds (a larger value is a typo or a wrong unit).
+MOTOR_VALUE_MAX = 1e3
+PULSE_MAX = 1e6
+NOISE_STD_MAX = 1e3
+MASS_MAX_KG = 1e3
+SUPPLY_MAX_V = 48.0
 
 BESSEL_PLACEMENTS = ("velocity_feedback", "reference", "none")
 BESSEL_NORMS = ("mag", "phase", "delay")
@@ -177,201 +189,145 @@ class PhysicsConfig:
             raise ConfigError(f"gear_ratios: no entry for servo model {model!r}") from None
 
 
-def _section(doc: Mapping[str, Any], key: str, required: bool = True) -> Mapping[str, Any]:
-    value = doc.get(key)
-    if value is None and not required:
-        return {}
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{key}: expected a mapping, got {type(value).__name__}")
-    return value
-
-
-def _number(sec: Mapping[str, Any], path: str, key: str, *, positive: bool = False,
-            default: float | None = None) -> float:
-    if key not in sec:
-        if default is None:
-            raise ConfigError(f"{path}.{key}: missing")
-        return default
-    value = sec[key]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{path}.{key}: expected a number, got {value!r}")
-    if value < 0 or (positive and value == 0):
-        raise ConfigError(f"{path}.{key}: must be {'> 0' if positive else '>= 0'}, got {value!r}")
-    return float(value)
-
-
-def _motor(sec: Mapping[str, Any], path: str) -> MotorParams:
+def _motor(sec: Section) -> MotorParams:
     names = ("resistance_ohm", "inductance_h", "back_emf_v_s_per_rad", "torque_nm_per_a",
              "inertia_kg_m2")
-    kw = {n: _number(sec, path, n, positive=True) for n in names}
-    kw["friction_nm_s_per_rad"] = _number(sec, path, "friction_nm_s_per_rad")
+    kw = {n: sec.number(n, positive=True, max=MOTOR_VALUE_MAX) for n in names}
+    kw["friction_nm_s_per_rad"] = sec.number("friction_nm_s_per_rad", nonneg=True, max=MOTOR_VALUE_MAX)
+    sec.check_unknown()
     return MotorParams(**kw)
 
 
-def _choice(sec: Mapping[str, Any], path: str, key: str, choices: tuple[str, ...], default: str) -> str:
-    value = sec.get(key, default)
-    if value not in choices:
-        raise ConfigError(f"{path}.{key}: expected one of {choices}, got {value!r}")
-    return value
-
-
-def parse_config(doc: Mapping[str, Any]) -> PhysicsConfig:
-    """Build a :class:`PhysicsConfig` from a parsed YAML mapping.
+def parse_config(doc: Mapping[str, Any] | Document, where: str = "emulator config") -> PhysicsConfig:
+    """Build a :class:`PhysicsConfig` from a :class:`~swerve.configs.loader.Document` or from
+    already-parsed YAML data (named ``where`` in errors).
 
     Raises
     ------
     ConfigError
-        On a missing or malformed key; the message starts with the key's dotted path.
+        On a missing or malformed key: ``FILE:LINE: KEY: problem``.
     """
-    if not isinstance(doc, Mapping):
-        raise ConfigError("emulator config: expected a mapping at the top level")
-    phys = _section(doc, "physics")
-    rate = _number(phys, "physics", "rate_hz", positive=True)
-    if rate < 1000:
-        raise ConfigError(f"physics.rate_hz: must be >= 1000, got {rate:g}")
-    motors = _section(doc, "motors")
-    gears = _section(doc, "gear_ratios")
-    gear_ratios = {str(k).lower(): _number(gears, "gear_ratios", k, positive=True) for k in gears}
-    fw = _section(doc, "firmware", required=False)
-    bes = _section(doc, "bessel", required=False)
+    doc = doc if isinstance(doc, Document) else document(doc, where)
+    top = doc.root()
+    phys = top.section("physics")
+    rate = phys.number("rate_hz", min=1000.0, max=1e6)
+    motors = top.section("motors")
+    gears = top.section("gear_ratios")
+    gear_ratios = {str(k).lower(): gears.number(k, positive=True, max=1e4) for k in gears.keys()}
+    fw = top.section("firmware", required=False)
+    bes = top.section("bessel", required=False)
     d = FirmwareParams()
     firmware = FirmwareParams(
-        gain_time_base_s=_number(fw, "firmware", "gain_time_base_s", positive=True, default=d.gain_time_base_s),
-        anti_windup_gain=_number(fw, "firmware", "anti_windup_gain", default=d.anti_windup_gain),
-        current_loop_time_constant_s=_number(fw, "firmware", "current_loop_time_constant_s",
-                                             positive=True, default=d.current_loop_time_constant_s),
-        in_position_window_pulse=_number(fw, "firmware", "in_position_window_pulse",
-                                         default=d.in_position_window_pulse),
-        following_error_pulse=_number(fw, "firmware", "following_error_pulse",
-                                      positive=True, default=d.following_error_pulse),
-        bessel_cutoff_radps=_number(bes, "bessel", "cutoff_radps", positive=True, default=d.bessel_cutoff_radps),
-        bessel_norm=_choice(bes, "bessel", "norm", BESSEL_NORMS, d.bessel_norm),
-        bessel_placement=_choice(bes, "bessel", "placement", BESSEL_PLACEMENTS, d.bessel_placement),
+        gain_time_base_s=fw.number("gain_time_base_s", d.gain_time_base_s, positive=True, max=1.0),
+        anti_windup_gain=fw.number("anti_windup_gain", d.anti_windup_gain, nonneg=True, max=1e3),
+        current_loop_time_constant_s=fw.number("current_loop_time_constant_s",
+                                               d.current_loop_time_constant_s, positive=True, max=1.0),
+        in_position_window_pulse=fw.number("in_position_window_pulse", d.in_position_window_pulse,
+                                           nonneg=True, max=PULSE_MAX),
+        following_error_pulse=fw.number("following_error_pulse", d.following_error_pulse,
+                                        positive=True, max=PULSE_MAX),
+        bessel_cutoff_radps=bes.number("cutoff_radps", d.bessel_cutoff_radps, positive=True, max=1e5),
+        bessel_norm=bes.choice("norm", BESSEL_NORMS, d.bessel_norm),
+        bessel_placement=bes.choice("placement", BESSEL_PLACEMENTS, d.bessel_placement),
     )
-    sen = _section(doc, "sensors", required=False)
-    sensors = SensorParams(**{k: _number(sen, "sensors", k, default=0.0)
+    sen = top.section("sensors", required=False)
+    sensors = SensorParams(**{k: sen.number(k, 0.0, nonneg=True, max=NOISE_STD_MAX)
                               for k in ("position_noise_std_pulse", "current_noise_std_a",
                                         "voltage_noise_std_v")})
-    th = _section(doc, "thermal", required=False)
+    th = top.section("thermal", required=False)
     td = ThermalParams()
     thermal = ThermalParams(
-        ambient_c=_number(th, "thermal", "ambient_c", default=td.ambient_c),
-        thermal_resistance_k_per_w=_number(th, "thermal", "thermal_resistance_k_per_w", positive=True,
-                                           default=td.thermal_resistance_k_per_w),
-        time_constant_s=_number(th, "thermal", "time_constant_s", positive=True, default=td.time_constant_s),
+        ambient_c=th.number("ambient_c", td.ambient_c, min=-50.0, max=150.0),
+        thermal_resistance_k_per_w=th.number("thermal_resistance_k_per_w", td.thermal_resistance_k_per_w,
+                                             positive=True, max=1e3),
+        time_constant_s=th.number("time_constant_s", td.time_constant_s, positive=True, max=1e6),
     )
-    bo = _section(doc, "body", required=False)
-    load = bo.get("load_enabled", True)
-    if not isinstance(load, bool):
-        raise ConfigError(f"body.load_enabled: expected true/false, got {load!r}")
-    body = BodyParams(mass_kg=_number(bo, "body", "mass_kg", positive=True, default=3.25),
-                      payload_kg=_number(bo, "body", "payload_kg", default=1.5), load_enabled=load)
-    gains_sec = _section(doc, "paper_spec_gains", required=False)
+    bo = top.section("body", required=False)
+    bd = BodyParams()
+    body = BodyParams(mass_kg=bo.number("mass_kg", bd.mass_kg, positive=True, max=MASS_MAX_KG),
+                      payload_kg=bo.number("payload_kg", bd.payload_kg, nonneg=True, max=MASS_MAX_KG),
+                      load_enabled=bo.boolean("load_enabled", bd.load_enabled))
+    gains_sec = top.section("paper_spec_gains", required=False)
+    table = table_for(REFERENCE_MODEL)
     gains = {}
-    for k, v in gains_sec.items():
-        if isinstance(v, bool) or not isinstance(v, int) or not 0 <= v <= 16383:
-            raise ConfigError(f"paper_spec_gains.{k}: expected an integer 0..16383, got {v!r}")
-        gains[str(k)] = v
-    return PhysicsConfig(
+    for k in gains_sec.keys():
+        if str(k) not in table or not str(k).endswith("_gain"):
+            gains_sec.fail(f"not a gain register of {table.model}", k)
+        lo, hi = table[str(k)].raw_bounds()
+        gains[str(k)] = gains_sec.integer(k, min=lo, max=hi)
+    cfg = PhysicsConfig(
         rate_hz=rate,
-        supply_voltage_v=_number(phys, "physics", "supply_voltage_v", positive=True),
-        drive_motor=_motor(_subsection(motors, "motors", "drive"), "motors.drive"),
-        steering_motor=_motor(_subsection(motors, "motors", "steering"), "motors.steering"),
+        supply_voltage_v=phys.number("supply_voltage_v", positive=True, max=SUPPLY_MAX_V),
+        drive_motor=_motor(motors.section("drive")),
+        steering_motor=_motor(motors.section("steering")),
         gear_ratios=gear_ratios, firmware=firmware, sensors=sensors, thermal=thermal,
-        body=body, paper_spec_gains=gains, **_realism_sections(doc))
+        body=body, paper_spec_gains=gains, **_realism_sections(top))
+    for sec in (top, phys, motors, fw, bes, sen, th, bo):
+        sec.check_unknown()
+    return cfg
 
 
-def _flag(sec: Mapping[str, Any], path: str, key: str, default: bool) -> bool:
-    value = sec.get(key, default)
-    if not isinstance(value, bool):
-        raise ConfigError(f"{path}.{key}: expected true/false, got {value!r}")
-    return value
-
-
-def _numbers(sec: Mapping[str, Any], path: str, key: str, n: int, *, signed: bool = False
-             ) -> tuple[float, ...]:
-    value = sec.get(key, [])
-    if not isinstance(value, list) or len(value) not in (0, n) or any(
-            isinstance(v, bool) or not isinstance(v, (int, float)) for v in value):
-        raise ConfigError(f"{path}.{key}: expected a list of {n} numbers, got {value!r}")
-    if not signed and any(v <= 0 for v in value):
-        raise ConfigError(f"{path}.{key}: every value must be > 0, got {value!r}")
-    return tuple(float(v) for v in value)
-
-
-def _friction(sec: Mapping[str, Any], path: str) -> GearFrictionParams:
+def _friction(sec: Section) -> GearFrictionParams:
     d = GearFrictionParams()
     f = GearFrictionParams(
-        coulomb_nm=_number(sec, path, "coulomb_nm", default=d.coulomb_nm),
-        static_nm=_number(sec, path, "static_nm", default=d.static_nm),
-        stribeck_speed_radps=_number(sec, path, "stribeck_speed_radps", positive=True,
-                                     default=d.stribeck_speed_radps),
-        viscous_nm_s_per_rad=_number(sec, path, "viscous_nm_s_per_rad", default=d.viscous_nm_s_per_rad))
+        coulomb_nm=sec.number("coulomb_nm", d.coulomb_nm, nonneg=True, max=MOTOR_VALUE_MAX),
+        static_nm=sec.number("static_nm", d.static_nm, nonneg=True, max=MOTOR_VALUE_MAX),
+        stribeck_speed_radps=sec.number("stribeck_speed_radps", d.stribeck_speed_radps, positive=True,
+                                        max=MOTOR_VALUE_MAX),
+        viscous_nm_s_per_rad=sec.number("viscous_nm_s_per_rad", d.viscous_nm_s_per_rad, nonneg=True,
+                                        max=MOTOR_VALUE_MAX))
     if f.static_nm and f.static_nm < f.coulomb_nm:
-        raise ConfigError(f"{path}.static_nm: must be >= coulomb_nm ({f.coulomb_nm:g}), got {f.static_nm:g}")
+        sec.fail(f"must be >= coulomb_nm ({f.coulomb_nm:g}), got {f.static_nm:g}", "static_nm")
+    sec.check_unknown()
     return f
 
 
-def _realism_sections(doc: Mapping[str, Any]) -> dict[str, Any]:
+def _realism_sections(top: Section) -> dict[str, Any]:
     """The optional sections that make the world disagree with the controller's model
     (``gearbox_friction``, ``supply``, ``contact``, ``tolerances``, ``protection``)."""
-    gf = _section(doc, "gearbox_friction", required=False)
-    sup = _section(doc, "supply", required=False)
-    con = _section(doc, "contact", required=False)
-    tol = _section(doc, "tolerances", required=False)
-    pro = _section(doc, "protection", required=False)
+    gf = top.section("gearbox_friction", required=False)
+    sup = top.section("supply", required=False)
+    con = top.section("contact", required=False)
+    tol = top.section("tolerances", required=False)
+    pro = top.section("protection", required=False)
     cd, pd = ContactParams(), ProtectionParams()
-    return dict(
-        drive_friction=_friction(_section(gf, "drive", required=False), "gearbox_friction.drive"),
-        steering_friction=_friction(_section(gf, "steering", required=False), "gearbox_friction.steering"),
+    out = dict(
+        drive_friction=_friction(gf.section("drive", required=False)),
+        steering_friction=_friction(gf.section("steering", required=False)),
         supply=SupplyParams(
-            internal_resistance_ohm=_number(sup, "supply", "internal_resistance_ohm", default=0.0),
-            idle_current_a=_number(sup, "supply", "idle_current_a", default=0.0)),
+            internal_resistance_ohm=sup.number("internal_resistance_ohm", 0.0, nonneg=True, max=1e3),
+            idle_current_a=sup.number("idle_current_a", 0.0, nonneg=True, max=1e3)),
         contact=ContactParams(
-            enabled=_flag(con, "contact", "enabled", cd.enabled),
-            friction_coefficient=_number(con, "contact", "friction_coefficient", positive=True,
-                                         default=cd.friction_coefficient),
-            slip_stiffness_n_s_per_m=_number(con, "contact", "slip_stiffness_n_s_per_m", positive=True,
-                                             default=cd.slip_stiffness_n_s_per_m),
-            lateral_stiffness_ratio=_number(con, "contact", "lateral_stiffness_ratio", positive=True,
-                                            default=cd.lateral_stiffness_ratio),
-            yaw_inertia_kg_m2=_number(con, "contact", "yaw_inertia_kg_m2", default=cd.yaw_inertia_kg_m2),
-            gravity_mps2=_number(con, "contact", "gravity_mps2", positive=True, default=cd.gravity_mps2)),
+            enabled=con.boolean("enabled", cd.enabled),
+            friction_coefficient=con.number("friction_coefficient", cd.friction_coefficient, positive=True,
+                                            max=10.0),
+            slip_stiffness_n_s_per_m=con.number("slip_stiffness_n_s_per_m", cd.slip_stiffness_n_s_per_m,
+                                                positive=True, max=1e9),
+            lateral_stiffness_ratio=con.number("lateral_stiffness_ratio", cd.lateral_stiffness_ratio,
+                                               positive=True, max=1e3),
+            yaw_inertia_kg_m2=con.number("yaw_inertia_kg_m2", cd.yaw_inertia_kg_m2, nonneg=True, max=1e3),
+            gravity_mps2=con.number("gravity_mps2", cd.gravity_mps2, positive=True, max=100.0)),
         tolerances=ToleranceParams(
-            wheel_radius_scale=_numbers(tol, "tolerances", "wheel_radius_scale", 4),
-            steer_zero_offset_rad=_numbers(tol, "tolerances", "steer_zero_offset_rad", 4, signed=True),
-            steer_backlash_rad=_number(tol, "tolerances", "steer_backlash_rad", default=0.0),
-            encoder_offset_pulse=_numbers(tol, "tolerances", "encoder_offset_pulse", 4, signed=True)),
+            wheel_radius_scale=tol.numbers("wheel_radius_scale", 4, None, min=0.5, max=2.0) or (),
+            steer_zero_offset_rad=tol.numbers("steer_zero_offset_rad", 4, None, min=-0.5, max=0.5) or (),
+            steer_backlash_rad=tol.number("steer_backlash_rad", 0.0, nonneg=True, max=0.5),
+            encoder_offset_pulse=tol.numbers("encoder_offset_pulse", 4, None, min=-PULSE_MAX, max=PULSE_MAX) or ()),
         protection=ProtectionParams(
-            enabled=_flag(pro, "protection", "enabled", pd.enabled),
-            overload_current_a=_number(pro, "protection", "overload_current_a", positive=True,
-                                       default=pd.overload_current_a),
-            overload_time_s=_number(pro, "protection", "overload_time_s", positive=True,
-                                    default=pd.overload_time_s)),
+            enabled=pro.boolean("enabled", pd.enabled),
+            overload_current_a=pro.number("overload_current_a", pd.overload_current_a, positive=True, max=1e3),
+            overload_time_s=pro.number("overload_time_s", pd.overload_time_s, positive=True, max=1e6)),
     )
+    for sec in (gf, sup, con, tol, pro):
+        sec.check_unknown()
+    return out
 
 
-def _subsection(sec: Mapping[str, Any], path: str, key: str) -> Mapping[str, Any]:
-    value = sec.get(key)
-    if not isinstance(value, Mapping):
-        raise ConfigError(f"{path}.{key}: expected a mapping, got {type(value).__name__}")
-    return value
-
-
-def load_config(path: str | Path = "configs/emulator.yaml") -> PhysicsConfig:
-    """Read and validate ``configs/emulator.yaml``.
+def load_config(path: str | Path = DEFAULT_PATH) -> PhysicsConfig:
+    """Read and validate an emulator config (default: the shipped ``emulator.yaml``).
 
     Raises
     ------
     ConfigError
-        If the file is missing, not YAML, or has a malformed key.
+        If the file is missing, binary, not YAML, or has a malformed key (``FILE:LINE: KEY: problem``).
     """
-    try:
-        text = Path(path).read_text()
-    except OSError as exc:
-        raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    try:
-        doc = yaml.safe_load(text)
-    except yaml.YAMLError as exc:
-        raise ConfigError(f"{path}: not valid YAML ({exc})") from exc
-    return parse_config(doc)
+    return parse_config(read_yaml(path, what="emulator config"))

@@ -22,7 +22,7 @@ from . import units as u
 from .body import RobotBody
 from .contact import ContactBody
 from .params import PhysicsConfig
-from .servo_model import ServoModel
+from .servo_model import ServoModel, wheel_servo
 
 
 @dataclass(frozen=True)
@@ -62,15 +62,7 @@ class RobotPhysics:
 
     def __init__(self, cfg: PhysicsConfig, geometry: RobotGeometry, rng: np.random.Generator | None = None):
         self.geometry = geometry
-        gear = cfg.gear_ratio(geometry.model)
         rng = rng if rng is not None else np.random.default_rng()
-
-        protection = cfg.protection if cfg.protection.enabled else None
-
-        def servo(params, friction):
-            return ServoModel(params, gear, cfg.supply_voltage_v, cfg.firmware, cfg.sensors, cfg.thermal, rng,
-                              friction=friction, protection=protection)
-
         self.cfg = cfg
         n = len(geometry.wheels)
         tol = cfg.tolerances
@@ -80,12 +72,12 @@ class RobotPhysics:
         self.servos: dict[int, ServoModel] = {}
         wheel_inertia = cfg.body.total_mass_kg / n * geometry.wheel_radius_m ** 2
         for w, enc in zip(geometry.wheels, encoder_offsets):
-            self.servos[w.drive_id] = servo(cfg.drive_motor, cfg.drive_friction)
+            self.servos[w.drive_id] = wheel_servo(cfg, geometry.model, steering=False, rng=rng)
             if cfg.body.load_enabled and not cfg.contact.enabled:   # the mass, reflected onto each shaft
                 self.servos[w.drive_id].external_load(0.0, wheel_inertia)
-            steer = self.servos[w.steer_id] = servo(cfg.steering_motor, cfg.steering_friction)
+            steer = self.servos[w.steer_id] = wheel_servo(cfg, geometry.model, steering=True, rng=rng)
             steer.encoder_offset_pulse = enc
-            # reads its centre ("straight"); a µpulse inside the count, clear of round-off
+            # reads its centre with the wheel straight; a µpulse inside the count, clear of round-off
             steer.set_shaft_angle((w.center_pulse - enc + (1e-6 if enc else 0.0)) * u.RAD_PER_PULSE)
         xy = [(w.x_m, w.y_m) for w in geometry.wheels]
         self.body: RobotBody | ContactBody = (ContactBody(xy, cfg.body.total_mass_kg, cfg.contact)

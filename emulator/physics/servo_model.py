@@ -15,7 +15,8 @@ from . import units as u
 from .bessel import BesselFilter
 from .firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
 from .motor import GearedMotor
-from .params import FirmwareParams, GearFrictionParams, MotorParams, ProtectionParams, SensorParams, ThermalParams
+from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
+                     SensorParams, ThermalParams)
 from .protection import Protection
 
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
@@ -387,3 +388,26 @@ class ServoModel:
 def _profile_bits(profile_type: int) -> int:
     """Moving Status bits 5:4 for a profile type (0 none .. 3 trapezoidal)."""
     return (profile_type & 0x3) << 4
+
+
+def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse: int | None = None,
+                sensors: SensorParams | None = None, rng: np.random.Generator | None = None,
+                ideal: bool = False) -> ServoModel:
+    """The :class:`ServoModel` of one wheel module's servo, built from ``configs/emulator.yaml``.
+
+    ``steering`` picks the steering or drive motor of ``cfg``; ``model`` (e.g. ``"xh430-w210"``)
+    the gear ratio. A steering servo with ``center_pulse`` starts at rest at that raw position.
+    ``sensors`` overrides ``cfg.sensors``; ``ideal`` drops sensor noise, gearbox friction and
+    protection and uses the default thermal model (for gain design). ``rng`` is the shared noise source.
+    """
+    params = cfg.steering_motor if steering else cfg.drive_motor
+    if ideal:
+        servo = ServoModel(params, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware, rng=rng)
+    else:
+        servo = ServoModel(params, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware,
+                           cfg.sensors if sensors is None else sensors, cfg.thermal, rng,
+                           friction=cfg.steering_friction if steering else cfg.drive_friction,
+                           protection=cfg.protection)
+    if steering and center_pulse is not None:
+        servo.set_shaft_angle(center_pulse * u.RAD_PER_PULSE)
+    return servo

@@ -15,7 +15,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from .params import PhysicsConfig, load_config
-from .servo_model import ServoModel
+from .servo_model import ServoModel, wheel_servo
 from .steptest import StepMetrics, position_step, velocity_step
 
 VELOCITY_STEP_UNITS = 100           # 22.9 rpm, 46 % of the no-load speed: the loop stays linear
@@ -34,11 +34,11 @@ class TunedGains:
 
 
 def _drive(cfg: PhysicsConfig, model: str) -> ServoModel:
-    return ServoModel(cfg.drive_motor, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware)
+    return wheel_servo(cfg, model, steering=False, ideal=True)
 
 
 def _steer(cfg: PhysicsConfig, model: str) -> ServoModel:
-    return ServoModel(cfg.steering_motor, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware)
+    return wheel_servo(cfg, model, steering=True, ideal=True)
 
 
 def velocity_overshoot(cfg: PhysicsConfig, kp: int, ki: float, dt_s: float,

@@ -146,11 +146,41 @@ def test_missing_servo_times_out_naming_it(bus, emu):
     with pytest.raises(DxlTimeoutError) as ei:
         bus.sync_read(IDS, Reg.PRESENT_POSITION)
     assert 4 in ei.value.ids and 1 not in ei.value.ids
-    with pytest.raises(DxlTimeoutError) as ei:  # one combined reply: every listed ID is named
+    with pytest.raises(DxlTimeoutError) as ei:  # one combined reply, cut short before ID 4's slice
         bus.sync_read(IDS, Reg.PRESENT_POSITION, fast=True)
-    assert 4 in ei.value.ids and "incomplete" in str(ei.value)
+    assert ei.value.first_missing == 4 and "stopped after 3 of 8 slices" in str(ei.value)
     emu.faults.restore(4)
     assert bus.read(4, Reg.ID) == 4
+
+
+def test_vanished_servo_is_named_first_and_the_rest_cut_off(bus, emu):
+    bus.sync_read(IDS, Reg.PRESENT_POSITION)   # learn the models (no Ping in the failing read)
+    emu.faults.vanish(3)
+    with pytest.raises(DxlTimeoutError) as ei:
+        bus.sync_read(IDS, Reg.PRESENT_POSITION)
+    err = ei.value
+    assert err.ids == (3, 4, 5, 6, 7, 8)       # every ID that did not answer
+    assert err.first_missing == 3 and err.cut_off
+    assert str(err).startswith("servo ID 3 stopped answering")
+    assert "IDs 4, 5, 6, 7, 8 queued behind it" in str(err) and "cut off" in str(err)
+
+
+def test_vanished_servo_in_a_fast_read_is_named_from_the_slices_that_came(bus, emu):
+    bus.sync_read(IDS, Reg.PRESENT_POSITION, fast=True)
+    emu.faults.vanish(3)
+    with pytest.raises(DxlTimeoutError) as ei:
+        bus.sync_read(IDS, Reg.PRESENT_POSITION, fast=True)
+    err = ei.value
+    assert err.ids == (3, 4, 5, 6, 7, 8) and err.first_missing == 3 and err.cut_off
+    assert "stopped after 2 of 8 slices" in str(err)
+
+
+def test_silent_servo_in_a_single_read_is_not_a_chain(bus, emu):
+    bus.ping(2)
+    emu.faults.vanish(2)
+    with pytest.raises(DxlTimeoutError, match=r"^no reply from servo ID 2 to READ") as ei:
+        bus.read(2, Reg.PRESENT_POSITION)
+    assert ei.value.first_missing == 2 and not ei.value.cut_off
 
 
 def test_hardware_alert_attaches_decoded_bits(bus, emu):

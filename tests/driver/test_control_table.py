@@ -61,7 +61,7 @@ def test_unknown_register_is_a_clear_error():
 
 
 @pytest.mark.parametrize("text,match", [
-    ("registers: 3", "expected a mapping"),
+    ("registers: 3", r"bad\.yaml:1: registers: expected a list, got 3"),
     ("model: X\nmodel_number: 1\ngear_ratio: 1\nregisters:\n  - {name: bogus, address: 0, size: 1, access: R, area: RAM, default: 0}",
      "unknown register name 'bogus'"),
     ("model: X\nmodel_number: 1\ngear_ratio: 1\nregisters:\n  - {name: led, address: 0, size: 3, access: R, area: RAM, default: 0}",

@@ -10,27 +10,12 @@ import signal
 import sys
 import threading
 
+from swerve.configs.options import parse_ids
+from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N)"
-
-
-def parse_ids(text: str) -> list[int]:
-    """``"1-4,7"`` -> ``[1, 2, 3, 4, 7]``; raises ConfigError."""
-    ids: list[int] = []
-    try:
-        for part in text.split(","):
-            part = part.strip()
-            if not part:
-                continue
-            lo, sep, hi = part.partition("-")
-            ids.extend(range(int(lo), int(hi) + 1) if sep else [int(lo)])
-    except ValueError:
-        raise ConfigError(f"--ids {text!r}: expected IDs like 1-8 or 1,2,5") from None
-    if not ids:
-        raise ConfigError(f"--ids {text!r} names no servo")
-    return ids
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -72,7 +57,7 @@ def run(args: argparse.Namespace) -> int:
 
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
-    ids = parse_ids(args.ids) if args.ids else None
+    ids = parse_ids(args.ids, max_id=ID_MAX) if args.ids else None
     if not args.physics and (args.status_file or args.noise or args.emulator_config):
         raise ConfigError("--status-file, --noise and --emulator-config need --physics")
     try:

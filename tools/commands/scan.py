@@ -9,14 +9,14 @@ HELP = "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping
 
 def _id_range(text: str) -> range:
     """``"0-252"`` or ``"5"`` -> a range of IDs."""
+    from swerve.configs.errors import ConfigError
+    from swerve.configs.options import parse_id_range
+    from swerve.driver.control_table import ID_MAX
+
     try:
-        lo, _, hi = text.partition("-")
-        lo_i, hi_i = int(lo), int(hi or lo)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"bad ID range {text!r}; expected e.g. 1-8 or 0-252") from None
-    if not 0 <= lo_i <= hi_i <= 252:
-        raise argparse.ArgumentTypeError(f"ID range {text!r} must lie within 0-252")
-    return range(lo_i, hi_i + 1)
+        return parse_id_range(text, max_id=ID_MAX)
+    except ConfigError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import yaml
 
+from swerve.configs.loader import parse_yaml_text
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import parse_robot_config
 
@@ -50,7 +51,7 @@ def update_gains_text(text: str, group: str, gains: dict[str, int], where: str =
     else:
         raise ConfigError(f"{where}: no one-line 'gains: {{...}}' mapping under '{group}:' to update")
     new = "".join(lines)
-    cfg = parse_robot_config(yaml.safe_load(new), where)
+    cfg = parse_robot_config(parse_yaml_text(new, where))
     got = dict(getattr(cfg, group).gains)
     if any(got.get(n) != int(v) for n, v in gains.items()):
         raise ConfigError(f"{where}: gains did not round-trip ({got})")

@@ -14,9 +14,8 @@ import numpy as np
 
 from swerve.driver.robot_config import RobotConfig
 from swerve.emulator import Emulator
-from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams
-from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
 
 #: ``--noise``: encoder noise before quantisation (pulse) and current-sensor noise (A), std.
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
@@ -28,16 +27,11 @@ def servo_models(rc: RobotConfig, cfg: PhysicsConfig, *, noise: bool = False,
     sensors = replace(cfg.sensors, position_noise_std_pulse=NOISE.position_noise_std_pulse,
                       current_noise_std_a=NOISE.current_noise_std_a) if noise else cfg.sensors
     rng = np.random.default_rng(seed)
-    gear = cfg.gear_ratio(rc.model)
     centers = {w.steer_id: w.center_pulse for w in rc.wheels}
 
     def dynamics(servo) -> ServoModel:
-        steering = servo.id in centers
-        model = ServoModel(cfg.steering_motor if steering else cfg.drive_motor, gear, cfg.supply_voltage_v,
-                           cfg.firmware, sensors, cfg.thermal, rng)
-        if steering:
-            model.set_shaft_angle(centers[servo.id] * u.RAD_PER_PULSE)
-        return model
+        return wheel_servo(cfg, rc.model, steering=servo.id in centers, center_pulse=centers.get(servo.id),
+                           sensors=sensors, rng=rng)
 
     return dynamics
 

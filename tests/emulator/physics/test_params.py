@@ -34,7 +34,7 @@ def _broken(path, value):
 @pytest.mark.parametrize("path, value, match", [
     (("motors", "drive", "resistance_ohm"), KeyError, r"motors\.drive\.resistance_ohm: missing"),
     (("motors", "steering", "inductance_h"), -1.0, r"motors\.steering\.inductance_h"),
-    (("physics", "rate_hz"), 500, r"physics\.rate_hz: must be >= 1000"),
+    (("physics", "rate_hz"), 500, r"physics\.rate_hz: 500 is outside \[1000, "),
     (("bessel", "placement"), "output", r"bessel\.placement"),
     (("body", "load_enabled"), "yes", r"body\.load_enabled"),
     (("paper_spec_gains", "velocity_p_gain"), 1.5, r"paper_spec_gains\.velocity_p_gain"),
