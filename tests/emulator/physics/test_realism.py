@@ -301,3 +301,21 @@ def test_p_only_steering_stops_short_by_the_friction_deadband():
                 out = servo.step(DT, items(u.MODE_POSITION, goal_position=goal))
         assert out["present_position"] - 2148 == short
         assert servo.shaft_speed_radps == 0.0 or cfg is IDEAL
+
+
+def test_slow_steering_ramp_moves_in_stick_slip_jumps():
+    """A goal creeping at 5 pulse/s under P-only steering: with friction the shaft sticks until the
+    error reaches the deadband, jumps, and sticks again (a staircase); without it, it never stops."""
+    cycles = {}
+    for cfg in (IDEAL, REAL):
+        servo = ServoModel(cfg.steering_motor, GEAR, 12.0, cfg.firmware, friction=cfg.steering_friction)
+        servo.set_shaft_angle(2048 * u.RAD_PER_PULSE)
+        stuck = []
+        for k in range(4000):
+            servo.step(DT, items(u.MODE_POSITION, goal_position=2048 + int(5 * k * DT)))
+            stuck.append(servo.shaft_speed_radps == 0.0)
+        stuck = np.array(stuck[1000:], int)
+        cycles[cfg is REAL] = (stuck.mean(), int(np.sum(np.diff(stuck) == -1)))
+    assert cycles[False] == (0.0, 0)
+    stuck_share, breakaways = cycles[True]
+    assert stuck_share > 0.5 and breakaways >= 10      # ~one jump per 2 pulses of goal (0.4 s)
