@@ -27,6 +27,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchutil import cpu_model, write_section  # noqa: E402
+from swerve.tools.commands.emulate import parse_port_line  # noqa: E402
 
 IDS = list(range(1, 9))
 BAUD = 1_000_000
@@ -48,13 +49,14 @@ def wire_limit_rtps(nservos: int = 8, length: int = LENGTH, baud: int = BAUD,
 class EmulatorProcess:
     def __init__(self, *extra: str):
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "swerve.tools.cli", "emulate", "--ids", "1-8", "--baud", str(BAUD), *extra],
+            [sys.executable, "-m", "swerve.tools.cli", "emulate", "--ids", "1-8", "--baud", str(BAUD), "--frozen",
+             *extra],
             cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-        line = self.proc.stdout.readline().split()
-        if not line or line[0] != "PORT":
+        try:
+            self.port, _baud, _ids = parse_port_line(self.proc.stdout.readline())
+        except ValueError:
             self.close()
-            raise RuntimeError("swerve emulate did not print its port")
-        self.port = line[1]
+            raise RuntimeError("swerve emulate did not print its port") from None
 
     def close(self) -> None:
         if self.proc.poll() is None:

@@ -48,6 +48,7 @@ from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import load_config  # noqa: E402
 from swerve.emulator.physics.steptest import step_metrics  # noqa: E402
 from swerve.emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
+from swerve.tools.commands.emulate import format_ids, parse_port_line  # noqa: E402
 
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"
@@ -93,7 +94,7 @@ def serve(time_scale: float, rate_hz: float | None, status_file: str | None) -> 
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
     with emu:
-        print(f"PORT {emu.port}", flush=True)
+        print(f"PORT {emu.port} BAUD {emu.baud} IDS {format_ids(s.id for s in emu.servos)}", flush=True)
         while not stop:
             time.sleep(0.05)
     return 0
@@ -108,12 +109,11 @@ def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> 
             cmd += ["--rate", str(rate_hz)]
         proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, text=True, cwd=ROOT)
         try:
-            line = proc.stdout.readline().split()
-            assert line and line[0] == "PORT", line
+            port, baud, _ids = parse_port_line(proc.stdout.readline())
             period = CYCLE_S / time_scale if time_scale > 0 else CYCLE_S   # 0: baseline, physics frozen
             n = round(sim_seconds / CYCLE_S)
             lat, missed, errors = [], 0, 0
-            with Bus(line[1], 1_000_000, timeout_margin_s=0.3, retries=3) as bus, WheelSet(bus, cfg) as wheels:
+            with Bus(port, baud, timeout_margin_s=0.3, retries=3) as bus, WheelSet(bus, cfg) as wheels:
                 wheels.configure()                    # retries: setup is not what is measured
                 wheels.enable()
                 bus.retries = 0

@@ -33,7 +33,8 @@ from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, single_effect
-from swerve.emulator.robot_emulator import RobotEmulator, robot_emulator
+from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.server import Emulator
 from swerve.tools.robot_run import EMULATOR_PHYSICS_RATE_HZ, prepare_law
 
 #: The build tolerances one at a time: choice -> key of the ``tolerances`` section.
@@ -47,7 +48,7 @@ class LockstepWheels:
     have reached the servos before simulated time moves on (a Bulk Write gets no reply, so a
     Ping behind it tells when the emulator has executed it)."""
 
-    def __init__(self, wheels: WheelSet, emu: RobotEmulator):
+    def __init__(self, wheels: WheelSet, emu: Emulator):
         self.wheels, self.emu = wheels, emu
 
     def read_state(self):
@@ -110,7 +111,7 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
         cpu0 = time.process_time()
         result = loop.run(start)
         s = result.summary
-        body = emu.physics.body
+        body = emu.world.physics.body
         out = dict(trajectory=trajectory, physics=choice, completed=s["completed"],
                    rms_mm=s["rms_position_error_m"] * 1e3, max_mm=s["max_position_error_m"] * 1e3,
                    final_mm=s["final_position_error_m"] * 1e3, odo_max_mm=s["odometry_vs_true_max_m"] * 1e3,

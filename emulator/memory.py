@@ -146,14 +146,17 @@ class ServoMemory:
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
 
-    def snapshot(self) -> dict[str, int]:
-        """Every item's raw value by name."""
-        self.publish()
-        return {reg.name: self.get(reg.name) for reg in self.table}
-
     def view(self) -> "Mapping[str, int]":
         """A live read-only mapping name -> raw value (decoded on access; for ``dynamics``)."""
         return _MemoryView(self)
+
+    def stored_bytes(self, end: int) -> bytes:
+        """The table's stored bytes ``0 .. end-1``, as written (indirect data not resolved).
+
+        For physics reading its input items each step: one copy instead of a decode per item
+        (no item below the first Indirect Data address is indirect).
+        """
+        return bytes(self._bytes[:end])
 
     def copy(self) -> "ServoMemory":
         """An independent copy (bytes and watchdog state), e.g. to try a write without applying it."""

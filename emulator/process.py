@@ -4,8 +4,9 @@
 they drive a U2D2; running the emulator (its physics clock and bus thread) in its own
 process keeps it from competing with the control loop for one interpreter lock, so the loop's
 timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
-shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]`` that the child refreshes after every
-run of physics steps (at least every millisecond of wall time while the clock runs).
+shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
+emulator after every run of physics steps (at least every millisecond of wall time while the
+clock runs). The child parses the robot file and the physics config, once each.
 
 ::
 
@@ -20,30 +21,32 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
-from pathlib import Path
 
+from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError, SwerveError
 
 _START_TIMEOUT_S = 60.0
 
 
-def _child(conn, shared, kwargs: dict) -> None:
+def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
-    from swerve.emulator.robot_emulator import robot_emulator
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.emulator.physics.params import load_config
+    from swerve.emulator.robot_emulator import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
+    def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
+        shared[1], shared[2], shared[3] = emu.world.pose
+        shared[0] = emu.sim_time_s
+
     try:
-        emu = robot_emulator(**kwargs).start()
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
+        emu.observers.append(publish)
+        emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    def publish(t: float, pose: tuple[float, float, float]) -> None:
-        shared[1], shared[2], shared[3] = pose
-        shared[0] = t
-
-    publish(*emu.true_state())
-    emu.on_batch = publish             # after each run of physics steps, from the emulator's bus thread
     freeze_startup_heap()
     conn.send(("port", emu.port))
     while True:                        # "stop" (or EOF: the parent died) ends the loop
@@ -70,19 +73,21 @@ def _child(conn, shared, kwargs: dict) -> None:
 
 
 class EmulatorProcess:
-    """:func:`emulator.robot_emulator.robot_emulator` in a child process.
+    """:func:`emulator.robot_emulator.build_emulator` with the robot body, in a child process.
 
-    Parameters are those of ``robot_emulator`` (``robot_config`` path, ``time_scale``,
-    ``faults``, ``noise``, ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
+    ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
+    ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword
+    parameters are those of ``build_emulator`` (``time_scale``, ``faults``, ``noise``,
+    ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
     path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
     after :meth:`close`, :attr:`final_stats`.
     """
 
-    def __init__(self, robot_config: str | os.PathLike = "configs/robot.yaml", **kwargs):
-        from swerve.driver.control_table import CONFIG_DIR
-
-        kwargs.setdefault("emulator_config", str(CONFIG_DIR / "emulator.yaml"))
-        self._kwargs = dict(kwargs, robot_config=str(Path(robot_config)))
+    def __init__(self, robot_config: str | os.PathLike | None = None,
+                 emulator_config: str | os.PathLike | None = None, **kwargs):
+        self._robot = str(locate_robot_file(robot_config).path)
+        self._emulator_config = str(emulator_config or shipped("emulator.yaml"))
+        self._kwargs = kwargs
         self._ctx = mp.get_context("spawn")
         self._shared = self._ctx.RawArray("d", 4)
         self._proc = None
@@ -93,7 +98,8 @@ class EmulatorProcess:
     def start(self) -> "EmulatorProcess":
         parent, child = self._ctx.Pipe()
         self._proc = self._ctx.Process(target=_child, name="swerve-emulator", daemon=True,
-                                       args=(child, self._shared, self._kwargs))
+                                       args=(child, self._shared, self._robot, self._emulator_config,
+                                             self._kwargs))
         self._proc.start()
         child.close()
         self._conn = parent

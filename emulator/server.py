@@ -1,15 +1,12 @@
-"""The emulated bus: virtual servos behind a pty, served by a reader thread and a clock thread.
+"""The emulated bus: virtual servos behind a pty, served by one thread that also runs the clock.
 
-(:class:`emulator.robot_emulator.RobotEmulator` runs its physics clock in the reader thread
-instead, between requests; see :attr:`Emulator.CLOCK_IN_BUS_THREAD`.)
-
-Reader thread: blocks in ``select`` on the pty master (and a wake-up pipe), feeds a
+Bus thread: blocks in ``select`` on the pty master (and a wake-up pipe), feeds a
 :class:`driver.parser.PacketParser`, abandons a partial frame after an idle gap
 (``inter_byte_timeout_s``, 1.5 ms as on the servo), dispatches each instruction to the
 addressed servos under the one lock, then writes the replies after each servo's Return Delay
-Time (monotonic deadlines, ``time.sleep``; never spinning). Clock thread: calls
-:meth:`VirtualServo.advance` at ``clock_hz`` (Realtime Tick, Bus Watchdog, physics), then
-``world.step``.
+Time (monotonic deadlines, ``time.sleep``; never spinning). Between requests it calls the clock
+object passed in (:mod:`emulator.clock`), which runs the due steps: :meth:`VirtualServo.advance`
+on every servo (Realtime Tick, Bus Watchdog, physics), then ``world.step``.
 
 Reply order: broadcast Ping in ascending ID order; Sync/Bulk Read in listed order; Fast
 Sync/Bulk Read as one combined frame (:class:`driver.packets.FastStatus`), one slice per servo.
@@ -20,10 +17,11 @@ import gc
 import logging
 import os
 import select
+import sys
 import threading
 import time
 from dataclasses import dataclass, fields
-from typing import Callable, Iterable, Mapping
+from typing import Callable, Iterable, Protocol, Sequence
 
 from swerve.driver.control_table import table_for
 from swerve.driver.errors import ChecksumError, ConfigError, CorruptPacketError
@@ -31,8 +29,8 @@ from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
                             parse_sync_read, parse_sync_write)
 from swerve.driver.parser import PacketParser
-from swerve.driver.robot_config import load_robot_config
 
+from swerve.emulator.clock import ClockStats, FrozenClock, HandOverLock, PhysicsClock
 from swerve.emulator.faults import Faults
 from swerve.emulator.pty_link import PtyLink
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
@@ -55,10 +53,12 @@ DEFAULT_MODEL = "xh430-w210"
 DEFAULT_BAUD = 1_000_000
 BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
-MAX_CLOCK_CATCHUP_STEPS = 20
 #: A reply that is not the last of an exchange may go out this early instead of sleeping
 #: for it (timer slack would otherwise add up over 8 replies); the last one is never early.
 EARLY_WRITE_S = 300e-6
+#: GIL hand-over interval while the emulator runs, s. CPython's default (5 ms) lets the busy bus
+#: thread delay a client in the same process (tests) by up to 5 ms per hand-over.
+SWITCH_INTERVAL_S = 2e-4
 SYNC_READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
 BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
 BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
@@ -79,8 +79,7 @@ class Stats:
     dispatch_errors: int = 0       # unexpected exceptions caught while handling one packet
     wrong_baud_packets: int = 0    # no servo listens at the client's line speed
     tx_overflow_bytes: int = 0     # reply bytes the pty would not take (client not reading)
-    clock_ticks: int = 0
-    clock_overruns: int = 0        # clock steps skipped because the thread ran late
+    clock_ticks: int = 0           # physics steps (clock and advance)
 
     def as_dict(self) -> dict[str, int]:
         return {f.name: getattr(self, f.name) for f in fields(self)}
@@ -93,116 +92,128 @@ class _Reply:
     fast: bool = False     # part of a combined fast-read frame (one fault draw per frame)
 
 
-def _robot_servos(path: str | os.PathLike) -> tuple[list[int], str, int]:
-    """IDs, model and link baud from a robot config (``configs/robot.yaml``)."""
-    cfg = load_robot_config(path)
-    return sorted(cfg.drive_ids + cfg.steer_ids), cfg.model, cfg.link.baud
+@dataclass(frozen=True)
+class LinkSettings:
+    """How the emulated bus behaves on the line (everything but the servos, clock and faults).
+
+    ``baud``: line speed the servos' Baud Rate item starts at, also assumed when the client's
+    termios speed reads as 0 or unknown. ``path``: symlink to create to the pty slave.
+    ``wire_timing``: pace replies as on a cable (10 bits per byte). ``baud_check``: servos only
+    hear a client whose line speed equals their Baud Rate item. ``crc_error_reply``: answer a
+    unicast frame with a bad CRC with CRC Error (0x03) instead of dropping it.
+    ``sync_chain_break``: in a Sync/Bulk Read, servos listed after an absent one stay silent too.
+    ``inter_byte_timeout_s``: idle gap that abandons a partial frame (1.5 ms as on the servo).
+    ``broadcast_slot_s``: spacing of the replies to a broadcast Ping.
+    """
+
+    baud: int = DEFAULT_BAUD
+    path: str | os.PathLike | None = None
+    wire_timing: bool = False
+    baud_check: bool = True
+    crc_error_reply: bool = False
+    sync_chain_break: bool = True
+    inter_byte_timeout_s: float = 1.5e-3
+    broadcast_slot_s: float = 1e-4
+
+    def __post_init__(self):
+        if self.baud not in BAUD_RATES:
+            raise ConfigError(f"baud {self.baud} is not an X-series rate ({', '.join(map(str, BAUD_RATES))})")
+
+
+class World(Protocol):
+    """What moves besides the servos (the robot body): stepped after them, under the bus lock."""
+
+    pose: tuple[float, float, float]    # true (x_m, y_m, theta_rad)
+
+    def step(self, dt_s: float) -> None:
+        """Advance by ``dt_s`` simulated s from the servos' present shaft states."""
+
+
+def make_servos(ids: Iterable[int], model: str, baud: int, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT,
+                dynamics: Callable[[VirtualServo], Dynamics | None] | None = None) -> tuple[VirtualServo, ...]:
+    """One :class:`VirtualServo` of ``model`` per ID (ascending), each with ``dynamics(servo)``.
+
+    ``limit_error``: error for a value beyond a limit item (UNCONFIRMED; default Data Limit Error).
+    """
+    ids = list(ids)
+    if not ids or len(set(ids)) != len(ids) or any(not 0 <= i <= MAX_ID for i in ids):
+        raise ConfigError(f"servo IDs must be distinct values in 0..252, got {ids}")
+    table = table_for(model)
+    servos = tuple(VirtualServo(table, i, baud, limit_error=limit_error) for i in sorted(ids))
+    if dynamics is not None:
+        for s in servos:
+            s.dynamics = dynamics(s)
+    return servos
+
+
+#: Called with the emulator, under its lock, after each run of clock steps and each ``advance``.
+Observer = Callable[["Emulator"], None]
 
 
 class Emulator:
     """A bus of virtual X-series servos on a pty; use as a context manager.
 
+    Composed of its parts; build one with :func:`swerve.emulator.robot_emulator.build_emulator`
+    (from a parsed robot config) or directly from :func:`make_servos`.
+
     Parameters
     ----------
-    ids : iterable of int, default 1..8
-        Servo IDs (one servo each).
-    model : str, default ``"xh430-w210"``
-        Model name (a file in ``configs/models``).
-    baud : int, default 1_000_000
-        Line speed the servos' Baud Rate item starts at, and the speed assumed when the
-        client's termios speed reads as 0 or unknown.
-    robot_config : path, optional
-        Robot YAML; IDs, model and link baud come from it unless given explicitly.
-    wire_timing : bool
-        Pace replies as on a cable at the line speed (10 bits per byte).
+    servos : sequence of VirtualServo
+        The servos on the bus (one model; distinct IDs).
+    link : LinkSettings
+        Line speed, pty symlink and protocol options.
+    clock : PhysicsClock, optional
+        Owner of simulated time (:mod:`swerve.emulator.clock`); default frozen.
     faults : Faults or str, optional
         Fault settings (:mod:`emulator.faults`), also reachable as :attr:`faults`.
-    time_scale : float
-        Simulated seconds per wall second for the clock (0 freezes simulated time).
-    link : path, optional
-        Symlink to create to the pty slave.
-    dynamics : callable or mapping, optional
-        ``dynamics(servo) -> Dynamics`` factory, or ``{id: Dynamics}``; physics per servo.
-    world : object, optional
-        Has ``step(dt_s, servos: dict[int, VirtualServo])``, called each tick after the servos.
-    clock_hz : float
-        Rate of :meth:`VirtualServo.advance` calls (default 1 kHz).
-    baud_check : bool
-        Servos only hear a client whose line speed equals their Baud Rate item.
-    limit_error : ErrorNumber
-        Error for a value beyond a limit item (UNCONFIRMED; default Data Limit Error 0x06).
-    crc_error_reply : bool
-        Answer a unicast frame with a bad CRC with CRC Error (0x03) instead of dropping it.
-    sync_chain_break : bool
-        In a Sync/Bulk Read, servos listed after an absent one stay silent too.
+    world : World, optional
+        The robot body, stepped after the servos; gives :attr:`pose`.
     """
 
-    def __init__(self, ids: Iterable[int] | None = None, model: str | None = None,
-                 baud: int | None = None, *, robot_config: str | os.PathLike | None = None,
-                 wire_timing: bool = False, faults: Faults | str | None = None,
-                 time_scale: float = 1.0, link: str | os.PathLike | None = None,
-                 dynamics: Callable[[VirtualServo], Dynamics] | Mapping[int, Dynamics] | None = None,
-                 world=None, clock_hz: float = 1000.0, baud_check: bool = True,
-                 limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT, crc_error_reply: bool = False,
-                 sync_chain_break: bool = True, inter_byte_timeout_s: float = 1.5e-3,
-                 broadcast_slot_s: float = 1e-4):
-        cfg_ids = cfg_model = cfg_baud = None
-        if robot_config is not None:
-            cfg_ids, cfg_model, cfg_baud = _robot_servos(robot_config)
-        ids = list(ids if ids is not None else (cfg_ids or DEFAULT_IDS))
-        model = model or cfg_model or DEFAULT_MODEL
-        self.baud = int(baud or cfg_baud or DEFAULT_BAUD)
-        if self.baud not in BAUD_RATES:
-            raise ConfigError(f"baud {self.baud} is not an X-series rate ({', '.join(map(str, BAUD_RATES))})")
-        if not ids or len(set(ids)) != len(ids) or any(not 0 <= i <= MAX_ID for i in ids):
-            raise ConfigError(f"servo IDs must be distinct values in 0..252, got {ids}")
-        if time_scale < 0 or clock_hz <= 0:
-            raise ConfigError("time_scale must be >= 0 and clock_hz > 0")
-        self.table = table_for(model)
+    def __init__(self, servos: Sequence[VirtualServo], *, link: LinkSettings = LinkSettings(),
+                 clock: PhysicsClock | None = None, faults: Faults | str | None = None, world: World | None = None):
+        self.servos: tuple[VirtualServo, ...] = tuple(sorted(servos, key=lambda s: s.id))
+        if not self.servos:
+            raise ConfigError("an emulated bus needs at least one servo")
+        self.table = self.servos[0].table
         self.model = self.table.model
-        self.wire_timing = bool(wire_timing)
+        self.settings = link
+        self.baud = link.baud
+        self.wire_timing = link.wire_timing
+        self.clock: PhysicsClock = clock if clock is not None else FrozenClock()
         self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
-        self.time_scale = float(time_scale)
-        self.clock_hz = float(clock_hz)
-        self.baud_check = bool(baud_check)
-        self.crc_error_reply = bool(crc_error_reply)
-        self.sync_chain_break = bool(sync_chain_break)
-        self.inter_byte_timeout_s = float(inter_byte_timeout_s)
-        self.broadcast_slot_s = float(broadcast_slot_s)
         self.world = world
         self.stats = Stats()
-        self._lock = threading.Lock()
-        self.servos: tuple[VirtualServo, ...] = tuple(
-            VirtualServo(self.table, i, self.baud, limit_error=limit_error) for i in sorted(ids))
-        for s in self.servos:
-            if callable(dynamics):
-                s.dynamics = dynamics(s)
-            elif dynamics is not None:
-                s.dynamics = dynamics.get(s.id)
+        #: Simulated seconds stepped so far (clock and :meth:`advance` together).
+        self.sim_time_s = 0.0
+        #: True-state observers (e.g. the status file), see :data:`Observer`.
+        self.observers: list[Observer] = []
+        self._lock = HandOverLock()
         try:
             self.faults.attach(self._raise_hardware_error)
         except KeyError as exc:
             raise ConfigError(f"fault for a servo that is not on the bus: {exc.args[0]}") from None
-        self._link_path = link
         self._pty: PtyLink | None = None
         self._parser = PacketParser()
         self._stop = threading.Event()
-        self._threads: list[threading.Thread] = []
+        self._thread: threading.Thread | None = None
         self._wake_r = self._wake_w = -1
+        self._previous_switch_s = sys.getswitchinterval()
 
     # --- lifecycle ------------------------------------------------------------------------------
     def start(self) -> "Emulator":
         """Open the pty and start serving (idempotent)."""
         if self._pty is not None:
             return self
-        self._pty = PtyLink(self.baud, self._link_path)
+        self._pty = PtyLink(self.baud, self.settings.path)
         self._wake_r, self._wake_w = os.pipe()
         self._stop.clear()
-        self._threads = [threading.Thread(target=self._serve, name="emulator-bus", daemon=True)]
-        if self.time_scale > 0 and not self.CLOCK_IN_BUS_THREAD:
-            self._threads.append(threading.Thread(target=self._clock, name="emulator-clock", daemon=True))
-        for t in self._threads:
-            t.start()
+        if self.observers:
+            self._notify()             # the initial state, before the first request
+        self._previous_switch_s = sys.getswitchinterval()     # process-wide; restored by close()
+        sys.setswitchinterval(min(self._previous_switch_s, SWITCH_INTERVAL_S))
+        self._thread = threading.Thread(target=self._serve, name="emulator-bus", daemon=True)
+        self._thread.start()
         return self
 
     def close(self) -> None:
@@ -210,13 +221,13 @@ class Emulator:
         if self._pty is None:
             return
         self._stop.set()
-        try:
-            os.write(self._wake_w, b"x")
-        except OSError:
-            pass
-        for t in self._threads:
-            t.join(timeout=5.0)
-        self._threads = []
+        self.wake()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        sys.setswitchinterval(self._previous_switch_s)
+        if self.observers:
+            self._notify()             # the final state, after the clock stopped
         self._pty.close()
         self._pty = None
         for fd in (self._wake_r, self._wake_w):
@@ -240,6 +251,21 @@ class Emulator:
         return self._pty.path
 
     @property
+    def running(self) -> bool:
+        """True while the bus thread serves the pty."""
+        return self._thread is not None and self._thread.is_alive()
+
+    @property
+    def rate_hz(self) -> float:
+        """Clock steps per simulated second."""
+        return self.clock.rate_hz
+
+    @property
+    def physics(self):
+        """The world's physics (``RobotPhysics``), or ``None`` without a robot body."""
+        return getattr(self.world, "physics", None)
+
+    @property
     def link_path(self) -> str | None:
         return None if self._pty is None or self._pty.link is None else str(self._pty.link)
 
@@ -251,7 +277,7 @@ class Emulator:
         raise KeyError(f"no emulated servo with ID {id_} (IDs: {[s.id for s in self.servos]})")
 
     @property
-    def lock(self) -> threading.Lock:
+    def lock(self) -> HandOverLock:
         """The one lock guarding every servo's memory (hold it to read several items coherently)."""
         return self._lock
 
@@ -268,17 +294,18 @@ class Emulator:
     def _serve(self) -> None:
         pty, parser = self._pty, self._parser
         first_byte_t = last_rx_t = 0.0
-        inline = self.CLOCK_IN_BUS_THREAD and self.time_scale > 0
+        inter_byte_s = self.settings.inter_byte_timeout_s
         while not self._stop.is_set():
-            timeout = self.inter_byte_timeout_s if parser.pending else IDLE_POLL_S
-            if inline:
-                timeout = min(timeout, self._run_clock())
+            timeout = inter_byte_s if parser.pending else IDLE_POLL_S
+            timeout = min(timeout, self._run_clock())
             try:
                 ready, _, _ = select.select([pty.master, self._wake_r], [], [], timeout)
             except (OSError, ValueError):
                 break
             if self._stop.is_set():
                 break
+            if self._wake_r in ready:
+                os.read(self._wake_r, 512)
             now = time.monotonic()
             packets = []
             if pty.master in ready:
@@ -288,7 +315,7 @@ class Emulator:
                         first_byte_t = now
                     last_rx_t = now
                     packets = parser.feed(data)
-            elif parser.pending and now - last_rx_t >= self.inter_byte_timeout_s:
+            elif parser.pending and now - last_rx_t >= inter_byte_s:
                 packets = parser.flush()       # the sender went silent mid-frame: abandon it
                 if parser.pending:
                     parser.reset()
@@ -302,7 +329,7 @@ class Emulator:
         errors = p.take_errors()
         self.stats.bad_frames = p.bad_frames
         self.stats.dropped_bytes = p.dropped_bytes
-        if errors and self.crc_error_reply:
+        if errors and self.settings.crc_error_reply:
             self._reply_crc_errors(errors)
 
     def _reply_crc_errors(self, errors) -> None:
@@ -345,7 +372,7 @@ class Emulator:
     # --- dispatch (under the lock) -------------------------------------------------------------
     def _listening(self) -> list[VirtualServo]:
         """Servos present on the bus and listening at the client's line speed, by ascending ID."""
-        line = self.line_baud() if self.baud_check else None
+        line = self.line_baud() if self.settings.baud_check else None
         out = [s for s in self.servos
                if s.id not in self.faults.vanished and (line is None or s.baud_bps == line)]
         return sorted(out, key=lambda s: s.id)
@@ -376,7 +403,7 @@ class Emulator:
             touched.append(servo)
             status = servo.filter_reply(pkt, status)
             if status is not None:
-                delay = servo.return_delay_s + (self.broadcast_slot_s if broadcast_ping and replies else 0.0)
+                delay = servo.return_delay_s + (self.settings.broadcast_slot_s if broadcast_ping and replies else 0.0)
                 replies.append(_Reply(status.encode(), delay))
         return replies, touched
 
@@ -430,7 +457,7 @@ class Emulator:
             replies = []
             for k, ((s, _), frame) in enumerate(zip(statuses, slices)):
                 if s is None:
-                    if self.sync_chain_break:
+                    if self.settings.sync_chain_break:
                         break
                     continue
                 replies.append(_Reply(frame, s.return_delay_s if k == 0 else 0.0, fast=True))
@@ -438,7 +465,7 @@ class Emulator:
         replies = []
         for s, st in statuses:
             if s is None:
-                if self.sync_chain_break:
+                if self.settings.sync_chain_break:
                     break
                 continue
             replies.append(_Reply(st.encode(), s.return_delay_s))
@@ -498,55 +525,79 @@ class Emulator:
         elif remaining > 0:
             time.sleep(remaining)
 
-    # --- clock -------------------------------------------------------------------------------------
-    #: Subclasses set this to run their clock in the bus thread between requests (:meth:`_run_clock`)
-    #: instead of in a thread of its own.
-    CLOCK_IN_BUS_THREAD = False
+    # --- clock ----------------------------------------------------------------------------------
+    def wake(self) -> None:
+        """Make the bus thread call the clock again now (any thread; e.g. a lockstep request)."""
+        try:
+            os.write(self._wake_w, b"x")
+        except OSError:
+            pass
 
-    def _request_pending(self) -> bool:
-        """True if bytes from the client wait in the pty (for a clock run by the bus thread)."""
+    def request_pending(self) -> bool:
+        """True if bytes from the client wait in the pty (the clock then returns so requests go first)."""
         try:
             return bool(select.select([self._pty.master], [], [], 0)[0])
         except (OSError, ValueError, AttributeError):
             return False
 
+    def lock_wanted(self) -> bool:
+        """True if another thread waits for the bus lock."""
+        return bool(self._lock.waiting)
+
+    def step(self, dt_s: float) -> None:
+        """One clock step of ``dt_s`` simulated s: every servo, then the world, under the lock."""
+        with self._lock:
+            self._tick(dt_s)
+
     def _run_clock(self) -> float:
-        """Run the clock steps that are due, in the bus thread; return seconds until more are due.
+        """Let the clock run what is due; the seconds the bus thread may block (``inf``: no limit)."""
+        steps = self.clock.stats.steps
+        try:
+            wait_s = self.clock.run(self)
+        except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
+            self.stats.dispatch_errors += 1
+            log.debug("error in physics step", exc_info=True)
+            wait_s = IDLE_POLL_S
+        if self.observers and self.clock.stats.steps != steps:
+            self._notify()
+        return wait_s
 
-        Only called when :attr:`CLOCK_IN_BUS_THREAD` is set; it must return soon after
-        :meth:`_request_pending` turns true, so that requests go first.
-        """
-        raise NotImplementedError
-
-    def _clock(self) -> None:
-        period = 1.0 / self.clock_hz
-        dt_sim = period * self.time_scale
-        next_t = time.monotonic() + period
-        while not self._stop.wait(max(0.0, next_t - time.monotonic())):
-            now = time.monotonic()
-            due = int((now - next_t) / period) + 1
-            steps = min(due, MAX_CLOCK_CATCHUP_STEPS)
-            if due > steps:
-                self.stats.clock_overruns += due - steps
-            next_t += due * period
-            try:
-                with self._lock:
-                    for _ in range(steps):
-                        self._tick(dt_sim)
-            except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
-                self.stats.dispatch_errors += 1
-                log.debug("error in clock tick", exc_info=True)
+    def _notify(self) -> None:
+        with self._lock:
+            for observer in self.observers:
+                observer(self)
 
     def _tick(self, dt_s: float) -> None:
         for s in self.servos:
             s.advance(dt_s)
         if self.world is not None:
-            self.world.step(dt_s, {s.id: s for s in self.servos})
+            self.world.step(dt_s)
+        self.sim_time_s += dt_s
         self.stats.clock_ticks += 1
 
     def advance(self, dt_s: float) -> None:
-        """Advance simulated time by ``dt_s`` s at once (tests; also works with ``time_scale=0``)."""
+        """Advance simulated time by ``dt_s`` s at once, in steps of at most ``1/clock.rate_hz``
+        (tests and benches; works with any clock)."""
         with self._lock:
-            steps = max(1, round(dt_s * self.clock_hz))
+            steps = max(1, round(dt_s * self.clock.rate_hz))
             for _ in range(steps):
                 self._tick(dt_s / steps)
+            for observer in self.observers:
+                observer(self)
+
+    # --- true state (never through the bus) ----------------------------------------------------
+    @property
+    def pose(self) -> tuple[float, float, float]:
+        """True body pose ``(x_m, y_m, theta_rad)`` (needs a world)."""
+        return self.true_state()[1]
+
+    def true_state(self) -> tuple[float, tuple[float, float, float]]:
+        """``(sim_time_s, (x_m, y_m, theta_rad))`` read under one lock (a coherent pair)."""
+        if self.world is None:
+            raise ConfigError("this emulated bus has no robot body, so no pose")
+        with self._lock:
+            return self.sim_time_s, self.world.pose
+
+    @property
+    def clock_stats(self) -> ClockStats:
+        return self.clock.stats

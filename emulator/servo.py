@@ -34,7 +34,7 @@ BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "po
 
 
 class Dynamics(Protocol):
-    """What the physics model must provide (issue #4, e.g. ``emulator.physics.ServoModel``).
+    """What the physics model must provide (e.g. ``emulator.physics.ServoModel``).
 
     The servo calls :meth:`advance` every tick and :meth:`outputs` only when someone reads a
     present item, so physics ticks cost no table writes.

@@ -107,32 +107,21 @@ class RobotPhysics:
         self.step_body(dt_s)
         return out
 
-    def step_body(self, dt_s: float, _servos: object = None) -> tuple[float, float, float]:
-        """Advance only the body from the servos' present shaft states (servos stepped elsewhere).
-
-        Signature-compatible with the emulator server's ``world.step(dt_s, servos_by_id)`` hook:
-        pass ``world=BodyWorld(robot)`` and ``dynamics=robot.servos``.
-        """
+    def step_body(self, dt_s: float) -> tuple[float, float, float]:
+        """Advance only the body from the servos' present shaft states (servos stepped elsewhere,
+        e.g. by the emulator's servo loop); return the pose. With tyre contact the reactions
+        become the drive shafts' loads, and with a supply resistance the bus voltage sags, both
+        seen by the servos from their next step."""
         pose = self.body.step(dt_s, *self.wheel_state())
-        if isinstance(self.body, ContactBody):      # tyre reactions load the drive shafts
+        if isinstance(self.body, ContactBody):
             for w, r, f in zip(self.geometry.wheels, self.wheel_radius_m, self.body.force_long_n):
                 s = self.servos[w.drive_id]
                 s.external_load(w.drive_direction * s.frame_sign * r * float(f))
         sup = self.cfg.supply
-        if sup.enabled:                             # battery sag, seen by every servo next step
+        if sup.enabled:
             current = sum(s.supply_current_a for s in self.servos.values()) + sup.idle_current_a * len(self.servos)
             self.bus_voltage_v = self.cfg.supply_voltage_v - sup.internal_resistance_ohm * current
             for s in self.servos.values():
                 s.supply_voltage_v = self.bus_voltage_v
         return pose
 
-
-class BodyWorld:
-    """Adapter for an emulator that steps each servo itself: ``step(dt_s, servos)`` moves the body."""
-
-    def __init__(self, robot: RobotPhysics):
-        self.robot = robot
-
-    def step(self, dt_s: float, servos: object = None) -> tuple[float, float, float]:
-        """Advance the body by ``dt_s`` (the servos were already stepped); return the pose."""
-        return self.robot.step_body(dt_s)

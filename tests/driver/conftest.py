@@ -28,8 +28,8 @@ def target(hw_port, hw_baud):
     if hw_port:
         yield Target(hw_port, hw_baud, None)
         return
-    emulator = pytest.importorskip("emulator")
-    with emulator.Emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, time_scale=0) as emu:
+    build_emulator = pytest.importorskip("swerve.emulator.robot_emulator").build_emulator
+    with build_emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, time_scale=0) as emu:
         yield Target(emu.port, 1_000_000, emu)
 
 

@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from swerve.driver.control_table import table_for
-from swerve.emulator import Emulator
+from swerve.emulator.robot_emulator import build_emulator
 
 TIMEOUT = "timeout"
 MODEL = "xh430-w210"
@@ -31,7 +31,7 @@ def emulator():
     previous = sys.getswitchinterval()
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     try:
-        with Emulator(range(1, 9), MODEL, 1_000_000) as emu:
+        with build_emulator(ids=range(1, 9), model=MODEL, baud=1_000_000) as emu:
             yield emu
     finally:
         sys.setswitchinterval(previous)

@@ -8,6 +8,11 @@ from pathlib import Path
 
 import pytest
 
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.configs.options import parse_ids
+from swerve.tools.commands.emulate import format_ids, parse_port_line
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -22,8 +27,10 @@ def test_emulate_serves_sdk_and_exits_cleanly(tmp_path):
     link = tmp_path / "dxl"
     proc = _start("--config", "configs/robot.yaml", "--ids", "1-3", "--link", str(link))
     try:
-        first = proc.stdout.readline().split()
+        line = proc.stdout.readline()
+        first = line.split()
         assert first[0] == "PORT" and first[1].startswith("/dev/pts/")
+        assert parse_port_line(line) == (first[1], 1_000_000, [1, 2, 3])
         assert proc.stdout.readline().split() == ["LINK", str(link)]
         assert link.resolve() == Path(first[1])
         port, ph = sdk.PortHandler(str(link)), sdk.PacketHandler(2.0)
@@ -67,3 +74,65 @@ def test_bad_arguments_exit_2_with_one_line(args, message):
     out, err = proc.communicate(timeout=30)
     assert proc.returncode == 2
     assert out == "" and len(err.strip().splitlines()) == 1 and message in err
+
+
+def test_port_line_round_trips_ids():
+    for ids in ([1], [1, 2, 3, 5], [2, 4, 5, 6, 9]):
+        assert parse_ids(format_ids(ids), max_id=252) == ids
+    assert parse_port_line("PORT /dev/pts/3 BAUD 57600 IDS 1-2,7\n") == ("/dev/pts/3", 57600, [1, 2, 7])
+    with pytest.raises(ValueError):
+        parse_port_line("PORT /dev/pts/3")
+
+
+#: Generous: the emulator is a child process on a loaded machine; a timeout only ends a failing test.
+DEADLINE_S = 30.0
+
+
+def _spin(port: str, baud: int, id_: int, done):
+    """Operating Mode 1 (velocity), torque on, Goal Velocity 100 through the driver's Bus; then
+    ``(Realtime Tick ms, Present Velocity)`` samples until ``done(samples)`` (or the deadline)."""
+    import time
+
+    with Bus(port, baud, timeout_margin_s=1.0, retries=3) as bus:
+        bus.write(id_, Reg.TORQUE_ENABLE, 0)
+        bus.write(id_, Reg.OPERATING_MODE, 1)
+        bus.write(id_, Reg.BUS_WATCHDOG, 0)
+        bus.write(id_, Reg.TORQUE_ENABLE, 1)
+        bus.write(id_, Reg.GOAL_VELOCITY, 100)
+        samples = []
+        deadline = time.monotonic() + DEADLINE_S
+        while not (samples and done(samples)) and time.monotonic() < deadline:
+            samples.append((bus.read(id_, Reg.REALTIME_TICK), bus.read(id_, Reg.PRESENT_VELOCITY)))
+            time.sleep(0.01)
+        return samples
+
+
+def _elapsed_ms(samples) -> int:
+    return (samples[-1][0] - samples[0][0]) % 32768     # Realtime Tick wraps at 32767 ms
+
+
+def test_plain_emulate_servos_move_under_goal_velocity():
+    """``swerve emulate --ids 1-2`` without flags: the servo's motor and velocity loop run."""
+    proc = _start("--ids", "1-2")
+    try:
+        port, baud, ids = parse_port_line(proc.stdout.readline())
+        assert ids == [1, 2]
+        samples = _spin(port, baud, 2, lambda s: s[-1][1] >= 90)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=20)
+    assert samples[-1][1] >= 90                        # Goal Velocity 100 reached (90 %)
+
+
+def test_frozen_emulate_servos_stay_put():
+    """``--frozen``: a register-only bus; its clock ticks (Realtime Tick, watchdog) but Present
+    Velocity stays 0 through 0.5 s of emulated time."""
+    proc = _start("--ids", "1-2", "--frozen")
+    try:
+        port, baud, _ = parse_port_line(proc.stdout.readline())
+        samples = _spin(port, baud, 2, lambda s: _elapsed_ms(s) >= 500)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=20)
+    assert _elapsed_ms(samples) >= 500
+    assert {v for _, v in samples} == {0}

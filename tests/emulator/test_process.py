@@ -37,6 +37,13 @@ def test_bad_config_is_reported_from_the_child(tmp_path):
         EmulatorProcess(bad).start()
 
 
+def test_bad_physics_config_is_reported_from_the_child(tmp_path):
+    bad = tmp_path / "emulator.yaml"
+    bad.write_text("rate_hz: 3\n")
+    with pytest.raises(ConfigError, match="emulator"):
+        EmulatorProcess(None, bad).start()
+
+
 def test_emulator_process_freezes_its_start_up_heap():
     import gc
 

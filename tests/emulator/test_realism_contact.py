@@ -13,7 +13,7 @@ from swerve.driver.bus import Bus
 from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.robot_emulator import robot_emulator, status
 
 ROBOT = shipped("robot.yaml")
 CFG = load_robot_config(ROBOT)
@@ -32,9 +32,10 @@ def drive(physics: str, steer_rad, duration_s: float = 2.0) -> dict:
                 wheels.write_goals([speed] * 4, steer_rad)
                 bus.ping(CFG.drive_ids[0])      # a Bulk Write has no reply: wait until it is executed
                 emu.advance(0.05)
-            assert isinstance(emu.physics.body, ContactBody) == (physics == "realistic")
-            doc = emu.status()
-            doc["slip_energy_j"] = getattr(emu.physics.body, "slip_energy_j", 0.0)
+            assert isinstance(emu.world.physics.body, ContactBody) == (physics == "realistic")
+            with emu.lock:
+                doc = status(emu)
+            doc["slip_energy_j"] = getattr(emu.world.physics.body, "slip_energy_j", 0.0)
             return doc
 
 

@@ -33,7 +33,7 @@ def bus(emu):
 def test_stalled_drive_raises_overload_drops_torque_and_only_reboot_clears_it(emu, bus):
     bus.write(DRIVE, Reg.OPERATING_MODE, u.MODE_PWM)
     bus.write(DRIVE, Reg.TORQUE_ENABLE, 1)
-    emu.physics.servos[DRIVE].motor.blocked = True       # the wheel is held against a wall
+    emu.world.physics.servos[DRIVE].motor.blocked = True       # the wheel is held against a wall
     bus.write(DRIVE, Reg.GOAL_PWM, 885)
     emu.advance(OVERLOAD_S - 0.1)
     assert bus.hardware_error(DRIVE) == 0
@@ -46,11 +46,11 @@ def test_stalled_drive_raises_overload_drops_torque_and_only_reboot_clears_it(em
     assert bus.hardware_error(DRIVE) == HardwareError.OVERLOAD
     assert emu.servo(DRIVE).read(Reg.TORQUE_ENABLE) == 0  # Shutdown (63) default includes overload
     emu.advance(0.05)
-    assert emu.physics.servos[DRIVE].motor.current_a == 0.0   # bridge open
+    assert emu.world.physics.servos[DRIVE].motor.current_a == 0.0   # bridge open
     with pytest.raises(ServoError):
         bus.write(DRIVE, Reg.TORQUE_ENABLE, 1)            # cannot come back before a reboot
     assert emu.servo(DRIVE).read(Reg.TORQUE_ENABLE) == 0
-    emu.physics.servos[DRIVE].motor.blocked = False
+    emu.world.physics.servos[DRIVE].motor.blocked = False
     bus.reboot(DRIVE)
     emu.advance(0.01)
     assert bus.hardware_error(DRIVE) == 0
@@ -65,4 +65,4 @@ def test_input_voltage_below_the_limit_sets_its_bit_but_keeps_torque(emu, bus):
     emu.advance(0.05)
     assert bus.hardware_error(DRIVE) == HardwareError.INPUT_VOLTAGE
     assert emu.servo(DRIVE).read(Reg.TORQUE_ENABLE) == 1  # not in Shutdown's default 0x34
-    assert emu.physics.bus_voltage_v < 12.0 and emu.servo(DRIVE).read(Reg.PRESENT_INPUT_VOLTAGE) <= 120
+    assert emu.world.physics.bus_voltage_v < 12.0 and emu.servo(DRIVE).read(Reg.PRESENT_INPUT_VOLTAGE) <= 120

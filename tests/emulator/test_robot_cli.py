@@ -46,8 +46,8 @@ def test_emulate_physics_publishes_the_true_pose_beside_the_bus(tmp_path):
     assert "8 x xh430-w210" in err.lower()
 
 
-def test_status_file_needs_physics():
+def test_status_file_needs_the_robot_body():
     proc = subprocess.run([*CLI, "--ids", "1", "--status-file", "x.json"], cwd=ROOT, capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 2
-    assert "need --physics" in proc.stderr
+    assert "status file needs the robot body" in proc.stderr

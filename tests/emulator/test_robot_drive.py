@@ -22,7 +22,8 @@ from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.params import SensorParams
-from swerve.emulator.robot_emulator import _HandOverLock, parse_noise, read_status, robot_emulator, true_pose
+from swerve.emulator.clock import HandOverLock
+from swerve.emulator.robot_emulator import parse_noise, read_status, robot_emulator, status
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
@@ -49,8 +50,10 @@ def drive(v_radps, steer_rad, seconds: float, **kwargs):
             wheels.write_goals(v_radps, steer_rad)
             state = wheels.read_state()
             emu.advance(PERIOD_S)
-            log.append((emu.sim_time_s, *true_pose(emu)))
-        return np.array(log), state, emu.status()
+            log.append((emu.sim_time_s, *emu.pose))
+        with emu.lock:
+            doc = status(emu)
+        return np.array(log), state, doc
 
 
 def test_equal_speeds_zero_steering_drive_straight_at_v1():
@@ -98,7 +101,7 @@ def test_start_pose_is_honoured():
 
 
 def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
-    """Clock thread on: the robot drives, the status file follows, the clock accounts for every
+    """Wall clock on: the robot drives, the status file follows, the clock accounts for every
     demanded simulated second (delivered or reported lost). Generous bounds only: on a loaded
     machine the physics may not reach 5x (it then reports the dropped time)."""
     status_path = tmp_path / "status.json"
@@ -143,7 +146,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
 
 
 def test_status_file_holds_the_true_pose_at_close(tmp_path):
-    """Deterministic: without a clock the status thread still publishes; the last write is at close."""
+    """Deterministic: with a frozen clock the status file is written at start, and last at close."""
     path = tmp_path / "pose.json"
     with robot_emulator(ROBOT, PHYSICS, time_scale=0, status_file=path, start_pose=(0.5, 0.0, 0.0)) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
@@ -155,7 +158,7 @@ def test_status_file_holds_the_true_pose_at_close(tmp_path):
             wheels.read_state()       # a round trip: the (reply-less) Bulk Write has landed
             emu.advance(PERIOD_S)
         t_s, pose = emu.true_state()
-        assert (t_s, pose) == (emu.sim_time_s, true_pose(emu))
+        assert (t_s, pose) == (emu.sim_time_s, emu.pose)
     text = path.read_text()
     assert "Infinity" not in text and "NaN" not in text        # strict JSON for any reader
     doc = read_status(path)
@@ -197,12 +200,12 @@ def test_position_noise_reaches_the_bus():
 
 def test_robot_config_ids_must_be_on_the_bus():
     with pytest.raises(ConfigError, match="not on the emulated bus"):
-        robot_emulator(ROBOT, PHYSICS, time_scale=0, ids=[1, 2, 3, 4, 5, 6, 7])
+        robot_emulator(ROBOT, PHYSICS, time_scale=0, ids=[1, 2, 3, 4, 5, 6, 7], body=True)
 
 
 def test_hand_over_lock_shows_who_waits():
     """The clock steps aside only when someone waits: the lock must report waiters, then forget them."""
-    lock = _HandOverLock()
+    lock = HandOverLock()
     got = threading.Event()
 
     def contender():

@@ -10,7 +10,9 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import Reg, table_for
 from swerve.driver.errors import ConfigError
 from swerve.driver.packets import ErrorNumber
-from swerve.emulator import Emulator, Faults
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator import Emulator, Faults, WallClock, make_servos
+from swerve.emulator.robot_emulator import build_emulator
 from swerve.emulator.memory import ServoMemory, WriteRejected
 from swerve.emulator.servo import VirtualServo
 
@@ -143,21 +145,21 @@ def test_emulator_clock_drives_dynamics_and_world():
         def __init__(self):
             self.steps = 0
 
-        def step(self, dt_s, servos):
-            assert set(servos) == {1, 2}
+        def step(self, dt_s):
             self.steps += 1
             if self.steps >= 50:
                 ticked.set()
 
     world = World()
-    with Emulator([1, 2], dynamics=lambda s: _Spin(), world=world, time_scale=2.0) as emu:
+    with Emulator(make_servos([1, 2], "xh430-w210", 1_000_000, dynamics=lambda s: _Spin()), clock=WallClock(2.0),
+                  world=world) as emu:
         assert ticked.wait(10.0)
         assert emu.servo(1).dynamics.calls >= 50
         assert emu.servo(1).read(Reg.REALTIME_TICK) > 0
 
 
 def test_frozen_time_and_manual_advance():
-    with Emulator([1], time_scale=0) as emu:
+    with build_emulator(ids=[1], time_scale=0) as emu:
         time.sleep(0.02)
         assert emu.servo(1).read(Reg.REALTIME_TICK) == 0
         emu.advance(0.1)
@@ -165,25 +167,25 @@ def test_frozen_time_and_manual_advance():
 
 
 def test_robot_config_and_bad_arguments():
-    with Emulator(robot_config="configs/robot.yaml", time_scale=0) as emu:
+    with build_emulator(load_robot_config("configs/robot.yaml"), time_scale=0) as emu:
         assert [s.id for s in emu.servos] == list(range(1, 9))
         assert emu.model == "XH430-W210" and emu.baud == 1_000_000
     with pytest.raises(ConfigError):
-        Emulator([1, 1])
+        build_emulator(ids=[1, 1])
     with pytest.raises(ConfigError):
-        Emulator([1], baud=12345)
+        build_emulator(ids=[1], baud=12345)
     with pytest.raises(ConfigError):
         Faults.parse("drop=2")
     f = Faults.parse("drop=0.5,corrupt=0.1,delay=0.001,vanish=3+4,hwerror=2:overload+input_voltage,seed=3")
     assert (f.drop_rate, f.corrupt_rate, f.delay_s, f.vanished) == (0.5, 0.1, 0.001, {3, 4})
-    with Emulator([2], faults=f, time_scale=0) as emu:
+    with build_emulator(ids=[2], faults=f, time_scale=0) as emu:
         assert emu.servo(2).read(Reg.HARDWARE_ERROR_STATUS) == 0x21
 
 
 def test_baud_gating_follows_client_speed():
     import serial
 
-    with Emulator([1, 2], time_scale=0) as emu:
+    with build_emulator(ids=[1, 2], time_scale=0) as emu:
         emu.servo(2).write(Reg.BAUD_RATE, 1)          # 57600
         with serial.Serial(emu.port, 57600, timeout=0.5) as port:
             port.write(pk.ping(2).encode())

@@ -127,9 +127,10 @@ def _start_emulator(tmp_path: Path, config: Path):
                             "--physics", "--clock-hz", "1000", "--time-scale", str(SCALE),
                             "--status-file", str(status)],
                            stdout=subprocess.PIPE, text=True)
-    line = emu.stdout.readline().strip()
-    assert line.startswith("PORT "), line
-    return emu, line.split()[1], status
+    from swerve.tools.commands.emulate import parse_port_line
+
+    port, _baud, _ids = parse_port_line(emu.stdout.readline())
+    return emu, port, status
 
 
 def _wait_for(predicate, timeout_s: float):

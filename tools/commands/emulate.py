@@ -1,7 +1,9 @@
 """``swerve emulate``: serve a bus of virtual X-series servos on a pty until SIGINT/SIGTERM.
 
-The first line on stdout is ``PORT /dev/pts/N`` (then ``LINK path`` if ``--link`` was given);
-open that path with the SDK, the driver or any serial tool at the servos' baud rate.
+The first line on stdout is ``PORT /dev/pts/N BAUD 1000000 IDS 1-8`` (then ``LINK path`` if
+``--link`` was given); open that path with the SDK, the driver or any serial tool at that baud rate.
+Every servo runs its motor and firmware loops (a free shaft); when the robot file's servos are all
+on the bus, they also move the robot body. ``--frozen`` serves a register-only bus.
 """
 from __future__ import annotations
 
@@ -15,7 +17,30 @@ from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
 
 NAME = "emulate"
-HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N)"
+HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
+
+
+def format_ids(ids) -> str:
+    """``[1, 2, 3, 5]`` -> ``"1-3,5"`` (the inverse of :func:`parse_ids` for sorted distinct IDs)."""
+    runs: list[list[int]] = []
+    for i in sorted(ids):
+        if runs and i == runs[-1][1] + 1:
+            runs[-1][1] = i
+        else:
+            runs.append([i, i])
+    return ",".join(str(a) if a == b else f"{a}-{b}" for a, b in runs)
+
+
+def parse_port_line(line: str) -> tuple[str, int, list[int]]:
+    """``"PORT /dev/pts/3 BAUD 1000000 IDS 1-8"`` -> ``("/dev/pts/3", 1000000, [1, ..., 8])``."""
+    words = line.split()
+    if len(words) != 6 or words[0] != "PORT" or words[2] != "BAUD" or words[4] != "IDS":
+        raise ConfigError(f"not a PORT line: {line.strip()!r}")
+    try:
+        baud = int(words[3])
+    except ValueError:
+        raise ConfigError(f"PORT line: bad baud {words[3]!r}") from None
+    return words[1], baud, parse_ids(words[5], "IDS", max_id=ID_MAX)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,16 +59,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="simulated seconds per wall second (default 1)")
     parser.add_argument("--clock-hz", type=float, default=None,
-                        help="servo clock rate, Hz (default 1000; with --physics: physics.rate_hz of "
-                             "configs/emulator.yaml)")
-    parser.add_argument("--physics", action="store_true",
-                        help="servos move: Table 1 motors, firmware loops and the robot body of --config "
-                             "(default configs/robot.yaml) with configs/emulator.yaml")
+                        help="clock rate, Hz (default: physics.rate_hz of configs/emulator.yaml; "
+                             "--frozen: 1000)")
+    mode = parser.add_mutually_exclusive_group()
+    mode.add_argument("--physics", action="store_true",
+                      help="require the robot body: the servos of --config, moving one robot "
+                           "(default: added when the robot's servos are all on the bus)")
+    mode.add_argument("--frozen", action="store_true",
+                      help="register-only bus: Present* items stay put (protocol tests)")
     parser.add_argument("--emulator-config", default=None, help="physics config (default configs/emulator.yaml)")
     parser.add_argument("--status-file", default=None,
-                        help="with --physics: JSON file with the true pose, rewritten 20 times a second")
+                        help="with the robot body: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,
-                        help="with --physics: sensor noise, e.g. position=0.5,current=0.002,seed=1")
+                        help="sensor noise, e.g. position=0.5,current=0.002,seed=1")
     parser.add_argument("--no-baud-check", action="store_true",
                         help="answer whatever line speed the client sets")
     parser.add_argument("-v", "--verbose", action="store_true", help="log dispatch errors (debug)")
@@ -52,32 +80,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from swerve.emulator import Emulator
+    from swerve.configs import locate_robot_file, shipped
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.emulator.physics.params import load_config
+    from swerve.emulator.robot_emulator import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
     ids = parse_ids(args.ids, max_id=ID_MAX) if args.ids else None
-    if not args.physics and (args.status_file or args.noise or args.emulator_config):
-        raise ConfigError("--status-file, --noise and --emulator-config need --physics")
+    if args.frozen and (args.status_file or args.noise or args.emulator_config):
+        raise ConfigError("--status-file, --noise and --emulator-config need physics (drop --frozen)")
+    if args.physics and (ids is not None or args.model is not None):
+        raise ConfigError("with --physics the IDs and model come from --config")
+    robot = load_robot_config(locate_robot_file(args.config).path)
+    physics = None if args.frozen else load_config(args.emulator_config or shipped("emulator.yaml"))
     try:
-        if args.physics:
-            if ids is not None or args.model is not None:
-                raise ConfigError("with --physics the IDs and model come from --config")
-            from swerve.driver.control_table import CONFIG_DIR
-            from swerve.emulator.robot_emulator import robot_emulator
-
-            emu = robot_emulator(args.config or CONFIG_DIR / "robot.yaml",
-                                 args.emulator_config or CONFIG_DIR / "emulator.yaml",
-                                 time_scale=args.time_scale, status_file=args.status_file,
-                                 noise=args.noise, faults=args.faults, link=args.link,
-                                 wire_timing=args.wire_timing, baud=args.baud, rate_hz=args.clock_hz,
-                                 baud_check=not args.no_baud_check)
-        else:
-            emu = Emulator(ids, args.model, args.baud, robot_config=args.config,
-                           wire_timing=args.wire_timing, faults=args.faults, time_scale=args.time_scale,
-                           clock_hz=args.clock_hz or 1000.0, link=args.link,
-                           baud_check=not args.no_baud_check)
+        emu = build_emulator(robot, physics, ids=ids, model=args.model, baud=args.baud,
+                             body=True if args.physics else None, time_scale=args.time_scale,
+                             rate_hz=args.clock_hz, noise=args.noise, faults=args.faults,
+                             status_file=args.status_file, path=args.link, wire_timing=args.wire_timing,
+                             baud_check=not args.no_baud_check)
     except ValueError as exc:            # ConfigError is a ValueError too
         raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from None
     stop = threading.Event()
@@ -92,11 +115,14 @@ def run(args: argparse.Namespace) -> int:
         except OSError as exc:
             raise ConfigError(f"cannot open the pty or link: {exc}") from None
         freeze_startup_heap()
-        print(f"PORT {emu.port}", flush=True)
+        ids_text = format_ids(s.id for s in emu.servos)
+        print(f"PORT {emu.port} BAUD {emu.baud} IDS {ids_text}", flush=True)
         if emu.link_path:
             print(f"LINK {emu.link_path}", flush=True)
-        print(f"{len(emu.servos)} x {emu.model} IDs {','.join(str(s.id) for s in emu.servos)} "
-              f"at {emu.baud} bps", file=sys.stderr, flush=True)
+        what = "frozen (register-only)" if physics is None else (
+            "moving the robot body" if emu.world is not None else "free shafts")
+        print(f"{len(emu.servos)} x {emu.model} IDs {ids_text} at {emu.baud} bps, {what}",
+              file=sys.stderr, flush=True)
         while not stop.wait(1.0):
             pass
     finally:

@@ -13,7 +13,7 @@ from typing import Callable
 import numpy as np
 
 from swerve.driver.robot_config import RobotConfig
-from swerve.emulator import Emulator
+from swerve.emulator import Emulator, LinkSettings, WallClock, make_servos
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams
 from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
 
@@ -38,7 +38,10 @@ def servo_models(rc: RobotConfig, cfg: PhysicsConfig, *, noise: bool = False,
 
 def make_emulator(rc: RobotConfig, cfg: PhysicsConfig | None, *, noise: bool = False, seed: int | None = None,
                   baud: int | None = None, **kwargs) -> Emulator:
-    """An (unstarted) :class:`Emulator` with every servo of ``rc``; ``cfg=None``: static servos."""
+    """An (unstarted) :class:`Emulator` with every servo of ``rc``, clocked at 1 kHz in real time;
+    ``cfg=None``: static servos. ``kwargs``: :class:`LinkSettings` fields."""
     ids = sorted(set(rc.drive_ids) | set(rc.steer_ids))
     dynamics = servo_models(rc, cfg, noise=noise, seed=seed) if cfg is not None else None
-    return Emulator(ids, rc.model, baud or rc.link.baud, dynamics=dynamics, **kwargs)
+    baud = baud or rc.link.baud
+    return Emulator(make_servos(ids, rc.model, baud, dynamics=dynamics), link=LinkSettings(baud=baud, **kwargs),
+                    clock=WallClock(1.0, 1000.0))

@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from swerve.emulator.physics import units as u
-from swerve.emulator.physics.robot import BodyWorld, RobotPhysics, load_robot_geometry
+from swerve.emulator.physics.robot import RobotPhysics, load_robot_geometry
 from swerve.emulator.physics.steptest import table
 from swerve.driver.errors import ConfigError
 
@@ -84,12 +84,11 @@ def test_robot_geometry_errors_name_the_key(tmp_path):
         load_robot_geometry(p)
 
 
-def test_body_world_adapter_moves_the_body_after_externally_stepped_servos(cfg, geometry):
+def test_step_body_moves_the_body_after_externally_stepped_servos(cfg, geometry):
     robot = RobotPhysics(cfg, geometry)
     tabs, v = _tables(cfg, geometry, 0.1, 0.0, 0.0)
-    world = BodyWorld(robot)
     for _ in range(2000):
         for sid, servo in robot.servos.items():     # what the emulator's own servo loop does
             servo.step(DT, tabs[sid])
-        world.step(DT, robot.servos)
+        robot.step_body(DT)
     assert robot.body.x_m == pytest.approx(0.1 * 1.0, rel=0.1)

@@ -1,0 +1,220 @@
+"""Who owns simulated time: the clock object the emulator's bus thread calls between requests.
+
+The bus thread (:class:`swerve.emulator.server.Emulator`) serves requests and, whenever none is
+waiting, calls ``clock.run(world)``. The clock runs the physics steps it decides are due (each
+with ``world.step()``, which takes the bus lock for one step) and returns how long the bus thread
+may block in ``select`` before calling again. Its behaviour is passed in, as pyserial's
+``serial.threaded.ReaderThread(serial, protocol_factory)`` gets its protocol passed in:
+
+* :class:`FrozenClock`: simulated time stands still (a register-only bus; ``emu.advance(dt_s)``
+  still steps it by hand, e.g. in tests).
+* :class:`WallClock`: ``time_scale`` simulated seconds per wall second, in steps of ``1/rate_hz``.
+
+A lockstep clock (simulated time advanced only when a client asks) is one more class here: its
+``run`` steps what the client requested and returns ``math.inf`` until the next request, which
+reaches it through a method of its own plus :meth:`StepWorld.wake` (see emulator/README.md).
+"""
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import threading
+import time
+from dataclasses import dataclass
+from typing import Protocol
+
+from swerve.driver.errors import ConfigError
+
+log = logging.getLogger(__name__)
+
+#: Longest the clock runs steps before re-reading the wall clock and its backlog, s.
+MAX_BATCH_WALL_S = 2e-3
+#: Pause after a step when another thread waits for the bus lock, s.
+HAND_OVER_S = 5e-5
+#: Shortest wait of the clock when it is ahead (batches steps at high time scales), s.
+MIN_SLEEP_S = 1e-3
+#: Backlog (wall seconds of demanded steps) beyond which simulated time is dropped and counted.
+MAX_BACKLOG_WALL_S = 0.5
+
+
+class StepWorld(Protocol):
+    """What the emulator offers its clock (implemented by :class:`~swerve.emulator.server.Emulator`)."""
+
+    def step(self, dt_s: float) -> None:
+        """Advance every servo (and the body, if any) by ``dt_s`` simulated s, under the bus lock."""
+
+    def request_pending(self) -> bool:
+        """True if bytes from the client wait: the clock should return soon so requests go first."""
+
+    def lock_wanted(self) -> bool:
+        """True if another thread waits for the bus lock (the clock should pause briefly)."""
+
+    def wake(self) -> None:
+        """Make the bus thread call :meth:`PhysicsClock.run` again now (from any thread)."""
+
+
+class PhysicsClock(Protocol):
+    """The emulator's owner of simulated time (see the module docstring)."""
+
+    rate_hz: float            # physics steps per simulated second
+    stats: "ClockStats"
+
+    def run(self, world: StepWorld) -> float:
+        """Run the steps that are due; return wall seconds the bus thread may block (``inf``: until
+        a request or :meth:`StepWorld.wake`). Called by the bus thread only, between requests."""
+
+
+@dataclass
+class ClockStats:
+    """How the physics clock kept up with wall time (written by the bus thread)."""
+
+    time_scale: float = 0.0
+    rate_hz: float = 0.0
+    wall_s: float = 0.0         # wall time since the clock started
+    steps: int = 0              # physics steps run by the clock
+    batches: int = 0            # runs of back-to-back steps (one per wake-up or 2 ms of work)
+    backlog_s: float = 0.0      # simulated time owed right now (steps due but not yet run)
+    max_backlog_s: float = 0.0  # largest simulated time the clock was behind wall time * scale
+    fell_behind: int = 0        # times the backlog exceeded MAX_BACKLOG_WALL_S and time was dropped
+    lost_sim_s: float = 0.0     # simulated time dropped then (the world ran slower than scale)
+    cpu_s: float = 0.0          # CPU time spent in physics steps (thread_time)
+
+    @property
+    def achieved_scale(self) -> float:
+        """Simulated seconds delivered per wall second (``time_scale`` when it kept up)."""
+        return self.steps / self.rate_hz / self.wall_s if self.wall_s > 0 else 0.0
+
+    @property
+    def real_time_factor(self) -> float:
+        """Simulated seconds per CPU second of physics (servos, body, clock upkeep)."""
+        return self.steps / self.rate_hz / self.cpu_s if self.cpu_s > 0 else math.inf
+
+    def as_dict(self) -> dict[str, float | None]:
+        """All fields plus the two ratios; a ratio without data (no CPU time yet) is ``None``."""
+        d = dataclasses.asdict(self)
+        d.update(achieved_scale=self.achieved_scale, real_time_factor=self.real_time_factor)
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
+
+
+class FrozenClock:
+    """Simulated time stands still; the bus only answers (``emu.advance`` steps by hand)."""
+
+    def __init__(self, rate_hz: float = 1000.0):
+        if not rate_hz > 0:
+            raise ConfigError(f"clock rate must be > 0 Hz, got {rate_hz:g}")
+        self.rate_hz = float(rate_hz)
+        self.stats = ClockStats(time_scale=0.0, rate_hz=self.rate_hz)
+
+    def run(self, world: StepWorld) -> float:
+        return math.inf
+
+
+class WallClock:
+    """``time_scale`` simulated seconds per wall second, in fixed steps of ``1/rate_hz``.
+
+    Runs the steps wall time demands (``time_scale * rate_hz`` per wall second) back to back until
+    caught up, until a request arrives, or for :data:`MAX_BATCH_WALL_S`; a request thus waits for
+    one step at most, and physics never competes with the bus for the interpreter lock. Beyond
+    :data:`MAX_BACKLOG_WALL_S` of backlog, simulated time is dropped and counted in :attr:`stats`
+    (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
+    """
+
+    def __init__(self, time_scale: float = 1.0, rate_hz: float = 1000.0):
+        if not (math.isfinite(time_scale) and time_scale > 0):
+            raise ConfigError(f"time scale must be > 0 for a wall clock, got {time_scale:g}")
+        if not rate_hz > 0:
+            raise ConfigError(f"clock rate must be > 0 Hz, got {rate_hz:g}")
+        self.time_scale = float(time_scale)
+        self.rate_hz = float(rate_hz)
+        self.stats = ClockStats(time_scale=self.time_scale, rate_hz=self.rate_hz)
+        self._t0: float | None = None     # wall time of the first call
+        self._skipped = 0                 # steps dropped when the clock fell behind
+
+    def run(self, world: StepWorld) -> float:
+        st = self.stats
+        now = time.monotonic()
+        if self._t0 is None:
+            self._t0 = now
+        dt = 1.0 / self.rate_hz
+        steps_per_wall_s = self.rate_hz * self.time_scale
+        st.wall_s = now - self._t0
+        backlog = int(st.wall_s * steps_per_wall_s) - self._skipped - st.steps
+        if backlog <= 0:
+            due = self._t0 + (st.steps + self._skipped + 1) / steps_per_wall_s
+            return max(MIN_SLEEP_S, due - now)
+        max_backlog = max(1, int(MAX_BACKLOG_WALL_S * steps_per_wall_s))
+        if backlog > max_backlog:
+            drop = backlog - max_backlog
+            self._skipped += drop
+            backlog = max_backlog
+            st.fell_behind += 1
+            st.lost_sim_s += drop * dt
+            if st.fell_behind == 1:
+                log.warning("physics clock fell behind at time scale %g; dropping simulated time "
+                            "(see clock_stats)", self.time_scale)
+        st.max_backlog_s = max(st.max_backlog_s, backlog * dt)
+        cpu0 = time.thread_time()
+        deadline = now + MAX_BATCH_WALL_S
+        n = 0
+        try:
+            while n < backlog:
+                world.step(dt)
+                n += 1
+                if world.request_pending():
+                    break
+                if world.lock_wanted():
+                    time.sleep(HAND_OVER_S)   # let a waiting thread (faults, pose readers) take the lock
+                if n & 7 == 0 and time.monotonic() > deadline:
+                    break
+        finally:
+            n = max(n, 1)                     # a step that raised still counts (no retry storm)
+            st.steps += n
+            st.batches += 1
+            st.backlog_s = (backlog - n) * dt
+            st.cpu_s += time.thread_time() - cpu0
+        return 0.0 if n < backlog else MIN_SLEEP_S
+
+
+def clock_for(time_scale: float, rate_hz: float = 1000.0) -> PhysicsClock:
+    """:class:`WallClock` at ``time_scale``, or :class:`FrozenClock` for ``time_scale == 0``."""
+    if time_scale < 0:
+        raise ConfigError(f"time scale must be >= 0, got {time_scale:g}")
+    return WallClock(time_scale, rate_hz) if time_scale > 0 else FrozenClock(rate_hz)
+
+
+class HandOverLock:
+    """The emulator's one lock, plus who is waiting for it (so the clock can step aside).
+
+    A plain :class:`threading.Lock` is not fair: a clock that releases it and takes it
+    again at once starves another thread waiting for it (fault injection, pose readers).
+    The clock checks :attr:`waiting` after each physics step and pauses only then, so it
+    loses no time when nobody waits. ``set.add``/``discard`` are atomic.
+    """
+
+    def __init__(self):
+        self._lock = threading.Lock()
+        self.waiting: set[int] = set()
+
+    def acquire(self, blocking: bool = True, timeout: float = -1) -> bool:
+        if self._lock.acquire(False):
+            return True
+        if not blocking:
+            return False
+        me = threading.get_ident()
+        self.waiting.add(me)
+        try:
+            return self._lock.acquire(True, timeout)
+        finally:
+            self.waiting.discard(me)
+
+    def release(self) -> None:
+        self._lock.release()
+
+    def locked(self) -> bool:
+        return self._lock.locked()
+
+    __enter__ = acquire
+
+    def __exit__(self, *exc) -> None:
+        self._lock.release()

@@ -1,0 +1,134 @@
+"""The clock objects on a fake world and a fake wall clock: which steps they run, when they
+yield to a request, how they account for time they cannot deliver. No real time passes."""
+from __future__ import annotations
+
+import math
+
+import pytest
+
+from swerve.driver.errors import ConfigError
+from swerve.emulator import clock as clk
+from swerve.emulator.clock import FrozenClock, WallClock, clock_for
+
+
+class FakeWorld:
+    """Counts steps; a request arrives after ``request_after`` steps; the lock is never wanted."""
+
+    def __init__(self, request_after: int | None = None):
+        self.dts: list[float] = []
+        self.request_after = request_after
+
+    def step(self, dt_s: float) -> None:
+        self.dts.append(dt_s)
+
+    def request_pending(self) -> bool:
+        return self.request_after is not None and len(self.dts) >= self.request_after
+
+    def lock_wanted(self) -> bool:
+        return False
+
+    def wake(self) -> None:
+        pass
+
+
+@pytest.fixture
+def wall(monkeypatch):
+    """A settable monotonic clock, seen by the clock module only."""
+    now = [0.0]
+    monkeypatch.setattr(clk.time, "monotonic", lambda: now[0])
+    return now
+
+
+def test_frozen_clock_never_steps():
+    c, world = FrozenClock(2000.0), FakeWorld()
+    assert c.run(world) == math.inf and world.dts == []
+    assert c.rate_hz == 2000.0 and c.stats.steps == 0
+
+
+def test_wall_clock_runs_what_wall_time_demands(wall):
+    c, world = WallClock(time_scale=2.0, rate_hz=1000.0), FakeWorld()
+    wait = c.run(world)                       # starts the clock: nothing owed yet
+    assert world.dts == [] and wait == pytest.approx(clk.MIN_SLEEP_S)
+    wall[0] += 0.010                          # 10 ms of wall time at 2x: 20 steps of 1 ms
+    assert c.run(world) == clk.MIN_SLEEP_S
+    assert world.dts == [pytest.approx(1e-3)] * 20
+    assert (c.stats.steps, c.stats.batches, c.stats.lost_sim_s) == (20, 1, 0.0)
+
+
+def test_wall_clock_yields_to_a_pending_request(wall):
+    c, world = WallClock(1.0, 1000.0), FakeWorld(request_after=3)
+    c.run(world)
+    wall[0] += 0.010                          # 10 steps owed
+    assert c.run(world) == 0.0                # more is owed: come back at once
+    assert len(world.dts) == 3 and c.stats.backlog_s == pytest.approx(7e-3)
+    world.request_after = None
+    c.run(world)
+    assert len(world.dts) == 10               # the rest, delivered later
+
+
+def test_wall_clock_drops_and_counts_a_backlog_beyond_the_limit(wall):
+    c, world = WallClock(1.0, 1000.0), FakeWorld()
+    c.run(world)
+    wall[0] += 2.0                            # a 2 s stall: 2000 steps owed, 500 kept
+    while c.run(world) == 0.0:
+        pass
+    assert c.stats.fell_behind == 1
+    assert c.stats.lost_sim_s == pytest.approx(2.0 - clk.MAX_BACKLOG_WALL_S)
+    assert len(world.dts) == round(clk.MAX_BACKLOG_WALL_S * 1000)
+    # every demanded second is delivered or reported lost
+    assert len(world.dts) * 1e-3 + c.stats.lost_sim_s == pytest.approx(2.0)
+
+
+def test_clock_for_and_bad_settings():
+    assert isinstance(clock_for(0.0, 500.0), FrozenClock)
+    assert isinstance(clock_for(3.0), WallClock)
+    for bad in (lambda: clock_for(-1.0), lambda: WallClock(0.0), lambda: WallClock(1.0, 0.0),
+                lambda: FrozenClock(-5.0)):
+        with pytest.raises(ConfigError):
+            bad()
+
+
+class StepsOnRequest:
+    """A clock that only steps when asked (the shape of a lockstep clock), to test the seam."""
+
+    def __init__(self, rate_hz: float = 1000.0):
+        self.rate_hz = rate_hz
+        self.stats = clk.ClockStats(rate_hz=rate_hz)
+        self.owed = 0
+        self.calls = 0
+
+    def request(self, emu, steps: int) -> None:
+        self.owed += steps
+        emu.wake()
+
+    def run(self, world) -> float:
+        self.calls += 1
+        while self.owed:
+            world.step(1.0 / self.rate_hz)
+            self.owed -= 1
+            self.stats.steps += 1
+        return math.inf
+
+
+def _wait(predicate, limit_s: float = 10.0) -> bool:
+    """Poll until ``predicate()``; the limit only ends a failing test."""
+    import time
+
+    end = time.monotonic() + limit_s
+    while not predicate() and time.monotonic() < end:
+        time.sleep(0.001)
+    return predicate()
+
+
+def test_a_clock_passed_in_owns_simulated_time():
+    from swerve.emulator import Emulator, make_servos
+
+    c = StepsOnRequest()
+    with Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=c) as emu:
+        assert _wait(lambda: c.calls > 0)        # the bus thread called it; nothing was owed
+        assert emu.sim_time_s == 0.0
+        c.request(emu, 250)
+        assert _wait(lambda: c.stats.steps == 250)
+        with emu.lock:
+            assert emu.sim_time_s == pytest.approx(0.250)
+            assert emu.servo(1).read("realtime_tick") == 250
