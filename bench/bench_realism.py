@@ -15,7 +15,6 @@ import argparse
 import contextlib
 import dataclasses
 import json
-import math
 import tempfile
 import time
 from pathlib import Path
@@ -24,8 +23,6 @@ import numpy as np
 import yaml
 
 from swerve.configs import shipped
-from swerve.controller.kinematics import from_robot_config
-from swerve.controller.online import TrackingLoop
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ServoError
 from swerve.driver.robot_config import load_robot_config
@@ -35,12 +32,29 @@ from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, single_effect
 from swerve.emulator.robot_emulator import robot_emulator
 from swerve.emulator.server import Emulator
-from swerve.tools.robot_run import EMULATOR_PHYSICS_RATE_HZ, prepare_law
+from swerve.tools.run.loop import TrackingLoop
+from swerve.tools.run.orchestrate import EMULATOR_PHYSICS_RATE_HZ, prepare_law
+from swerve.tools.run.robot import geometry_and_limits
 
 #: The build tolerances one at a time: choice -> key of the ``tolerances`` section.
 TOLERANCE_PARTS = {"radius": "wheel_radius_scale", "steer-zero": "steer_zero_offset_rad",
                    "backlash": "steer_backlash_rad", "encoder": "encoder_offset_pulse"}
 CHOICES = ("ideal", *EFFECTS, "realistic", *TOLERANCE_PARTS)
+
+
+class EmulatorTime:
+    """The loop's clock: the emulator's simulated time, moved on by whole physics steps when the
+    loop waits (``now`` / ``sleep_until``, the :class:`~swerve.tools.run.ticker.Clock` protocol)."""
+
+    def __init__(self, emu: Emulator, dt_s: float):
+        self.emu, self.dt_s = emu, dt_s
+
+    def now(self) -> float:
+        return self.emu.sim_time_s
+
+    def sleep_until(self, t: float) -> None:
+        while self.emu.sim_time_s < t - 1e-9:
+            self.emu.advance(self.dt_s)
 
 
 class LockstepWheels:
@@ -88,7 +102,7 @@ def physics_file(choice: str, tmp: Path) -> Path:
 def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
     cfg_path = shipped("robot.yaml")
     cfg = load_robot_config(cfg_path)
-    geom, limits = from_robot_config(cfg)
+    geom, limits = geometry_and_limits(cfg)
     traj, law = prepare_law(trajectory, None, geom, limits)
     start = traj.start_state(geom)
     with contextlib.ExitStack() as stack:
@@ -98,26 +112,22 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
                                       timeout_margin_s=1.0))
         wheels = stack.enter_context(WheelSet(bus, cfg))
         wheels.configure()
-        dt = 1.0 / EMULATOR_PHYSICS_RATE_HZ
-
-        def sleep(s: float) -> None:            # whole physics steps of exactly dt
-            for _ in range(max(1, math.ceil(s / dt - 1e-6))):
-                emu.advance(dt)
-
         loop = TrackingLoop(LockstepWheels(wheels, emu), law, geom, watchdog_s=cfg.bus_watchdog_s,
-                            true_pose=lambda: emu.pose, clock=lambda: emu.sim_time_s, sleep=sleep)
+                            true_pose=lambda: emu.pose,
+                            clock=EmulatorTime(emu, 1.0 / EMULATOR_PHYSICS_RATE_HZ))
         wheels.enable()
         loop.move_to_start(start[3], start[4])
         cpu0 = time.process_time()
         result = loop.run(start)
-        s = result.summary
+        e = result.tracking
         body = emu.world.physics.body
-        out = dict(trajectory=trajectory, physics=choice, completed=s["completed"],
-                   rms_mm=s["rms_position_error_m"] * 1e3, max_mm=s["max_position_error_m"] * 1e3,
-                   final_mm=s["final_position_error_m"] * 1e3, odo_max_mm=s["odometry_vs_true_max_m"] * 1e3,
-                   odo_final_mm=s["odometry_vs_true_final_m"] * 1e3,
-                   input_saturated=s["saturated_fraction"], cycles=s["cycles"],
-                   cpu_s=time.process_time() - cpu0, abort=s.get("abort_cause"))
+        out = dict(trajectory=trajectory, physics=choice, completed=result.completed,
+                   rms_mm=e.rms_position_error_m * 1e3, max_mm=e.max_position_error_m * 1e3,
+                   final_mm=e.final_position_error_m * 1e3, odo_max_mm=e.odometry_vs_true_max_m * 1e3,
+                   odo_final_mm=e.odometry_vs_true_final_m * 1e3,
+                   input_saturated=e.saturated_fraction, cycles=result.cycles,
+                   cpu_s=time.process_time() - cpu0,
+                   abort=None if result.aborted is None else result.aborted.cause)
         if isinstance(body, ContactBody):
             out["slip_energy_j"] = body.slip_energy_j
             out["tyre_saturated"] = body.saturated_steps / max(body.wheel_steps, 1)
