@@ -13,6 +13,7 @@ import sys
 import time
 from pathlib import Path
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.cli import add_config_option
 
 NAME = "run"
@@ -39,6 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast-read", action="store_true", help="use Fast Sync Read (firmware >= 45)")
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
+    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -48,12 +50,14 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
+    if args.emulator_config is not None and not args.emulate:
+        raise ConfigError("--emulator-config needs --emulate")
     log = None if args.no_log else (
         Path(args.log) if args.log else
         Path("out/runs") / f"{Path(args.trajectory).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
     req = RunRequest(trajectory=args.trajectory, gains=args.gains, config=args.config,
                      port=args.port, emulate=args.emulate, time_scale=args.time_scale, log=log,
-                     fast_read=args.fast_read, faults=args.faults,
+                     fast_read=args.fast_read, faults=args.faults, emulator_config=args.emulator_config,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty())
     out = sys.stderr if args.json else sys.stdout

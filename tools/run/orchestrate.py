@@ -45,6 +45,7 @@ class RunRequest:
     start_timeout_s: float = 5.0
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
+    emulator_config: str | Path | None = None   # emulator physics: "ideal", "realistic" or a file
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
@@ -129,10 +130,12 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
     with contextlib.ExitStack() as stack:
         true_pose = None
         if req.emulate:
+            from swerve.emulator.physics.profiles import resolve_emulator_config
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, time_scale=req.time_scale, faults=req.faults, start_pose=tuple(start[:3]),
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
+                time_scale=req.time_scale, faults=req.faults, start_pose=tuple(start[:3]),
                 rate_hz=req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
