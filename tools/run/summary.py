@@ -64,6 +64,25 @@ class EmulatorStats:
 
 
 @dataclass(frozen=True)
+class ServoFaults:
+    """How servo faults were handled: the ``on_servo_fault`` policy (stop / recover), the
+    ``recoveries`` done, and every step as ``"<t_s> ID <ids> <step>: <detail>"``."""
+
+    on_servo_fault: str
+    recoveries: int
+    recovery_steps: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LiveStats:
+    """The live view: its ``live_url`` and the records it ``live_published`` and ``live_dropped``."""
+
+    live_url: str
+    live_published: int
+    live_dropped: int
+
+
+@dataclass(frozen=True)
 class RunSummary:
     """One tracking run.
 
@@ -72,7 +91,8 @@ class RunSummary:
     ``shipped``); ``time_scale`` robot s per wall s; ``completed`` (False: stopped, see
     ``abort_cause``/``abort_message``); ``cycles`` run; ``failed_reads`` over the run;
     ``tracking`` (None if no cycle ran); ``timing``; the bus's ``bus_stray_replies`` and
-    ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot).
+    ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot);
+    ``servo_faults`` how hardware errors were handled; ``live`` the live view (None without).
     """
 
     trajectory: str
@@ -91,6 +111,8 @@ class RunSummary:
     bus_corrupt_frames: int = 0
     log: str | None = None
     emulator: EmulatorStats | None = None
+    servo_faults: ServoFaults | None = None
+    live: LiveStats | None = None
 
     def to_dict(self) -> dict:
         """Flat ``{key: value}`` of every field that applies (nested records inlined)."""
