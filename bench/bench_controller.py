@@ -24,10 +24,9 @@ sys.path.insert(0, str(ROOT))
 import numpy as np  # noqa: E402
 
 from swerve.controller.design import synthesize  # noqa: E402
-from swerve.controller.kinematics import load_robot, rk4_step  # noqa: E402
+from swerve.controller.kinematics import rk4_step  # noqa: E402
 from swerve.controller.ltv import cost, error_system, initial_error  # noqa: E402
 from swerve.controller.odometry import Odometry  # noqa: E402
-from swerve.controller.online import TrackingLoop  # noqa: E402
 from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
 from swerve.controller.riccati import finite_horizon_lqr  # noqa: E402
 from swerve.controller.simulate import metrics, simulate  # noqa: E402
@@ -37,6 +36,8 @@ from swerve.controller.synthesis import (conjugate_gradient,  # noqa: E402
 from swerve.controller.tracking import TrackingLaw  # noqa: E402
 from swerve.driver.wheelset import WheelState  # noqa: E402
 from swerve.tools.logs import CycleRecord, RunLogWriter  # noqa: E402
+from swerve.tools.run.loop import TrackingLoop  # noqa: E402
+from swerve.tools.run.robot import load_robot  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Controller (issue 5)"
@@ -187,11 +188,11 @@ class _IdealWheels:
         self.v1 = self.wheel_rad = 0.0
         self.cycles, self._t0, self._own = [], None, 0
 
-    def clock(self):
+    def now(self):
         return self.t
 
-    def sleep(self, dt):
-        self.t += dt
+    def sleep_until(self, t):
+        self.t = max(self.t, t)
 
     def read_state(self):
         now = time.perf_counter_ns()
@@ -223,15 +224,15 @@ class _IdealWheels:
 
 
 def cycle_costs(traj_name, x0, log_dir):
-    """Per-cycle CPU of :meth:`controller.online.TrackingLoop.run`'s own work, ideal wheels.
+    """Per-cycle CPU of :meth:`swerve.tools.run.loop.TrackingLoop.run`'s own work, ideal wheels.
 
     Runs the real loop (Riccati gains, a run log as ``swerve run --log`` writes it) and splits
-    each cycle into odometry (``Odometry.update``), law (``TrackingLaw.command``), log
-    (``CycleRecord`` + ``RunLogWriter.write``) and loop (everything else the loop does: state
-    vector, steering integration, result row, ``on_cycle`` dict, ticker). Returns
+    each cycle into odometry (``Odometry.update``), law (``TrackingLaw.step``: inputs and
+    steering goals), log (``CycleRecord`` + ``RunLogWriter.write``) and loop (everything else
+    the loop does: state vector, result row, ``on_cycle`` dict, ticker). Returns
     ``({piece: ns array}, fraction of cycles whose reference time was on the grid)``.
     """
-    import swerve.controller.online as online
+    import swerve.tools.run.loop as online
 
     traj = load_trajectory(traj_name, GEOM)
     ref, gains = synthesize(traj, "riccati", GEOM, LIMITS)
@@ -239,14 +240,15 @@ def cycle_costs(traj_name, x0, log_dir):
     start = traj.start_state(GEOM) if x0 is None else np.array(x0, float)
     timers = {p: _Timer() for p in ("odometry", "law", "log")}
     wheels = _IdealWheels(start, timers)
-    timed_command, on_grid = timers["law"].wrap(law.command), []
+    timed_step, on_grid = timers["law"].wrap(law.step), []
 
-    def command(t_s, state):
-        out = timed_command(t_s, state)
-        if not law.last["finished"]:         # is the reference time a grid time?
-            on_grid.append(law.last["s"] == ref.times_s[ref.index(law.last["s"])])
+    def step(t_s, state):
+        out = timed_step(t_s, state)
+        if not out.finished:                 # is the reference time a grid time?
+            s = out.reference_time_s
+            on_grid.append(s == ref.times_s[ref.index(s)])
         return out
-    law.command = command
+    law.step = step
 
     class TimedOdometry(Odometry):
         update = timers["odometry"].wrap(Odometry.update)
@@ -255,7 +257,7 @@ def cycle_costs(traj_name, x0, log_dir):
         def on_cycle(fields):
             writer.write(CycleRecord(sim_pose=fields["true_pose"], **fields))
 
-        loop = TrackingLoop(wheels, law, GEOM, clock=wheels.clock, sleep=wheels.sleep,
+        loop = TrackingLoop(wheels, law, GEOM, clock=wheels,
                             true_pose=lambda: wheels.x[:3], on_cycle=timers["log"].wrap(on_cycle))
         saved, online.Odometry = online.Odometry, TimedOdometry
         try:
@@ -286,8 +288,8 @@ def render_cycles(rows):
            "`TrackingLoop.run` on ideal wheels and a simulated clock (no bus; Riccati gains; run "
            "log written as by `swerve run --log`): µs per cycle, median over the run's cycles "
            "(best of 3 runs), p99 in brackets. *odometry*: `Odometry.update`; *law*: "
-           "`TrackingLaw.command`; *loop*: the rest of the loop's work (state vector, steering "
-           "integration, result row, `on_cycle` dict, ticker); *log*: `CycleRecord` + "
+           "`TrackingLaw.step` (inputs and steering goals); *loop*: the rest of the loop's work "
+           "(state vector, result row, `on_cycle` dict, ticker); *log*: `CycleRecord` + "
            "`RunLogWriter.write` (flush every cycle). *on grid*: share of cycles whose reference "
            "time is a grid time (the governor slows the reference clock off the grid).", "",
            "| case | cycles | on grid | " + " | ".join(CYCLE_PIECES) + " | total without log |",

@@ -19,7 +19,7 @@ from benchutil import cpu_model
 
 
 def main() -> None:
-    from swerve.tools.robot_run import RunRequest, run_tracking
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--scales", default="1,2,3,4,5,6,8,10")
@@ -38,7 +38,7 @@ def main() -> None:
         log = Path(tmp.name) / f"run_{k}" if args.log else None
         res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, time_scale=scale, log=log))
         cpu = (time.process_time() - c0) / (time.monotonic() - w0)
-        s = res.summary
+        s = res.summary.to_dict()
         print(f"| {scale:g} | {s['loop_period_target_ms']:.1f} | {s['loop_period_p50_ms']:.2f} / "
               f"{s['loop_period_p99_ms']:.2f} / {s['loop_period_max_ms']:.1f} | {s['overruns']} | "
               f"{s['missed_slots']} | {100 * cpu:.0f} | {s.get('emulator_achieved_time_scale', float('nan')):.2f} | "

@@ -1,4 +1,4 @@
-"""Trajectory tracking for the four-wheel independently steered robot (issue 5).
+"""Trajectory tracking for the four-wheel independently steered robot.
 
 Everything between a desired path and the wheel commands, offline and online, after
 Ćaran et al., *Actuators* 2024, 13, 279 (see ``controller/README.md``). SI units throughout;
@@ -7,9 +7,10 @@ state ``s = (x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, inputs
 
 Public API
 ----------
-Robot data (``configs/robot.yaml``)::
+Robot data: plain numbers (the robot file becomes them in :mod:`swerve.tools.run.robot`)::
 
-    geom, limits = controller.kinematics.load_robot()          # Geometry, Limits
+    geom = controller.kinematics.Geometry(a_m, b_m, wheel_radius_m)
+    limits = controller.kinematics.Limits(v1_max_mps, steer_rate_max_radps, steer_angle_max_rad)
 
 Offline (``swerve synth``)::
 
@@ -25,8 +26,9 @@ Online, at 62.5 Hz on the robot (``swerve sim`` runs exactly this law)::
     law = controller.tracking.TrackingLaw(ref, gains, limits)
     law.reset()
     x0 = ref.start_state()                                      # == traj.start_state(geom)
-    v1, w1, w2 = law.command(t_s, state)                        # state: shape (5,)
-    goals = law.wheel_goals(t_s, state)                         # [v1]*4 + [d1, d2, d2, d1]
+    out = law.step(t_s, state)                                  # LawOutput; state: shape (5,)
+    out.v1_mps, out.omega1_radps, out.delta1_rad, out.error     # inputs, goals, diagnostics
+    goals = out.wheel_goals                                     # [v1]*4 + [d1, d2, d2, d1]
     controller.kinematics.wheel_commands(v1, d1, d2)            # the same 8-vector by hand
     controller.kinematics.drive_angular_speed(v1, geom.wheel_radius_m)   # rad/s at the wheel
 
@@ -36,7 +38,9 @@ desired states and frame schedule; :mod:`.ltv` LTV error system and cost; :mod:`
 finite-horizon Riccati; :mod:`.synthesis` the paper's conjugate-gradient method;
 :mod:`.design` both in one call; :mod:`.gains_io` schedule files; :mod:`.tracking` the online
 law; :mod:`.simulate` closed loop on model (1)-(5); :mod:`.plots` figures like the paper's 4-9;
-:mod:`.errors` :class:`ControllerError` (a ``ConfigError``: one-line CLI errors).
+:mod:`.errors` :class:`ControllerError` (a ``ConfigError``: one-line CLI errors). The online
+loop that runs the law on the robot is the application layer's (:mod:`swerve.tools.run`); this
+package imports nothing from the driver, the emulator or the tools.
 
 Sign convention: ``u = ud + K (x - xd)`` (the paper writes ``ud - K x~``).
 """

@@ -4,19 +4,18 @@ State ``s = (x, y, theta, delta1, delta2)`` in m and rad, inputs ``(v1, omega1, 
 and rad/s. ``delta1`` steers both front wheels, ``delta2`` both rear wheels, and all four wheels
 are driven at the same ground speed ``v1``. Wheel positions in the body frame: front ``(a, b)``,
 rear ``(-a, b)``; ``b`` only enters through ``r**2 = a**2 + b**2``.
+
+:class:`Geometry` and :class:`Limits` are plain numbers; the robot file becomes them in the
+application layer (:func:`swerve.tools.run.robot.load_robot`).
 """
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from swerve.controller.errors import ControllerError
-
-#: ``configs/robot.yaml`` relative to the repository root.
-ROBOT_YAML = Path(__file__).resolve().parent.parent / "configs" / "robot.yaml"
 
 
 @dataclass(frozen=True)
@@ -40,32 +39,6 @@ class Limits:
     v1_max_mps: float = 0.13
     steer_rate_max_radps: float = 4.0
     steer_angle_max_rad: float = 1.5708
-
-
-def from_robot_config(cfg) -> tuple[Geometry, Limits]:
-    """``(Geometry, Limits)`` of a validated :class:`driver.robot_config.RobotConfig`."""
-    return (Geometry(cfg.a_m, cfg.b_m, cfg.wheel_radius_m),
-            Limits(cfg.v1_max_mps, cfg.steer_rate_max_radps, cfg.steer_angle_max_rad))
-
-
-def load_robot(path: str | Path = ROBOT_YAML) -> tuple[Geometry, Limits]:
-    """Geometry and limits of a robot YAML file (``configs/robot.yaml``).
-
-    The file is read and validated by :func:`driver.robot_config.load_robot_config` (one
-    parser for the whole project). Raises :class:`ControllerError` naming the problem.
-
-    Returns
-    -------
-    (Geometry, Limits)
-    """
-    from swerve.driver.errors import ConfigError
-    from swerve.driver.robot_config import load_robot_config
-
-    try:
-        cfg = load_robot_config(path)
-    except ConfigError as exc:
-        raise ControllerError(f"cannot read robot geometry/limits from {path}: {exc}") from None
-    return from_robot_config(cfg)
 
 
 def _pose_rates(th, d1, d2, v1, k, cos, sin):

@@ -54,12 +54,12 @@ def simulate(law: TrackingLaw, x0, substeps: int = 2, max_time_factor: float = 1
     rows = []
     for k in range(n_max):
         t = k * tau
-        u = law.command(t, x)
-        if law.last.get("finished"):
+        out = law.step(t, x)
+        if out.finished:
             break
-        L = law.last
-        rows.append((t, x.copy(), np.array(u), L["raw"], L["s"], L["desired_state"],
-                     L["error"], L["u"] - L["ud"]))
+        u = out.inputs
+        rows.append((t, x.copy(), np.array(u), out.raw, out.reference_time_s, out.desired_state,
+                     out.error, out.u - out.ud))
         x = rk4_step(x, u, tau, geom, substeps)
     cols = list(zip(*rows))
     return SimResult(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]),

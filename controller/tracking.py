@@ -30,19 +30,66 @@ functions it must agree with are pinned in tests/controller/test_tracking.py.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 
 from swerve.controller.chained import wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.gains_io import GainSchedule
-from swerve.controller.kinematics import Limits
+from swerve.controller.kinematics import Limits, wheel_commands
 from swerve.controller.reference import Reference
 
 #: Floor of |cos(sigma - phi)| used for the robot's own state (about 84 degrees).
 STATE_MARGIN = 0.1
 #: The plain chained law (fixed frame) refuses states with |cos(sigma)| below this.
 PLAIN_MIN_MARGIN = 0.02
+
+
+@dataclass(frozen=True, slots=True)
+class LawOutput:
+    """One step of :meth:`TrackingLaw.step`: the inputs, the steering goals and why.
+
+    ``v1_mps`` (saturated ground speed of every wheel), ``omega1_radps``/``omega2_radps``
+    (saturated front/rear steering rates), ``delta1_rad``/``delta2_rad`` (steering goals: the
+    state's angles advanced by ``omega * tau`` and kept within the steering limit),
+    ``finished`` (the reference has ended: inputs are zero, the diagnostics NaN),
+    ``reference_time_s`` (the governor's clock), ``index`` (gain-schedule step, -1 when
+    finished), ``phi_rad`` (chained frame), ``error`` (5,) chained error ``x - xd``, ``u`` (3,)
+    chained inputs ``r ud + K x~``, ``ud`` (3,) desired chained inputs, ``raw`` (3,) unsaturated
+    ``(v1_mps, omega1_radps, omega2_radps)``, ``desired_state`` (5,) reference state
+    ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, ``saturated`` (a limit was hit).
+    """
+
+    v1_mps: float
+    omega1_radps: float
+    omega2_radps: float
+    delta1_rad: float
+    delta2_rad: float
+    finished: bool
+    reference_time_s: float
+    index: int
+    phi_rad: float
+    error: np.ndarray
+    u: np.ndarray
+    ud: np.ndarray
+    raw: np.ndarray
+    desired_state: np.ndarray
+    saturated: bool
+
+    @property
+    def inputs(self) -> tuple[float, float, float]:
+        """``(v1_mps, omega1_radps, omega2_radps)``, the saturated inputs."""
+        return self.v1_mps, self.omega1_radps, self.omega2_radps
+
+    @property
+    def wheel_goals(self) -> np.ndarray:
+        """The eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]``, m/s and rad, shape (8,)."""
+        return wheel_commands(self.v1_mps, self.delta1_rad, self.delta2_rad)
+
+
+_NAN3, _NAN5 = np.full(3, np.nan), np.full(5, np.nan)
+_NAN3.flags.writeable = _NAN5.flags.writeable = False
 
 
 def _chained_terms(state, phi, geom, floor, sign_hint=0.0):
@@ -113,8 +160,8 @@ class TrackingLaw:
 
     Notes
     -----
-    :meth:`command` is stateful only through the governor (reference clock) and the
-    diagnostics in :attr:`last`; call :meth:`reset` before a new run.
+    :meth:`step` (and :meth:`command`, :meth:`wheel_goals`) is stateful only through the
+    governor (reference clock); call :meth:`reset` before a new run.
     """
 
     def __init__(self, reference: Reference, gains: GainSchedule, limits: Limits = Limits(),
@@ -143,7 +190,6 @@ class TrackingLaw:
         self._rate = 1.0
         self._sign = 0.0
         self._phi_prev = None
-        self.last: dict = {}
 
     @property
     def reference_time_s(self) -> float:
@@ -155,7 +201,12 @@ class TrackingLaw:
         return self._s >= self.reference.tf_s - 1e-9
 
     def command(self, t_s: float, state) -> tuple[float, float, float]:
-        """Inputs ``(v1_mps, omega1_radps, omega2_radps)`` for the state estimate at ``t_s``.
+        """Inputs ``(v1_mps, omega1_radps, omega2_radps)`` for the state estimate at ``t_s``
+        (:meth:`step`'s saturated inputs; zeros once the reference has ended)."""
+        return self.step(t_s, state).inputs
+
+    def step(self, t_s: float, state) -> LawOutput:
+        """One control step for the state estimate at ``t_s``: inputs, steering goals, diagnostics.
 
         Parameters
         ----------
@@ -164,17 +215,20 @@ class TrackingLaw:
         state : array_like, shape (5,)
             ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``.
 
-        Returns zeros once the reference has ended. Raises :class:`ControllerError` for a
-        non-finite state and :class:`SingularityError` if the plain (fixed-frame) law meets
-        the chained form's singular set.
+        Returns a :class:`LawOutput` (zero inputs and ``finished`` once the reference has
+        ended). Raises :class:`ControllerError` for a non-finite state and
+        :class:`SingularityError` if the plain (fixed-frame) law meets the chained form's
+        singular set.
         """
         st = np.asarray(state, dtype=float).reshape(-1).tolist()
         if len(st) != 5 or not all(map(math.isfinite, st)) or not math.isfinite(t_s):
             raise ControllerError(f"state must be 5 finite numbers, got {state!r} at t = {t_s}")
         self._advance_clock(float(t_s))
+        lim, tau = self.limits, self.reference.tau_s
+        dmax = lim.steer_angle_max_rad
         if self.finished():
-            self.last = dict(finished=True, s=self._s)
-            return 0.0, 0.0, 0.0
+            return LawOutput(0.0, 0.0, 0.0, min(max(st[3], -dmax), dmax), min(max(st[4], -dmax), dmax),
+                             True, self._s, -1, math.nan, _NAN5, _NAN3, _NAN3, _NAN3, _NAN5, False)
         i = self.reference.index(self._s)
         phi = self._phi[i]
         sd, _, xd, ud = self.reference.sample(self._s, phi)
@@ -189,15 +243,14 @@ class TrackingLaw:
         if not math.isfinite(v1):
             raise ControllerError(f"inverse input map is singular at t = {t_s:.3f} s "
                                   f"(state {np.round(st, 4).tolist()})")
-        lim, tau = self.limits, self.reference.tau_s
         vmax, wmax = lim.v1_max_mps, lim.steer_rate_max_radps
-        ws = [_steer_rate_limit(w, d, wmax, lim.steer_angle_max_rad, tau)
-              for w, d in ((w1, st[3]), (w2, st[4]))]
+        ws = [_steer_rate_limit(w, d, wmax, dmax, tau) for w, d in ((w1, st[3]), (w2, st[4]))]
         self._rate = min(1.0, vmax / abs(v1)) if v1 != 0 else 1.0
-        self.last = dict(finished=False, s=self._s, index=i, phi=phi, error=e, u=np.array(u),
-                         ud=np.array(ud), raw=np.array([v1, w1, w2]), desired_state=np.array(sd),
-                         saturated=abs(v1) > vmax or abs(w1) > wmax or abs(w2) > wmax)
-        return min(max(v1, -vmax), vmax), ws[0], ws[1]
+        return LawOutput(
+            min(max(v1, -vmax), vmax), ws[0], ws[1],
+            min(max(st[3] + ws[0] * tau, -dmax), dmax), min(max(st[4] + ws[1] * tau, -dmax), dmax),
+            False, self._s, i, phi, e, np.array(u), np.array(ud), np.array([v1, w1, w2]),
+            np.array(sd), abs(v1) > vmax or abs(w1) > wmax or abs(w2) > wmax)
 
     def _feedback(self, st, i, phi, xd, ud):
         """The law at schedule step ``i`` (frame ``phi``) for the state ``st`` (5 floats).
@@ -232,16 +285,6 @@ class TrackingLaw:
         self._t_prev = t_s
 
     def wheel_goals(self, t_s: float, state) -> np.ndarray:
-        """The eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]`` for one control step.
-
-        Steering goals are positions: the estimated angles advanced by ``omega * tau`` and
-        kept within the steering limit. Shape (8,), m/s and rad.
-        """
-        from swerve.controller.kinematics import wheel_commands
-
-        v1, w1, w2 = self.command(t_s, state)
-        st = np.asarray(state, dtype=float)
-        lim, tau = self.limits.steer_angle_max_rad, self.reference.tau_s
-        d1 = float(np.clip(st[3] + w1 * tau, -lim, lim))
-        d2 = float(np.clip(st[4] + w2 * tau, -lim, lim))
-        return wheel_commands(v1, d1, d2)
+        """The eight actuator goals ``[v1, v1, v1, v1, d1, d2, d2, d1]`` for one control step
+        (:attr:`LawOutput.wheel_goals` of :meth:`step`). Shape (8,), m/s and rad."""
+        return self.step(t_s, state).wheel_goals

@@ -18,3 +18,69 @@ def test_help_runs_as_a_console_script():
     assert out.returncode == 0
     for name in ("emulate", "scan", "synth", "sim", "run", "demo", "tune"):
         assert name in out.stdout
+
+
+def _options(name: str) -> set[str]:
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices[name]
+    return {s for a in sub._actions for s in a.option_strings}
+
+
+def test_every_command_that_reads_the_robot_file_calls_it_config():
+    for name in ("synth", "sim", "run", "demo", "tune", "emulate"):
+        opts = _options(name)
+        assert "--config" in opts, name
+        assert not opts & {"--robot", "--robot-config"}, name
+
+
+def test_config_init_copies_the_shipped_files_and_refuses_to_overwrite(tmp_path, capsys):
+    from swerve.configs import shipped
+
+    target = tmp_path / "cfg"
+    assert cli.main(["config", "init", str(target)]) == 0
+    out = capsys.readouterr().out.splitlines()
+    assert out == [f"wrote {target / 'robot.yaml'}", f"wrote {target / 'emulator.yaml'}"]
+    for name in ("robot.yaml", "emulator.yaml"):
+        assert (target / name).read_bytes() == shipped(name).read_bytes()
+    (target / "robot.yaml").write_text("edited\n")
+    assert cli.main(["config", "init", str(target)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "already exist" in err and "robot.yaml" in err
+    assert (target / "robot.yaml").read_text() == "edited\n"
+
+
+def test_config_init_defaults_to_the_folder_the_commands_search(tmp_path, monkeypatch, capsys):
+    from swerve.configs import locate_robot_file
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path))
+    monkeypatch.delenv("SWERVE_CONFIG", raising=False)
+    assert locate_robot_file(None).source == "shipped"
+    assert cli.main(["config", "init"]) == 0
+    choice = locate_robot_file(None)
+    assert choice.source == "user" and choice.path == tmp_path / "swerve" / "robot.yaml"
+    assert choice.path.is_file()
+
+
+def test_sim_records_which_robot_file_it_used(tmp_path, monkeypatch, capsys):
+    import json
+    import shutil
+
+    from swerve.configs import shipped
+
+    robot = tmp_path / "my-robot.yaml"
+    shutil.copy(shipped("robot.yaml"), robot)
+    monkeypatch.setenv("SWERVE_CONFIG", str(robot))
+    assert cli.main(["sim", "--trajectory", "line", "--json", "--quiet"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["config"] == str(robot) and out["config_source"] == "$SWERVE_CONFIG"
+    other = tmp_path / "other.yaml"
+    shutil.copy(robot, other)
+    assert cli.main(["sim", "--trajectory", "line", "--json", "--quiet", "--config", str(other)]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["config"] == str(other) and out["config_source"] == "--config"
+
+
+def test_a_missing_robot_file_is_a_one_line_error(tmp_path, capsys):
+    assert cli.main(["synth", "--trajectory", "line", "--config", str(tmp_path / "nope.yaml")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "nope.yaml" in err

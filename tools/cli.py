@@ -2,7 +2,7 @@
 
 Each module ``tools/commands/<name>.py`` defines ``NAME``, ``HELP``, ``add_arguments(parser)``
 and ``run(args) -> int``. Heavy imports happen inside ``run`` so ``swerve --help`` stays fast.
-Errors the user can cause (:class:`driver.errors.SwerveError`) are printed as one line and
+Errors the user can cause (:class:`swerve.configs.errors.SwerveError`) are printed as one line and
 exit with status 2; Ctrl-C exits with 130.
 """
 from __future__ import annotations
@@ -11,10 +11,17 @@ import argparse
 import importlib
 import sys
 
-from swerve.driver.errors import SwerveError
+from swerve.configs.errors import SwerveError
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
-COMMANDS = ("emulate", "scan", "synth", "sim", "run", "demo", "tune", "plot", "export_csv")
+COMMANDS = ("emulate", "scan", "synth", "sim", "run", "demo", "tune", "plot", "export_csv", "config")
+
+
+def add_config_option(parser: argparse.ArgumentParser) -> None:
+    """``--config FILE``: the robot file, the same option in every command that reads one."""
+    parser.add_argument("--config", default=None, metavar="FILE",
+                        help="robot file (default: $SWERVE_CONFIG, else ~/.config/swerve/robot.yaml, "
+                             "else the shipped robot.yaml)")
 
 
 def _load(name: str):

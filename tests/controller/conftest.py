@@ -6,13 +6,16 @@ import dataclasses
 import numpy as np
 import pytest
 
-from swerve.controller.kinematics import Geometry, Limits, load_robot
+from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.paths import CirclePath
 from swerve.controller.reference import Trajectory, build_reference, load_trajectory
 
 
 @pytest.fixture(scope="session")
 def robot():
+    """``(Geometry, Limits)`` of the shipped robot file (read by the application layer)."""
+    from swerve.tools.run.robot import load_robot
+
     return load_robot()
 
 

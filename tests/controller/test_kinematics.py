@@ -2,15 +2,17 @@ import numpy as np
 import pytest
 import yaml
 
+from swerve.configs import shipped
+from swerve.configs.errors import ConfigError
 from swerve.controller.errors import ControllerError
-from swerve.controller.kinematics import (ROBOT_YAML, Geometry, drive_angular_speed, load_robot,
-                                   rk4_step, state_derivative, symmetric_steering,
-                                   wheel_commands)
+from swerve.controller.kinematics import (Geometry, drive_angular_speed, rk4_step, state_derivative,
+                                          symmetric_steering, wheel_commands)
+from swerve.tools.run.robot import load_robot
 
 
 def test_load_robot_reads_the_config(robot):
     geom, limits = robot
-    cfg = yaml.safe_load(ROBOT_YAML.read_text())
+    cfg = yaml.safe_load(shipped("robot.yaml").read_text())
     assert geom.a_m == cfg["geometry"]["a_m"]
     assert geom.wheel_radius_m == cfg["geometry"]["wheel_radius_m"]
     assert limits.v1_max_mps == cfg["limits"]["v1_max_mps"]
@@ -20,7 +22,7 @@ def test_load_robot_reads_the_config(robot):
 def test_load_robot_bad_file(tmp_path):
     p = tmp_path / "robot.yaml"
     p.write_text("geometry: {a_m: 0.1}\n")
-    with pytest.raises(ControllerError, match="cannot read robot"):
+    with pytest.raises(ConfigError, match="robot.yaml"):
         load_robot(p)
 
 

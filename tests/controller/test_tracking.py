@@ -136,3 +136,35 @@ def test_law_equals_the_vectorised_chained_law(name, x0, robot, numpy_ref):
     np.testing.assert_allclose(res.errors[plain], e[plain], rtol=1e-10, atol=1e-13)
     np.testing.assert_allclose(res.u_tilde[plain], (u - ud)[plain], rtol=1e-10, atol=1e-13)
     np.testing.assert_allclose(res.raw_inputs[plain], raw[plain], rtol=1e-10, atol=1e-13)
+
+
+def test_step_is_a_typed_output_whose_goals_integrate_the_rates(robot):
+    """LawOutput: the saturated inputs, the steering goals δ + ωτ within the angle limit and
+    the diagnostics; command() and wheel_goals() are views of the same step."""
+    import dataclasses
+
+    from swerve.controller.tracking import LawOutput
+
+    geom, limits = robot
+    traj = short(load_trajectory("circle", geom), 300)
+    ref, gains = synthesize(traj, "riccati", geom, limits)
+    law, twin, again = (TrackingLaw(ref, gains, limits) for _ in range(3))
+    state = np.array(ref.start_state()) + [0.01, -0.02, 0.05, 0.1, -0.1]
+    for k in range(5):
+        t = k * ref.tau_s
+        out = law.step(t, state)
+        assert isinstance(out, LawOutput) and not out.finished
+        assert out.inputs == twin.command(t, state)
+        np.testing.assert_array_equal(out.wheel_goals, again.wheel_goals(t, state))
+        tau, dmax = ref.tau_s, limits.steer_angle_max_rad
+        assert out.delta1_rad == min(max(state[3] + out.omega1_radps * tau, -dmax), dmax)
+        assert out.delta2_rad == min(max(state[4] + out.omega2_radps * tau, -dmax), dmax)
+        assert out.error.shape == (5,) and out.u.shape == out.ud.shape == out.raw.shape == (3,)
+        assert out.desired_state.shape == (5,) and out.index == ref.index(out.reference_time_s)
+        state = np.array([*state[:3], out.delta1_rad, out.delta2_rad])
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        out.v1_mps = 0.0
+    plain = TrackingLaw(ref, gains, limits, governor=False)   # reference clock = t
+    end = plain.step(traj.tf_s, state)
+    assert end.finished and end.inputs == (0.0, 0.0, 0.0) and np.isnan(end.error).all()
+    assert (end.delta1_rad, end.delta2_rad) == (state[3], state[4])

@@ -44,7 +44,7 @@ def iter_records(n: int, seed: int = 0, true_pose: bool = True):
             meas_current_a=rng.uniform(0.05, 0.3, 8),
             est_pose=est, ref_pose=ref, ref_delta=[d1, -d1],
             true_pose=ref + rng.normal(0, 1e-3, 3) if true_pose else np.full(3, np.nan),
-            flags=int(CycleFlag.OVERRUN) if k % 97 == 5 else (int(CycleFlag.RETRY) if k % 50 == 7 else 0))
+            flags=int(CycleFlag.OVERRUN) if k % 97 == 5 else (int(CycleFlag.STALE) if k % 50 == 7 else 0))
 
 
 def write(path, recs, flush_every: int = 1) -> None:

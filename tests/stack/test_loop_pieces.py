@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from swerve.controller.kinematics import Geometry, rk4_step
-from swerve.controller.loop_timer import Ticker
+from swerve.tools.run.ticker import Ticker
 from swerve.controller.odometry import Odometry, model_inputs
 
 
@@ -12,17 +12,17 @@ class FakeClock:
         self.t = 100.0
         self.work = []          # extra time consumed by each cycle's "work"
 
-    def clock(self):
+    def now(self):
         return self.t
 
-    def sleep(self, dt):
-        assert dt > 0
-        self.t += dt
+    def sleep_until(self, t):
+        assert t > self.t
+        self.t = t
 
 
 def test_ticker_keeps_absolute_deadlines_and_counts_overruns():
     fc = FakeClock()
-    tk = Ticker(0.016, clock=fc.clock, sleep=fc.sleep)
+    tk = Ticker(0.016, clock=fc)
     t0 = tk.start()
     slots = []
     for i in range(10):
@@ -32,8 +32,8 @@ def test_ticker_keeps_absolute_deadlines_and_counts_overruns():
     assert slots[:4] == [1, 2, 3, 4]
     assert slots[4:6] == [8, 9]                              # slots 5, 6, 7 were missed
     assert tk.stats.overruns == 1 and tk.stats.missed_slots == 3
-    s = tk.stats.summary()
-    assert s["overruns"] == 1 and s["loop_period_p50_ms"] == pytest.approx(16.0)
+    s = tk.stats.timing()
+    assert s.overruns == 1 and s.loop_period_p50_ms == pytest.approx(16.0)
 
 
 def test_ticker_rejects_bad_period():
@@ -110,7 +110,7 @@ def test_odometry_equals_its_algorithm_written_with_numpy():
 
 def test_cycle_dict_is_a_cycle_record():
     """The loop's on_cycle dict: CycleRecord fields, float64 arrays, NaN while unmeasured."""
-    from swerve.controller.online import TrackingLoop
+    from swerve.tools.run.loop import TrackingLoop
     from swerve.driver.wheelset import WheelState
     from swerve.tools.logs import CycleRecord
 
@@ -136,7 +136,7 @@ def test_cycle_dict_is_a_cycle_record():
 def test_collector_is_paused_inside_a_timed_loop_and_restored_after():
     import gc
 
-    from swerve.controller.loop_timer import collector_paused
+    from swerve.tools.run.ticker import collector_paused
 
     assert gc.isenabled()
     with collector_paused():
@@ -150,3 +150,14 @@ def test_collector_is_paused_inside_a_timed_loop_and_restored_after():
     finally:
         gc.enable()
 
+
+
+def test_wall_clock_sleeps_until_its_deadline_and_is_a_clock():
+    from swerve.tools.run.ticker import Ticker, WallClock
+
+    clock = WallClock()
+    assert isinstance(Ticker(0.016).clock, WallClock)   # the default clock
+    t = clock.now() + 0.002
+    clock.sleep_until(t)
+    assert clock.now() >= t
+    clock.sleep_until(t - 1.0)                      # a deadline already past returns at once

@@ -7,7 +7,7 @@ import pytest
 from swerve.controller.kinematics import Geometry, Limits, rk4_step
 from swerve.controller.ltv import error_system
 from swerve.controller.gains_io import GainSchedule
-from swerve.controller.online import LoopAbort, TrackingLoop
+from swerve.tools.run.loop import LoopAbort, TrackingLoop
 from swerve.controller.reference import build_reference, load_trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.tracking import TrackingLaw
@@ -18,11 +18,11 @@ class FakeClock:
     def __init__(self):
         self.t = 1000.0
 
-    def clock(self):
+    def now(self):
         return self.t
 
-    def sleep(self, dt):
-        self.t += dt
+    def sleep_until(self, t):
+        self.t = max(self.t, t)
 
 
 class FakeWheels:
@@ -82,17 +82,17 @@ def test_loop_tracks_the_line_and_reports_timing(line_law):
     start = traj.start_state(geom)
     wheels = FakeWheels(fc, geom, start)
     cycles = []
-    loop = TrackingLoop(wheels, law, geom, time_scale=1.0, clock=fc.clock, sleep=fc.sleep,
+    loop = TrackingLoop(wheels, law, geom, time_scale=1.0, clock=fc,
                         true_pose=lambda: wheels.s[:3], on_cycle=cycles.append)
     res = loop.run(start)
-    s = res.summary
-    assert s["completed"] and res.aborted is None
-    assert s["cycles"] == traj.n_steps == len(cycles)
-    assert s["error_source"] == "true_pose"
-    assert s["final_position_error_m"] < 0.02
-    assert s["max_abs_v1_mps"] <= 0.13 + 1e-9
-    assert s["overruns"] == 0 and s["loop_period_p50_ms"] == pytest.approx(16.0)
-    assert s["odometry_vs_true_max_m"] < 1e-3      # ideal wheels: odometry is exact up to sampling
+    s = res.tracking
+    assert res.completed and res.aborted is None
+    assert res.cycles == traj.n_steps == len(cycles)
+    assert s.error_source == "true_pose"
+    assert s.final_position_error_m < 0.02
+    assert s.max_abs_v1_mps <= 0.13 + 1e-9
+    assert res.timing.overruns == 0 and res.timing.loop_period_p50_ms == pytest.approx(16.0)
+    assert s.odometry_vs_true_max_m < 1e-3      # ideal wheels: odometry is exact up to sampling
     assert wheels.stops == 1                       # the loop stops the wheels at the end
     c = cycles[10]
     assert set(c) >= {"cmd_drive_radps", "meas_steer_rad", "est_pose", "ref_pose", "true_pose", "flags"}
@@ -104,12 +104,12 @@ def test_missing_servo_aborts_naming_it(line_law):
     fc = FakeClock()
     wheels = FakeWheels(fc, geom, traj.start_state(geom))
     wheels.fail = lambda n: DxlTimeoutError([7], 0x82, 0.01) if n > 50 else None
-    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep, max_failed_reads=3).run(
+    res = TrackingLoop(wheels, law, geom, clock=fc, max_failed_reads=3).run(
         traj.start_state(geom))
     assert isinstance(res.aborted, LoopAbort) and res.aborted.ids == (7,)
     assert "servo ID 7 stopped answering" in str(res.aborted)
-    assert res.summary["completed"] is False and res.summary["abort_cause"] == "no reply"
-    assert res.summary["failed_reads"] == 4 and wheels.stops == 1
+    assert res.completed is False and res.aborted.cause == "no reply"
+    assert res.failed_reads == 4 and wheels.stops == 1
 
 
 def test_isolated_timeouts_are_counted_not_fatal(line_law):
@@ -117,9 +117,9 @@ def test_isolated_timeouts_are_counted_not_fatal(line_law):
     fc = FakeClock()
     wheels = FakeWheels(fc, geom, traj.start_state(geom))
     wheels.fail = lambda n: DxlTimeoutError([3], 0x82, 0.01) if n % 50 == 0 else None
-    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep).run(traj.start_state(geom))
-    assert res.summary["completed"]
-    assert res.summary["failed_reads"] == traj.n_steps // 50
+    res = TrackingLoop(wheels, law, geom, clock=fc).run(traj.start_state(geom))
+    assert res.completed
+    assert res.failed_reads == traj.n_steps // 50
 
 
 def test_hardware_alert_aborts_immediately(line_law):
@@ -127,7 +127,7 @@ def test_hardware_alert_aborts_immediately(line_law):
     fc = FakeClock()
     wheels = FakeWheels(fc, geom, traj.start_state(geom))
     wheels.fail = lambda n: ServoError(2, 0x80, 0x82, hardware_error="overload") if n == 20 else None
-    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep).run(traj.start_state(geom))
+    res = TrackingLoop(wheels, law, geom, clock=fc).run(traj.start_state(geom))
     assert res.aborted.cause == "hardware error" and res.aborted.ids == (2,)
     assert "overload" in str(res.aborted)
 
@@ -142,11 +142,11 @@ def test_stall_longer_than_the_watchdog_aborts(line_law):
             fc.t += 0.5          # the process froze for half a second
         return None
     wheels.fail = stall
-    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep, watchdog_s=0.1).run(
+    res = TrackingLoop(wheels, law, geom, clock=fc, watchdog_s=0.1).run(
         traj.start_state(geom))
     assert res.aborted is not None and res.aborted.cause == "stalled"
     assert "Bus Watchdog" in str(res.aborted) and wheels.stops == 1
-    assert 25 <= res.summary["cycles"] <= 31
+    assert 25 <= res.cycles <= 31
 
 
 def test_a_robot_that_cannot_follow_is_stopped_not_run_forever(line_law):
@@ -154,8 +154,8 @@ def test_a_robot_that_cannot_follow_is_stopped_not_run_forever(line_law):
     fc = FakeClock()
     wheels = FakeWheels(fc, geom, traj.start_state(geom))
     wheels.write_goals = lambda drive, steer: None     # the wheels ignore every command
-    res = TrackingLoop(wheels, law, geom, clock=fc.clock, sleep=fc.sleep, max_time_factor=1.5).run(
+    res = TrackingLoop(wheels, law, geom, clock=fc, max_time_factor=1.5).run(
         traj.start_state(geom))
     assert res.aborted is not None and res.aborted.cause == "diverged"
-    assert res.summary["cycles"] <= 1.5 * traj.n_steps + 2
+    assert res.cycles <= 1.5 * traj.n_steps + 2
     assert wheels.stops == 1

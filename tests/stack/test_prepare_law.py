@@ -2,13 +2,12 @@
 from swerve.controller.design import synthesize
 from swerve.controller.gains_io import save_gains
 from swerve.controller.reference import load_trajectory
-from swerve.driver.robot_config import load_robot_config
-from swerve.controller.kinematics import from_robot_config
-from swerve.tools.robot_run import prepare_law
+from swerve.tools.run.orchestrate import prepare_law
+from swerve.tools.run.robot import load_robot
 
 
 def test_gains_for_the_plain_law_load_with_fixed_frames(tmp_path):
-    geom, limits = from_robot_config(load_robot_config())
+    geom, limits = load_robot()
     _, gains = synthesize(load_trajectory("line", geom), "riccati", geom, limits, frames="fixed")
     path = save_gains(tmp_path / "line_fixed.npz", gains)
     _, law = prepare_law("line", path, geom, limits)

@@ -8,7 +8,7 @@ encoder quantisation and bus latency that model (1)-(5) does not (see README, "F
 Time scale: ``SWERVE_TEST_TIME_SCALE`` (default 5, as the issue asks); BENCHMARKS.md has the
 largest scale at which every deadline is met on the reference machine. Overruns on a loaded
 machine are counted in the summary, not failures. Under a time scale the run stretches the Bus
-Watchdog and the failed-read limit to their wall-clock length (``tools.robot_run.
+Watchdog and the failed-read limit to their wall-clock length (``swerve.tools.run.orchestrate.
 wall_clock_guards``); the tests' copy of ``configs/robot.yaml`` also raises the watchdog from
 0.1 s to 0.25 s, so one scheduling hiccup of a loaded CI machine is not taken for a dead
 controller.
@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from swerve.driver.robot_config import load_robot_config
-from swerve.tools.robot_run import RunRequest, run_tracking, wall_clock_guards
+from swerve.tools.run.orchestrate import RunRequest, run_tracking, wall_clock_guards
 
 #: Time scale of the stack tests (the issue asks for >= 5; see BENCHMARKS.md for the limit).
 SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "5"))
@@ -63,7 +63,7 @@ def test_tracks_paper_trajectory_on_the_emulator(name, tmp_path, config):
     sim = sim_summary(name)
     res = run_tracking(RunRequest(trajectory=name, emulate=True, time_scale=SCALE, log=tmp_path / "log",
                                   config=config))
-    s = res.summary
+    s = res.summary.to_dict()
     assert res.aborted is None, s.get("abort_message")
     assert s["completed"] and s["error_source"] == "true_pose"
     for key in ("final_position_error_m", "rms_position_error_m", "max_position_error_m"):
@@ -83,7 +83,7 @@ def test_tracks_paper_trajectory_on_the_emulator(name, tmp_path, config):
 def test_two_percent_dropped_replies_completes_with_drops_counted(config):
     res = run_tracking(RunRequest(trajectory="line", emulate=True, time_scale=SCALE,
                                   faults="drop=0.02,seed=3", log=None, config=config))
-    s = res.summary
+    s = res.summary.to_dict()
     assert res.aborted is None, s.get("abort_message")
     assert s["emulator_replies_dropped"] > 0 and s["failed_reads"] > 0
     assert s["final_position_error_m"] <= ALLOWANCE_M + 0.02
@@ -102,7 +102,7 @@ def test_vanishing_servo_stops_cleanly_naming_it(tmp_path, monkeypatch, config):
 
     monkeypatch.setattr(proc.EmulatorProcess, "start", start)
 
-    from swerve.controller import online
+    from swerve.tools.run import loop as online
 
     real_read = online.TrackingLoop._read
 
@@ -118,7 +118,7 @@ def test_vanishing_servo_stops_cleanly_naming_it(tmp_path, monkeypatch, config):
     assert res.aborted is not None and res.aborted.cause == "no reply"
     assert 7 in res.aborted.ids and "servo ID" in str(res.aborted) and "7" in str(res.aborted)
     from swerve.tools.logs.bag import read_log
-    assert len(read_log(tmp_path / "log")) == res.summary["cycles"]
+    assert len(read_log(tmp_path / "log")) == res.summary.cycles
 
 
 def _start_emulator(tmp_path: Path, config: Path):

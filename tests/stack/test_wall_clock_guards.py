@@ -1,8 +1,8 @@
-"""Host-failure guards under a time scale keep their wall-clock length (tools.robot_run)."""
+"""Host-failure guards under a time scale keep their wall-clock length (swerve.tools.run.orchestrate)."""
 import pytest
 
 from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S, load_robot_config
-from swerve.tools.robot_run import wall_clock_guards
+from swerve.tools.run.orchestrate import wall_clock_guards
 
 
 def test_real_time_keeps_the_robot_config():

@@ -32,7 +32,7 @@ def _tune(tmp_path, *extra):
 def test_drive_servo_recovers_table1_and_meets_the_spec(tmp_path, capsys):
     robot = tmp_path / "robot.yaml"
     shutil.copy(ROBOT, robot)
-    code, out = _tune(tmp_path, "--id", "1", "--robot-config", str(robot), "--write-config")
+    code, out = _tune(tmp_path, "--id", "1", "--config", str(robot), "--write-config")
     assert code == 0, capsys.readouterr().err
     res = json.loads((out / "tune_1.json").read_text())
     truth = load_config(EMULATOR).drive_motor

@@ -10,6 +10,8 @@ import argparse
 import time
 from pathlib import Path
 
+from swerve.tools.cli import add_config_option
+
 NAME = "demo"
 HELP = "synthesise gains, run the paper's three trajectories on the emulator, write logs, plots, summary"
 
@@ -19,6 +21,7 @@ KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_config_option(parser)
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     parser.add_argument("--time-scale", type=float, default=5.0,
                         help="emulated robot seconds per wall second (default 5; BENCHMARKS.md has the "
@@ -33,16 +36,16 @@ def run(args: argparse.Namespace) -> int:
     from swerve.controller.reference import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
-    from swerve.driver.robot_config import load_robot_config
     from swerve.tools.logs.bag import read_log
     from swerve.tools.logs.plots import plot_run
-    from swerve.controller.kinematics import from_robot_config
-    from swerve.tools.robot_run import RunRequest, run_tracking
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
+    from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    cfg = load_robot_config()
-    geom, limits = from_robot_config(cfg)
+    choice, cfg = locate_and_load(args.config)
+    print(f"config: {choice.describe()}", flush=True)
+    geom, limits = geometry_and_limits(cfg)
     names = [n.strip() for n in args.trajectories.split(",") if n.strip()]
     rows, t_start = [], time.monotonic()
     for name in names:
@@ -61,15 +64,15 @@ def run(args: argparse.Namespace) -> int:
         if log_dir.exists():
             import shutil
             shutil.rmtree(log_dir)
-        res = run_tracking(RunRequest(trajectory=name, gains=gains_file, emulate=True,
-                                      time_scale=args.time_scale, log=log_dir))
+        res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=choice,
+                                      emulate=True, time_scale=args.time_scale, log=log_dir))
         figs = plot_run(read_log(log_dir), out / "plots" / stem)
-        s = res.summary
+        s = res.summary.to_dict()
         state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"
         print(f"[{name}] {state}; final error {s.get('final_position_error_m', float('nan')) * 1e3:.1f} mm, "
               f"overruns {s.get('overruns')}", flush=True)
         rows.append((name, sim, s, figs, gains_file, log_dir))
-    summary = _write_summary(out, rows, args.time_scale, time.monotonic() - t_start)
+    summary = _write_summary(out, rows, args.time_scale, time.monotonic() - t_start, choice)
     print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
     return 0 if all(r[2].get("completed") for r in rows) else 1
 
@@ -81,12 +84,13 @@ def _fmt(v, scale=1e3, digits=1) -> str:
         return "-"
 
 
-def _write_summary(out: Path, rows, time_scale: float, wall_s: float) -> Path:
+def _write_summary(out: Path, rows, time_scale: float, wall_s: float, choice) -> Path:
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "
              f"closed loop simulated on model (1)-(5) and run at 62.5 Hz against the emulated robot "
              f"(Table 1 motors, firmware loops, robot body) at {time_scale}x real time; "
              f"{wall_s:.0f} s wall in all.", "",
+             f"Robot file: `{choice.path}` ({choice.source}).", "",
              "Errors in mm (rms and max over t >= tf/4); emulator errors use the emulator's true pose.", "",
              "| trajectory | sim rms | sim max | sim final | emu rms | emu max | emu final | odometry vs true max "
              "| loop p50 / p99 ms (wall) | overruns | status |",

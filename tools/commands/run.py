@@ -1,6 +1,7 @@
 """``swerve run``: the 62.5 Hz tracking loop on the robot (``--port``) or the emulator (``--emulate``).
 
-Sets operating modes and gains from ``configs/robot.yaml``, arms the Bus Watchdog, steers to the
+Prints which robot file it uses (``--config``, ``$SWERVE_CONFIG``, ``~/.config/swerve/robot.yaml``
+or the shipped one) on its first line. Sets operating modes and gains from that file, arms the Bus Watchdog, steers to the
 start angles, runs the trajectory, stops, and prints the tracking summary (the keys of
 ``swerve sim --json`` plus loop timing). Ctrl-C, an exception, a missing servo or a hardware
 error stop the wheels and turn the torque off; the log stays readable.
@@ -8,10 +9,11 @@ error stop the wheels and turn the torque off; the log stays readable.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
+
+from swerve.tools.cli import add_config_option
 
 NAME = "run"
 HELP = "track a trajectory on the robot (--port) or on the emulator (--emulate)"
@@ -25,7 +27,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group()
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true", help="start the servo emulator on a pty and drive it")
-    parser.add_argument("--config", default=None, help="robot config (default configs/robot.yaml)")
+    add_config_option(parser)
     parser.add_argument("--time-scale", type=float, default=1.0,
                         help="robot seconds per wall second: only for an emulator (--emulate, or --port "
                              "on a `swerve emulate --time-scale S` pty); default 1")
@@ -41,10 +43,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.tools.robot_run import RunRequest, run_tracking
+    from swerve.configs.errors import ConfigError
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     if not args.time_scale > 0:
-        from swerve.driver.errors import ConfigError
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     log = None if args.no_log else (
         Path(args.log) if args.log else
@@ -54,10 +56,11 @@ def run(args: argparse.Namespace) -> int:
                      fast_read=args.fast_read, faults=args.faults,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty())
-    result = run_tracking(req)
-    s = result.summary
+    out = sys.stderr if args.json else sys.stdout
+    result = run_tracking(req, on_config=lambda c: print(f"config: {c.describe()}", file=out, flush=True))
+    s = result.summary.to_dict()
     if args.json:
-        print(json.dumps(s, indent=2, sort_keys=True, default=float))
+        print(result.summary.to_json())
     else:
         width = max(map(len, s))
         for key in sorted(s):

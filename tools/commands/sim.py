@@ -1,6 +1,8 @@
 """``swerve sim``: closed-loop simulation of the tracking law on the nonlinear model (1)-(5)."""
 from __future__ import annotations
 
+from swerve.tools.cli import add_config_option
+
 NAME = "sim"
 HELP = "simulate LQ trajectory tracking on the kinematic model and report tracking errors"
 
@@ -21,7 +23,7 @@ def add_arguments(parser) -> None:
                         help="do not slow the reference while the wheel speed saturates")
     parser.add_argument("--json", action="store_true", help="print the results as JSON")
     parser.add_argument("--plot", metavar="DIR", help="write PNG figures (paper Figs. 4-9)")
-    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -49,12 +51,14 @@ def run(args) -> int:
     from swerve.controller.design import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.configs import locate_robot_file
     from swerve.controller.reference import build_reference, load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
+    from swerve.tools.run.robot import load_robot
 
-    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    choice = locate_robot_file(args.config)
+    geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
     x0 = _parse_x0(args.x0) if args.x0 else traj.start_state(geom)
     if args.gains:
@@ -73,7 +77,8 @@ def run(args) -> int:
     if not all(np.isfinite(v) for v in m.values()):
         raise ControllerError(f"simulation of {traj.name!r} produced non-finite values")
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
-               x0=x0.tolist(), synthesis_cost=gains.cost, **m)
+               x0=x0.tolist(), synthesis_cost=gains.cost, config=str(choice.path),
+               config_source=choice.source, **m)
     if args.plot:
         from swerve.controller.plots import plot_run
 

@@ -1,6 +1,8 @@
 """``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
 from __future__ import annotations
 
+from swerve.tools.cli import add_config_option
+
 NAME = "synth"
 HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz + .dat)"
 
@@ -36,7 +38,7 @@ def add_arguments(parser) -> None:
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
     parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
-    parser.add_argument("--robot", default=None, help="robot YAML (default configs/robot.yaml)")
+    add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -47,10 +49,12 @@ def run(args) -> int:
     from swerve.controller.design import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import save_gains
-    from swerve.controller.kinematics import ROBOT_YAML, load_robot
+    from swerve.configs import locate_robot_file
     from swerve.controller.reference import load_trajectory
+    from swerve.tools.run.robot import load_robot
 
-    geom, limits = load_robot(args.robot or ROBOT_YAML)
+    choice = locate_robot_file(args.config)
+    geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
     if args.max_iter < 1:
         raise ControllerError("--max-iter must be at least 1")
@@ -65,6 +69,7 @@ def run(args) -> int:
     save_gains(out, gains)
     dat = save_gains(out.with_suffix(".dat"), gains)
     m = gains.meta
+    print(f"config: {choice.describe()}")
     print(f"trajectory: {traj.name}  (N = {traj.n_steps}, tau = {traj.tau_s} s, "
           f"tf = {traj.tf_s:g} s, frames = {args.law}, "
           f"{len(set(gains.phi_rad.round(9)))} chained frame(s))")

@@ -10,6 +10,8 @@ from __future__ import annotations
 import argparse
 import math
 
+from swerve.tools.cli import add_config_option
+
 NAME = "tune"
 HELP = "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec"
 
@@ -33,11 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--pwm", type=float, default=0.5, help="largest open-loop PWM duty, 0..1 (default 0.5)")
     parser.add_argument("--current-max", type=float, default=None,
                         help="abort above this |Present Current|, A (default: the servo's Current Limit)")
-    parser.add_argument("--robot-config", default="configs/robot.yaml", help="robot config (IDs, limits, gains)")
-    parser.add_argument("--prior", default="configs/emulator.yaml",
-                        help="motor parameters to start from and to fix L, Km (paper Table 1)")
-    parser.add_argument("--emulator-config", default="configs/emulator.yaml",
-                        help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia)")
+    add_config_option(parser)
+    parser.add_argument("--prior", default=None,
+                        help="motor parameters to start from and to fix L, Km (paper Table 1; "
+                             "default: the shipped emulator.yaml)")
+    parser.add_argument("--emulator-config", default=None,
+                        help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia; "
+                             "default: the shipped emulator.yaml)")
     parser.add_argument("--emulator", choices=("servo", "robot"), default="servo",
                         help="--emulate: 'servo' = each servo alone, unloaded, 1 kHz physics (default); "
                              "'robot' = the project's robot emulator (2 kHz physics, robot mass on the "
@@ -46,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="--emulate: sensor noise on (0.5 pulse encoder, 4 mA current, std)")
     parser.add_argument("--seed", type=int, default=None, help="--emulate: noise seed")
     parser.add_argument("--write-config", action="store_true",
-                        help="store the gains in --robot-config (drive.gains or steering.gains)")
+                        help="store the gains in the robot file (drive.gains or steering.gains)")
     parser.add_argument("--out", default="out/tune", help="directory for PNG/JSON/YAML results")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
 
@@ -59,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     from swerve.driver.bus import Bus
     from swerve.driver.control_table import Reg
     from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
+    from swerve.configs import locate_robot_file, shipped
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.tools.tune.config_io import write_gains
@@ -67,15 +72,19 @@ def run(args: argparse.Namespace) -> int:
     from swerve.tools.tune.pipeline import tune_servo
     from swerve.tools.tune.report import write_report
 
-    rc = load_robot_config(args.robot_config)
-    prior_cfg = load_config(args.prior)
+    choice = locate_robot_file(args.config)
+    robot_file = choice.path
+    emulator_file = args.emulator_config or shipped("emulator.yaml")
+    print(f"config: {choice.describe()}")
+    rc = load_robot_config(robot_file)
+    prior_cfg = load_config(args.prior or shipped("emulator.yaml"))
     if not 0.0 < args.pwm <= 1.0:
         raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
     if args.current_max is not None and not args.current_max > 0:
         raise ConfigError(f"--current-max {args.current_max} must be > 0 A")
     group = args.mode or ("drive" if args.id in rc.drive_ids else "steering" if args.id in rc.steer_ids else None)
     if group is None:
-        raise ConfigError(f"servo ID {args.id} is neither a drive nor a steering servo in {args.robot_config}; "
+        raise ConfigError(f"servo ID {args.id} is neither a drive nor a steering servo in {robot_file}; "
                           "give --mode")
     spec_kw = {"velocity_overshoot_max": args.overshoot_max}
     spec_kw["velocity_settle_max_s" if group == "drive" else "position_settle_max_s"] = args.settle_max
@@ -99,10 +108,10 @@ def run(args: argparse.Namespace) -> int:
 
                 noise = (f"position={NOISE.position_noise_std_pulse},current={NOISE.current_noise_std_a}"
                          + (f",seed={args.seed}" if args.seed is not None else "")) if args.noise else None
-                emu = stack.enter_context(robot_emulator(args.robot_config, args.emulator_config, noise=noise,
+                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, noise=noise,
                                                          baud=args.baud))
             else:
-                emu = stack.enter_context(make_emulator(rc, load_config(args.emulator_config), noise=args.noise,
+                emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
                                                         seed=args.seed, baud=args.baud))
             port, margin = emu.port, 0.2     # a software servo on a loaded machine may answer late
         else:
@@ -135,8 +144,8 @@ def run(args: argparse.Namespace) -> int:
         raise SwerveError("the designed gains do not meet the spec when measured ("
                           + "; ".join(res.spec_notes) + "); original gains kept, torque off, config untouched")
     if args.write_config:
-        write_gains(args.robot_config, group, res.design.gains)
-        print(f"gains written to {args.robot_config} ({group}.gains)")
+        write_gains(robot_file, group, res.design.gains)
+        print(f"gains written to {robot_file} ({group}.gains)")
     return 0
 
 

@@ -150,11 +150,11 @@ def plot_timing(log, sim, out: Path) -> Path:
     if tau is not None:
         axes[0].axhline(float(tau) * 1e3, color="k", ls="--", lw=1, label="nominal τ")
     axes[0].set_ylabel("loop period [ms]")
-    for bit, y in ((CycleFlag.OVERRUN, 1), (CycleFlag.STALE, 2), (CycleFlag.RETRY, 3)):
+    for bit, y in ((CycleFlag.OVERRUN, 1), (CycleFlag.STALE, 2)):
         hit = (log.flags & int(bit)) != 0
         axes[1].plot(t[hit], np.full(hit.sum(), y), "|", ms=10, label=f"{bit.name} ({hit.sum()})")
-    axes[1].set_yticks([1, 2, 3], ["overrun", "stale", "retry"])
-    axes[1].set_ylim(0.5, 3.5)
+    axes[1].set_yticks([1, 2], ["overrun", "stale"])
+    axes[1].set_ylim(0.5, 2.5)
     axes[-1].set_xlabel("trajectory time t [s]")
     return _finish(fig, axes, f"Loop timing - {_name(log)}", out)
 

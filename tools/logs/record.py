@@ -21,7 +21,6 @@ class CycleFlag(enum.IntFlag):
 
     OVERRUN = 1   #: the cycle took longer than its period
     STALE = 2     #: a measurement was not refreshed this cycle (previous value kept)
-    RETRY = 4     #: a bus transaction had to be repeated
 
 
 def _nan(n: int):

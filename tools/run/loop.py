@@ -1,25 +1,27 @@
 """The online tracking loop: read 8 servos, estimate the pose, apply K(t), command 8 servos.
 
-One cycle every ``tau`` (16 ms, 62.5 Hz) of robot time, on absolute monotonic deadlines
-(:class:`controller.loop_timer.Ticker`); with an emulator running ``time_scale`` times faster
-than real time the wall period is ``tau / time_scale``. Per cycle:
+One cycle every ``tau`` (16 ms, 62.5 Hz) of robot time, on absolute deadlines of the clock passed
+in (:class:`swerve.tools.run.ticker.Ticker`); with an emulator running ``time_scale`` times
+faster than real time the wall period is ``tau / time_scale``. Per cycle:
 
 1. one (fast) sync read of present current/velocity/position of all eight servos;
 2. odometry on the measured wheel speeds and steering angles with model (1)-(5);
-3. the tracking law on the state ``(x, y, theta, delta1, delta2)`` where the pose is the
-   odometry estimate and the steering angles are the *commanded* ones (integrated steering
-   rates), as the law's input model assumes;
-4. one bulk write of ``[v1/r] * 4`` and ``[d1, d2, d2, d1]``;
-5. ``on_cycle(fields)`` with a dict of :class:`tools.logs.record.CycleRecord` fields, for the log.
+3. the tracking law (:meth:`TrackingLaw.step`) on the state ``(x, y, theta, delta1, delta2)``
+   where the pose is the odometry estimate and the steering angles are the previous step's
+   goals (the law's input model integrates the steering rates);
+4. one bulk write of ``[v1/r] * 4`` and the law's steering goals ``[d1, d2, d2, d1]``;
+5. ``on_cycle(fields)`` with a dict of :class:`swerve.tools.logs.record.CycleRecord` fields.
 
 The wheels object is injected (anything with ``read_state()``, ``write_goals(drive_radps,
 steer_rad)`` and ``stop()``, e.g. :class:`driver.wheelset.WheelSet`), so the same loop runs
-on the robot and on the emulator. Failures stop the loop with :class:`LoopAbort` naming the
+on the robot and on the emulator. The clock is an object too (:class:`~swerve.tools.run.ticker.Clock`).
+Failures stop the loop with :class:`LoopAbort` naming the
 servo and the cause: a hardware-error alert, too many consecutive failed reads (a missing
 servo), or a stall long enough for the servos' Bus Watchdog to expire.
 """
 from __future__ import annotations
 
+import dataclasses
 import logging
 import time
 from dataclasses import dataclass
@@ -28,16 +30,17 @@ from typing import Callable
 import numpy as np
 
 from swerve.controller.kinematics import Geometry
-from swerve.controller.loop_timer import Ticker, collector_paused
 from swerve.controller.odometry import Odometry
 from swerve.controller.simulate import SimResult, metrics
 from swerve.controller.tracking import TrackingLaw
 from swerve.driver.errors import CorruptPacketError, DxlTimeoutError, ServoError, SwerveError
+from swerve.tools.logs.record import CycleFlag
+from swerve.tools.run.summary import LoopTiming, TrackingErrors, tracking_errors
+from swerve.tools.run.ticker import Clock, Ticker, WallClock, collector_paused
 
 log = logging.getLogger(__name__)
 
-#: :class:`tools.logs.record.CycleFlag` bit values (kept numeric: controller does not import tools)
-FLAG_OVERRUN, FLAG_STALE = 1, 2
+_OVERRUN, _STALE = int(CycleFlag.OVERRUN), int(CycleFlag.STALE)
 
 
 class LoopAbort(SwerveError):
@@ -49,17 +52,33 @@ class LoopAbort(SwerveError):
         super().__init__(message)
 
 
-@dataclass
-class RunResult:
-    """Per-cycle arrays and the summary of a run (see :meth:`TrackingLoop.run`)."""
+@dataclass(frozen=True)
+class LoopResult:
+    """What :meth:`TrackingLoop.run` measured.
 
-    summary: dict
+    Per cycle: ``t_s`` (n,) trajectory time, ``est_states`` (n, 5) the law's input state,
+    ``true_poses`` (n, 3) ground truth (NaN without one), ``ref_states`` (n, 5), ``inputs``
+    (n, 3) applied ``(v1_mps, omega1_radps, omega2_radps)``. Summary: ``tracking`` (None if
+    no cycle ran), ``timing``, ``cycles``, ``failed_reads``, ``time_scale``; ``aborted`` the
+    :class:`LoopAbort` that stopped the run, or None.
+    """
+
     t_s: np.ndarray
     est_states: np.ndarray
     true_poses: np.ndarray
     ref_states: np.ndarray
     inputs: np.ndarray
+    tracking: TrackingErrors | None
+    timing: LoopTiming
+    cycles: int
+    failed_reads: int
+    time_scale: float
     aborted: LoopAbort | None = None
+
+    @property
+    def completed(self) -> bool:
+        """The run reached the end of its reference."""
+        return self.aborted is None
 
 
 class TrackingLoop:
@@ -87,15 +106,17 @@ class TrackingLoop:
     true_pose : callable, optional
         ``() -> (x, y, theta)`` ground truth (emulator only), logged beside the estimate.
     on_cycle : callable, optional
-        Called each cycle with a dict whose keys are :class:`tools.logs.record.CycleRecord`
+        Called each cycle with a dict whose keys are :class:`swerve.tools.logs.record.CycleRecord`
         fields (SI; NaN where unknown), e.g. to write the log.
+    clock : Clock, optional
+        Where wall time comes from (default :class:`~swerve.tools.run.ticker.WallClock`).
     """
 
     def __init__(self, wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
                  max_failed_reads: int = 3, watchdog_s: float = 0.1, max_time_factor: float = 1.5,
                  true_pose: Callable[[], tuple] | None = None,
                  on_cycle: Callable[[dict], None] | None = None,
-                 clock=time.monotonic, sleep=time.sleep):
+                 clock: Clock | None = None):
         if not time_scale > 0:
             raise ValueError(f"time scale must be positive, got {time_scale}")
         self.wheels, self.law, self.geom = wheels, law, geom
@@ -106,9 +127,8 @@ class TrackingLoop:
         self.max_time_factor = float(max_time_factor)
         self.true_pose = true_pose
         self.on_cycle = on_cycle
-        self._clock, self._sleep = clock, sleep
+        self.clock = WallClock() if clock is None else clock
         self.failed_reads = 0
-        self.retried_cycles = 0
 
     # --- helpers -----------------------------------------------------------------------------
 
@@ -137,7 +157,7 @@ class TrackingLoop:
     def _touch_bus(self) -> None:
         """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
         (the servos have then stopped and ignore goals; a Bulk Write would not tell us)."""
-        now = self._clock()
+        now = self.clock.now()
         if self._last_tx is not None and (now - self._last_tx) * self.time_scale > self.watchdog_s:
             raise LoopAbort(f"the loop stalled for {(now - self._last_tx) * 1e3:.0f} ms wall, longer "
                             f"than the servos' Bus Watchdog ({self.watchdog_s} s): they have stopped",
@@ -153,7 +173,7 @@ class TrackingLoop:
                       tolerance_rad: float = 0.03) -> None:
         """Steer to the start angles with the wheels stopped; wait until measured within
         ``tolerance_rad`` (robot time ``timeout_s``), keeping the bus (and watchdog) busy."""
-        ticker = Ticker(self.tau_s / self.time_scale, self._clock, self._sleep)
+        ticker = Ticker(self.tau_s / self.time_scale, self.clock)
         ticker.start()
         self._consecutive = 0
         goal = [delta1, delta2, delta2, delta1]
@@ -168,10 +188,10 @@ class TrackingLoop:
 
     # --- the loop ----------------------------------------------------------------------------
 
-    def run(self, start_state) -> RunResult:
+    def run(self, start_state) -> LoopResult:
         """Track the law's reference from ``start_state`` (5,); stops the wheels at the end.
 
-        Returns a :class:`RunResult`; on a :class:`LoopAbort` the wheels are stopped and the
+        Returns a :class:`LoopResult`; on a :class:`LoopAbort` the wheels are stopped and the
         result carries it in ``aborted`` (the caller decides the exit status). Ctrl-C stops
         the wheels and propagates.
         """
@@ -179,9 +199,8 @@ class TrackingLoop:
         s0 = np.asarray(start_state, dtype=float)
         odo = Odometry(geom, s0[:3])
         d1, d2 = s0[3:5].tolist()       # commanded steering angles, rad
-        d_max = law.limits.steer_angle_max_rad
         law.reset()
-        ticker = Ticker(tau / self.time_scale, self._clock, self._sleep)
+        ticker = Ticker(tau / self.time_scale, self.clock)
         self._consecutive = 0
         rows: list[tuple] = []
         aborted = None
@@ -203,7 +222,7 @@ class TrackingLoop:
                     st = self._read()
                     flags = 0
                     if st is None:
-                        flags |= FLAG_STALE
+                        flags |= _STALE
                     else:
                         dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
                         t_prev_meas = st.t_s
@@ -211,12 +230,11 @@ class TrackingLoop:
                         meas = st
                     pose = odo.pose
                     state = np.array([*pose, d1, d2])
-                    v1, w1, w2 = law.command(t, state)
-                    if law.last.get("finished"):
+                    out = law.step(t, state)
+                    if out.finished:
                         break
-                    L = law.last
-                    d1 = min(max(d1 + w1 * tau, -d_max), d_max)   # integrated steering rates
-                    d2 = min(max(d2 + w2 * tau, -d_max), d_max)
+                    v1, w1, w2 = out.inputs
+                    d1, d2 = out.delta1_rad, out.delta2_rad
                     steer = [d1, d2, d2, d1]
                     drive = [v1 / geom.wheel_radius_m] * 4
                     self._touch_bus()
@@ -224,12 +242,12 @@ class TrackingLoop:
                     truth = self._pose_truth()
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
                     if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
-                        flags |= FLAG_OVERRUN
-                    rows.append((t, state, truth, L["desired_state"], (v1, w1, w2), L["raw"],
-                                 L["s"], L["error"], L["u"], L["ud"], ticker.stats.overruns))
+                        flags |= _OVERRUN
+                    rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
+                                 out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
                     if self.on_cycle is not None:
                         self.on_cycle(self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose,
-                                                  L["desired_state"], truth, flags))
+                                                  out.desired_state, truth, flags))
                     k = ticker.wait()
             except LoopAbort as exc:
                 aborted = exc
@@ -262,22 +280,19 @@ class TrackingLoop:
             meas_drive_radps=meas_drive, meas_steer_rad=meas_steer, meas_current_a=meas_current,
             est_pose=pose, ref_pose=sd[:3], ref_delta=sd[3:5], true_pose=truth, flags=flags)
 
-    def _result(self, rows, ticker: Ticker, aborted) -> RunResult:
-        law = self.law
-        traj = law.reference.trajectory
-        timing = ticker.stats.summary()
-        timing["loop_period_target_ms"] = self.tau_s * 1e3 / self.time_scale
-        extra = dict(failed_reads=self.failed_reads, time_scale=self.time_scale, **timing)
+    def _result(self, rows, ticker: Ticker, aborted) -> LoopResult:
+        traj = self.law.reference.trajectory
+        timing = dataclasses.replace(ticker.stats.timing(),
+                                     loop_period_target_ms=self.tau_s * 1e3 / self.time_scale)
+        common = dict(timing=timing, cycles=len(rows), failed_reads=self.failed_reads,
+                      time_scale=self.time_scale, aborted=aborted)
         if not rows:
-            summary = dict(extra, completed=False, cycles=0)
-            if aborted is not None:
-                summary["abort_cause"] = aborted.cause
-            return RunResult(summary, *(np.empty((0,)) for _ in range(5)), aborted=aborted)
+            return LoopResult(*(np.empty((0,)) for _ in range(5)), tracking=None, **common)
         cols = list(zip(*rows))
         t = np.array(cols[0])
         est = np.array(cols[1])
         truth = np.array(cols[2])
-        use_truth = np.all(np.isfinite(truth))
+        use_truth = bool(np.all(np.isfinite(truth)))
         states = est.copy()
         if use_truth:
             states[:, :3] = truth
@@ -287,18 +302,8 @@ class TrackingLoop:
         settled = bool(np.any(t >= traj.tf_s / 4))
         if not settled:  # stopped before tf/4: the settled-error keys are undefined, not 0
             res.tf_s = 0.0
-        summary = metrics(res, traj.Q, traj.R, self.tau_s)
-        if not settled:
-            summary["rms_position_error_m"] = summary["max_position_error_m"] = float("nan")
-        summary["error_source"] = "true_pose" if use_truth else "odometry"
-        if use_truth:
-            odo_err = np.hypot(*(est[:, :2] - truth[:, :2]).T)
-            summary["odometry_vs_true_max_m"] = float(odo_err.max())
-            summary["odometry_vs_true_final_m"] = float(odo_err[-1])
-        summary.update(extra)
-        summary["completed"] = aborted is None
-        summary["cycles"] = len(rows)
-        if aborted is not None:
-            summary["abort_cause"] = aborted.cause
-            summary["abort_message"] = str(aborted)
-        return RunResult(summary, t, est, truth, np.array(cols[3]), np.array(cols[4]), aborted=aborted)
+        tracking = tracking_errors(
+            metrics(res, traj.Q, traj.R, self.tau_s), "true_pose" if use_truth else "odometry",
+            settled, np.hypot(*(est[:, :2] - truth[:, :2]).T) if use_truth else None)
+        return LoopResult(t, est, truth, np.array(cols[3]), np.array(cols[4]), tracking=tracking,
+                          **common)

@@ -1,8 +1,11 @@
-"""Periodic loop timing on a monotonic clock: absolute deadlines, counted overruns.
+"""Periodic loop timing on a clock passed in: absolute deadlines, counted overruns.
 
 The k-th cycle is due at ``t0 + k * period_s``; the schedule never drifts with the work done
 in a cycle. A cycle whose work runs past its successor's deadline is an *overrun*: the missed
 slots are skipped (so slot index and trajectory time stay aligned with the clock) and counted.
+
+The clock is an object with ``now()`` and ``sleep_until(t)`` (:class:`Clock`): the robot uses
+:class:`WallClock` (the monotonic clock); tests pass a fake one.
 """
 from __future__ import annotations
 
@@ -10,8 +13,34 @@ import contextlib
 import gc
 import time
 from dataclasses import dataclass, field
+from typing import Protocol
 
 import numpy as np
+
+from swerve.tools.run.summary import LoopTiming
+
+
+class Clock(Protocol):
+    """Where a loop's time comes from: seconds on a monotonic scale."""
+
+    def now(self) -> float:
+        """Current time, s."""
+
+    def sleep_until(self, t: float) -> None:
+        """Return once :meth:`now` is at or past ``t`` (s)."""
+
+
+class WallClock:
+    """The host's monotonic clock (:func:`time.monotonic`); sleeps with :func:`time.sleep`."""
+
+    def now(self) -> float:
+        return time.monotonic()
+
+    def sleep_until(self, t: float) -> None:
+        remaining = t - time.monotonic()
+        while remaining > 0:  # sleep may return early on some platforms; never spin
+            time.sleep(remaining)
+            remaining = t - time.monotonic()
 
 
 @dataclass
@@ -24,33 +53,33 @@ class LoopStats:
     missed_slots: int = 0
     late_s: list[float] = field(default_factory=list)
 
-    def summary(self) -> dict:
-        """``loop_period_p50_ms``, ``..._p99_ms``, ``..._max_ms``, ``overruns``, ``missed_slots``."""
+    def timing(self) -> LoopTiming:
+        """Percentiles of the measured periods (ms) and the overrun counts."""
         p = np.asarray(self.periods_s) * 1e3
         q = (lambda x: float(np.percentile(p, x))) if p.size else (lambda x: float("nan"))
-        return {
-            "loop_period_target_ms": self.period_s * 1e3,
-            "loop_period_p50_ms": q(50),
-            "loop_period_p99_ms": q(99),
-            "loop_period_max_ms": float(p.max()) if p.size else float("nan"),
-            "loop_cycles": int(p.size) + (1 if p.size else 0),
-            "overruns": self.overruns,
-            "missed_slots": self.missed_slots,
-        }
+        return LoopTiming(
+            loop_period_target_ms=self.period_s * 1e3,
+            loop_period_p50_ms=q(50),
+            loop_period_p99_ms=q(99),
+            loop_period_max_ms=float(p.max()) if p.size else float("nan"),
+            loop_cycles=int(p.size) + (1 if p.size else 0),
+            overruns=self.overruns,
+            missed_slots=self.missed_slots)
 
 
 class Ticker:
     """Wake up every ``period_s`` on absolute deadlines.
 
     ``wait()`` sleeps until the next due slot and returns its index ``k`` (slot 0 is the
-    call to :meth:`start`). ``clock``/``sleep`` are injectable for tests.
+    call to :meth:`start`). ``period_s`` is in the clock's seconds; ``clock`` is a
+    :class:`Clock` (default :class:`WallClock`).
     """
 
-    def __init__(self, period_s: float, clock=time.monotonic, sleep=time.sleep):
+    def __init__(self, period_s: float, clock: Clock | None = None):
         if not period_s > 0:
             raise ValueError(f"period must be positive, got {period_s}")
         self.period_s = float(period_s)
-        self._clock, self._sleep = clock, sleep
+        self.clock = WallClock() if clock is None else clock
         self.stats = LoopStats(self.period_s)
         self._t0 = None
         self._k = 0
@@ -58,7 +87,7 @@ class Ticker:
 
     def start(self) -> float:
         """Start the schedule now; returns ``t0`` (monotonic seconds)."""
-        self._t0 = self._last_wake = self._clock()
+        self._t0 = self._last_wake = self.clock.now()
         self._k = 0
         return self._t0
 
@@ -73,7 +102,7 @@ class Ticker:
         """Sleep until the next slot; return its index (slots missed by an overrun are skipped)."""
         if self._t0 is None:
             raise RuntimeError("Ticker.start() first")
-        now = self._clock()
+        now = self.clock.now()
         nxt = self._k + 1
         if now > self.deadline(nxt):  # the work ran past the next deadline: overrun
             behind = int((now - self._t0) // self.period_s)  # last slot already begun
@@ -81,11 +110,9 @@ class Ticker:
             self.stats.missed_slots += behind - nxt + 1
             self.stats.late_s.append(now - self.deadline(nxt))
             nxt = behind + 1
-        remaining = self.deadline(nxt) - now
-        while remaining > 0:  # sleep may return early on some platforms; never spin
-            self._sleep(remaining)
-            remaining = self.deadline(nxt) - self._clock()
-        wake = self._clock()
+        if self.deadline(nxt) > now:
+            self.clock.sleep_until(self.deadline(nxt))
+        wake = self.clock.now()
         self.stats.periods_s.append(wake - self._last_wake)
         self._last_wake = wake
         self._k = nxt

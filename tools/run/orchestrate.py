@@ -1,4 +1,4 @@
-"""One tracking run, end to end: config → trajectory → gains → bus → loop → log.
+"""One tracking run, end to end: config → trajectory → gains → bus → loop → log → summary.
 
 Shared by ``swerve run`` and ``swerve demo``. The emulator, when asked for, is started here and
 is only ever a port: the driver, the wheel set and the loop are the same code as on the robot.
@@ -13,6 +13,11 @@ from pathlib import Path
 
 import numpy as np
 
+from swerve.configs import ConfigChoice
+from swerve.tools.run.loop import LoopResult
+from swerve.tools.run.robot import geometry_and_limits, locate_and_load
+from swerve.tools.run.summary import EmulatorStats, RunSummary
+
 log = logging.getLogger(__name__)
 
 #: Bus timeout slack when the other end is the emulator (a Python process on a shared CPU), s.
@@ -24,11 +29,12 @@ EMULATOR_PHYSICS_RATE_HZ = 1000.0
 
 @dataclass(frozen=True)
 class RunRequest:
-    """What to run. Paths may be ``None`` for the defaults."""
+    """What to run. ``config``: the ``--config`` value (``None``: the look-up of
+    :func:`swerve.configs.locate_robot_file`); ``gains`` ``None``: synthesise (Riccati)."""
 
     trajectory: str
     gains: str | Path | None = None
-    config: str | Path | None = None
+    config: str | Path | ConfigChoice | None = None
     port: str | None = None
     emulate: bool = False
     time_scale: float = 1.0
@@ -87,17 +93,35 @@ def wall_clock_guards(cfg, time_scale: float):
         max_consecutive_timeouts=math.ceil(cfg.max_consecutive_timeouts * time_scale))
 
 
-def run_tracking(req: RunRequest):
-    """Run one trajectory; returns :class:`controller.online.RunResult` (``aborted`` set on a stop)."""
-    from swerve.controller.kinematics import from_robot_config
-    from swerve.controller.online import TrackingLoop
-    from swerve.driver.bus import Bus
-    from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
-    from swerve.driver.wheelset import WheelSet
+@dataclass(frozen=True)
+class RunResult:
+    """A finished (or stopped) run: its typed ``summary`` and the loop's per-cycle ``loop`` result."""
 
-    cfg_path = Path(req.config) if req.config else DEFAULT_PATH
-    cfg = wall_clock_guards(load_robot_config(cfg_path), req.time_scale)
-    geom, limits = from_robot_config(cfg)
+    summary: RunSummary
+    loop: LoopResult
+
+    @property
+    def aborted(self):
+        """The :class:`~swerve.tools.run.loop.LoopAbort` that stopped the run, or None."""
+        return self.loop.aborted
+
+
+def run_tracking(req: RunRequest, on_config=None) -> RunResult:
+    """Run one trajectory; returns a :class:`RunResult` (``aborted`` set on a stop).
+
+    ``on_config``: called with the :class:`swerve.configs.ConfigChoice` once the robot file
+    is known (``swerve run`` prints it first).
+    """
+    from swerve.driver.bus import Bus
+    from swerve.driver.wheelset import WheelSet
+    from swerve.tools.run.loop import TrackingLoop
+
+    choice, cfg = locate_and_load(req.config)
+    if on_config is not None:
+        on_config(choice)
+    cfg_path = choice.path
+    cfg = wall_clock_guards(cfg, req.time_scale)
+    geom, limits = geometry_and_limits(cfg)
     traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
     start = traj.start_state(geom)
     sim = simulated_poses(law, start) if req.log is not None else None
@@ -128,35 +152,39 @@ def run_tracking(req: RunRequest):
         bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
         on_cycle = None
         if req.log is not None:
-            on_cycle = _log_writer(stack, req, cfg, traj, sim, cfg_path)
+            on_cycle = _log_writer(stack, req, cfg, traj, sim, choice)
         loop = TrackingLoop(wheels, law, geom, time_scale=req.time_scale,
                             max_failed_reads=cfg.max_consecutive_timeouts,
                             watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=on_cycle)
         wheels.enable()
         loop.move_to_start(start[3], start[4], timeout_s=req.start_timeout_s)
         result = loop.run(start)
-        result.summary["trajectory"] = traj.name
-        result.summary["port"] = "emulator" if req.emulate else port
-        result.summary["bus_stray_replies"] = bus.stray_replies
-        result.summary["bus_corrupt_frames"] = bus.corrupt_frames
-        if req.log is not None:
-            result.summary["log"] = str(req.log)
+        bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
+    emulator = None
     if req.emulate and emu.final_stats:
         bus_stats, clock = emu.final_stats["bus"], emu.final_stats["clock"]
-        result.summary["emulator_replies_dropped"] = bus_stats.get("replies_dropped", 0)
-        result.summary["emulator_achieved_time_scale"] = clock.get("achieved_scale")
-        result.summary["emulator_lost_sim_s"] = clock.get("lost_sim_s")
-    return result
+        emulator = EmulatorStats(bus_stats.get("replies_dropped", 0), clock.get("achieved_scale"),
+                                 clock.get("lost_sim_s"))
+    aborted = result.aborted
+    summary = RunSummary(
+        trajectory=traj.name, port="emulator" if req.emulate else port, config=str(cfg_path),
+        config_source=choice.source, time_scale=result.time_scale, completed=result.completed,
+        cycles=result.cycles, failed_reads=result.failed_reads, timing=result.timing,
+        tracking=result.tracking, abort_cause=None if aborted is None else aborted.cause,
+        abort_message=None if aborted is None else str(aborted), **bus_counts,
+        log=None if req.log is None else str(req.log), emulator=emulator)
+    return RunResult(summary, result)
 
 
-def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, cfg_path: Path):
+def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
     """Open the run log and return the loop's ``on_cycle`` callback."""
     from swerve.tools.logs.bag import RunLogWriter
     from swerve.tools.logs.record import CycleRecord
 
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
                 time_scale=req.time_scale, port="emulator" if req.emulate else (req.port or cfg.link.port),
-                config=str(cfg_path), started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
+                config=str(choice.path), config_source=choice.source,
+                started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
     req.log.parent.mkdir(parents=True, exist_ok=True)
     writer = stack.enter_context(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels]))
