@@ -48,7 +48,7 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     freeze_startup_heap()
-    conn.send(("port", emu.port))
+    conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
             msg = conn.recv()
@@ -93,6 +93,8 @@ class EmulatorProcess:
         self._proc = None
         self._conn = None
         self.port: str | None = None
+        #: The lockstep control socket (``lockstep=True``), else None.
+        self.control_path: str | None = None
         self.final_stats: dict | None = None
 
     def start(self) -> "EmulatorProcess":
@@ -114,7 +116,7 @@ class EmulatorProcess:
         if kind == "error":
             self.close()
             raise ConfigError(f"emulator: {value}")
-        self.port = value
+        self.port, self.control_path = value
         return self
 
     @property

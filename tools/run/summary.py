@@ -41,8 +41,12 @@ class TrackingErrors:
 
 @dataclass(frozen=True)
 class LoopTiming:
-    """Measured loop periods in wall ms (target, p50, p99, max), ``loop_cycles`` timed,
-    ``overruns`` (cycles that ran past the next deadline) and the ``missed_slots`` they skipped."""
+    """Measured loop periods in the clock's ms (wall, or robot time in lockstep: target, p50,
+    p99, max), ``loop_cycles`` timed, ``overruns`` (cycles that ran past the next deadline) and
+    the ``missed_slots`` they skipped. Host-measured, so different on every run:
+    ``host_cpu_p50_ms``/``host_cpu_p99_ms`` (the loop's CPU time per cycle) and, in lockstep,
+    ``host_cpu_overruns`` (cycles whose robot-time bus work plus that CPU time exceeds the period;
+    they are counted, not scheduled: the schedule and the log stay deterministic)."""
 
     loop_period_target_ms: float
     loop_period_p50_ms: float
@@ -51,6 +55,9 @@ class LoopTiming:
     loop_cycles: int
     overruns: int
     missed_slots: int
+    host_cpu_p50_ms: float | None = None
+    host_cpu_p99_ms: float | None = None
+    host_cpu_overruns: int | None = None
 
 
 @dataclass(frozen=True)
@@ -73,13 +80,16 @@ class RunSummary:
     ``abort_cause``/``abort_message``); ``cycles`` run; ``failed_reads`` over the run;
     ``tracking`` (None if no cycle ran); ``timing``; the bus's ``bus_stray_replies`` and
     ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot).
+    ``clock``: ``"wall"`` or ``"lockstep"`` (robot time owned by the emulator; ``time_scale``
+    is then the pacing, ``None`` for as fast as possible); ``wall_time_s`` of the loop and
+    ``real_time_factor`` (robot s per wall s over the loop) are host-measured.
     """
 
     trajectory: str
     port: str
     config: str
     config_source: str
-    time_scale: float
+    time_scale: float | None
     completed: bool
     cycles: int
     failed_reads: int
@@ -91,6 +101,9 @@ class RunSummary:
     bus_corrupt_frames: int = 0
     log: str | None = None
     emulator: EmulatorStats | None = None
+    clock: str = "wall"
+    wall_time_s: float | None = None
+    real_time_factor: float | None = None
 
     def to_dict(self) -> dict:
         """Flat ``{key: value}`` of every field that applies (nested records inlined)."""
