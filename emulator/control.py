@@ -9,8 +9,13 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
     advance <t_s> <tx_bytes>   ->  at <now_s>                 robot time moved to max(now, t_s)
     now <tx_bytes>             ->  at <now_s>
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
+    fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
+    stats                      ->  stats <key> <int> ...      the bus counters (replies_dropped, ...)
     info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps>
     (anything else)            ->  error <text>
+
+``BITS`` of ``hwerror`` are ``+``-separated names (``overload+overheating``) or an integer. A
+fault sent this way takes effect at a known point of robot time (after the announced bytes).
 
 ``tx_bytes`` is the number of bytes the client wrote to the pty since its previous request on
 this connection (or since it connected). Before answering, the emulator reads the pty until it
@@ -52,6 +57,12 @@ class ControlledBus(Protocol):
 
     def true_state(self) -> tuple[float, tuple[float, float, float]]:
         """``(physics_time_s, pose)``."""
+
+    def inject_fault(self, what: str, args: list[str]) -> None:
+        """Apply a fault now (``vanish``, ``restore``, ``hwerror``); ValueError if malformed."""
+
+    def counters(self) -> dict[str, int]:
+        """The bus counters."""
 
 
 class _Connection:
@@ -117,9 +128,14 @@ class ControlServer:
         try:
             if cmd == "info" and not args:
                 return f"info {bus.control_info()}"
-            if cmd not in ("advance", "now", "pose") or len(args) != (2 if cmd == "advance" else 1):
+            if cmd == "stats" and not args:
+                return "stats " + " ".join(f"{k} {v}" for k, v in bus.counters().items())
+            if cmd == "fault" and len(args) >= 3:
+                tx, fault = int(args[0]), args[1:]
+            elif cmd in ("advance", "now", "pose") and len(args) == (2 if cmd == "advance" else 1):
+                tx = int(args[-1])
+            else:
                 return f"error unknown request {' '.join(words)!r}"
-            tx = int(args[-1])
             if tx < 0:
                 return "error tx_bytes must be >= 0"
             target = conn.rx_base + tx
@@ -128,13 +144,16 @@ class ControlServer:
                 return (f"error only {bus.rx_bytes - (target - tx)} of the {tx} announced bytes arrived "
                         f"within {BARRIER_TIMEOUT_S:g} s")
             conn.rx_base = target
+            if cmd == "fault":
+                bus.inject_fault(fault[0], fault[1:])
+                return "ok"
             if cmd == "advance":
                 return f"at {bus.advance_to(float(args[0]))!r}"
             if cmd == "now":
                 return f"at {bus.robot_time_s()!r}"
             t, (x, y, theta) = bus.true_state()
             return f"pose {bus.robot_time_s()!r} {float(x)!r} {float(y)!r} {float(theta)!r} {t!r}"
-        except ValueError as exc:
+        except (ValueError, KeyError) as exc:
             return f"error {exc}"
 
     def _drop(self, fd: int) -> None:

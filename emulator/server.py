@@ -386,6 +386,20 @@ class Emulator:
         """Robot time of a lockstep clock (bus exchanges included); the physics time otherwise."""
         return getattr(self.clock, "now_s", self.sim_time_s)
 
+    def inject_fault(self, what: str, args: list[str]) -> None:
+        """A fault from the control channel: ``vanish ID``, ``restore ID``, ``hwerror ID BITS``."""
+        if what in ("vanish", "restore") and len(args) == 1:
+            with self._lock:
+                getattr(self.faults, what)(int(args[0]))
+        elif what == "hwerror" and len(args) == 2:
+            bits = int(args[1]) if args[1].isdigit() else args[1]
+            self.faults.raise_hardware_error(int(args[0]), bits)
+        else:
+            raise ValueError(f"unknown fault {what} {' '.join(args)} (vanish ID, restore ID, hwerror ID BITS)")
+
+    def counters(self) -> dict[str, int]:
+        return self.stats.as_dict()
+
     def control_info(self) -> str:
         return (f"rate_hz {self.clock.rate_hz!r} reply_latency_s "
                 f"{getattr(self.clock, 'reply_latency_s', 0.0)!r} baud {self.line_baud()}")

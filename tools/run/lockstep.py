@@ -16,6 +16,9 @@ from swerve.driver.errors import SwerveError
 
 #: Wall seconds a control request may take before the emulator is taken for dead.
 CONTROL_TIMEOUT_S = 30.0
+#: Bus timeout slack against a lockstep emulator, wall s: its replies are never late in robot
+#: time, so this only has to ride out a loaded host (a lost reply costs this much wall time).
+LOCKSTEP_TIMEOUT_MARGIN_S = 0.25
 
 
 class LockstepError(SwerveError):
@@ -110,6 +113,16 @@ class LockstepClock:
         words = self._ask(f"pose {self._delta()}")
         self._now_s = float(words[1])
         return float(words[2]), float(words[3]), float(words[4])
+
+    def fault(self, what: str, *args) -> None:
+        """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,
+        ``fault("restore", 7)``, ``fault("hwerror", 5, "overload")``."""
+        self._ask(" ".join(["fault", str(self._delta()), what, *map(str, args)]))
+
+    def counters(self) -> dict[str, int]:
+        """The emulator's bus counters (``replies_dropped``, ``packets_received``, ...)."""
+        words = self._ask("stats")[1:]
+        return {k: int(v) for k, v in zip(words[::2], words[1::2])}
 
     def info(self) -> dict[str, float]:
         """``{"rate_hz", "reply_latency_s", "baud"}`` of the emulator."""

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from swerve.configs import ConfigChoice
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.loop import LoopResult
 from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 from swerve.tools.run.summary import EmulatorStats, RunSummary
@@ -22,9 +23,6 @@ log = logging.getLogger(__name__)
 
 #: Bus timeout slack when the other end is the emulator (a Python process on a shared CPU), s.
 EMULATOR_TIMEOUT_MARGIN_S = 0.05
-#: Bus timeout slack against a lockstep emulator, wall s: its replies are never late in robot
-#: time, so this only has to ride out a loaded host (a lost reply costs this much wall time).
-LOCKSTEP_TIMEOUT_MARGIN_S = 0.25
 #: Seed of the emulator's fault and noise generators in lockstep when none is given.
 LOCKSTEP_SEED = 0
 #: Physics rate of the emulated robot in tracking runs, Hz: the lowest the issue allows, so the
@@ -42,7 +40,8 @@ class RunRequest:
     config: str | Path | ConfigChoice | None = None
     port: str | None = None
     emulate: bool = False
-    lockstep: bool = False                  # robot time owned by the emulator (needs emulate)
+    lockstep: bool = False                  # robot time owned by the emulator (needs emulate or control)
+    control: str | Path | None = None       # lockstep: control socket of an emulator already serving ``port``
     time_scale: float | None = 1.0          # lockstep: pacing, None = as fast as possible
     log: Path | None = None
     fast_read: bool = False
@@ -124,8 +123,10 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
 
     from swerve.configs.errors import ConfigError
 
-    if req.lockstep and not req.emulate:
+    if req.lockstep and not (req.emulate or (req.control and req.port)):
         raise ConfigError("lockstep needs the emulator (--emulate); a real bus runs on the wall clock")
+    if req.control and not req.lockstep:
+        raise ConfigError("a lockstep control socket needs lockstep")
     if not req.lockstep and not (req.time_scale and req.time_scale > 0):
         raise ConfigError(f"time scale must be positive, got {req.time_scale}")
     choice, cfg = locate_and_load(req.config)
@@ -142,7 +143,13 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
     rate_hz = req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ
     with contextlib.ExitStack() as stack:
         true_pose = clock = None
-        if req.lockstep:
+        if req.lockstep and not req.emulate:      # an emulator someone else started
+            from swerve.tools.run.lockstep import LockstepClock
+
+            clock = stack.enter_context(LockstepClock(str(req.control), req.time_scale))
+            port = req.port
+            true_pose = clock.pose
+        elif req.lockstep:
             from swerve.emulator.process import EmulatorProcess
             from swerve.tools.run.lockstep import LockstepClock
 
@@ -193,15 +200,18 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         wall_s = time.monotonic() - wall0
         robot_s = clock.now() - robot0 if clock is not None else wall_s * loop_scale
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
+        counters = clock.counters() if clock is not None else None
     emulator = None
-    if req.emulate and emu.final_stats:
+    if counters is not None:
+        emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
+    elif req.emulate and emu.final_stats:
         bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
         emulator = EmulatorStats(bus_stats.get("replies_dropped", 0),
                                  None if req.lockstep else clock_stats.get("achieved_scale"),
                                  clock_stats.get("lost_sim_s"))
     aborted = result.aborted
     summary = RunSummary(
-        trajectory=traj.name, port="emulator" if req.emulate else port, config=str(cfg_path),
+        trajectory=traj.name, port="emulator" if req.emulate or req.lockstep else port, config=str(cfg_path),
         config_source=choice.source, time_scale=req.time_scale if req.lockstep else result.time_scale,
         completed=result.completed,
         cycles=result.cycles, failed_reads=result.failed_reads, timing=result.timing,
@@ -226,7 +236,7 @@ def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
     from swerve.tools.logs.record import CycleRecord
 
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
-                time_scale=req.time_scale, port="emulator" if req.emulate else (req.port or cfg.link.port),
+                time_scale=req.time_scale, port="emulator" if req.emulate or req.lockstep else (req.port or cfg.link.port),
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
