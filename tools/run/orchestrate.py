@@ -46,6 +46,7 @@ class RunRequest:
     log: Path | None = None
     fast_read: bool = False
     faults: str | None = None
+    noise: str | None = None                # with emulate: sensor noise, e.g. "position=0.5"
     progress: bool = False
     start_timeout_s: float = 5.0
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
@@ -154,7 +155,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             from swerve.tools.run.lockstep import LockstepClock
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, lockstep=True, faults=_seeded(req.faults), noise=f"seed={LOCKSTEP_SEED}",
+                cfg_path, lockstep=True, faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
                 start_pose=tuple(start[:3]), rate_hz=rate_hz))
             clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
             port = emu.port
@@ -163,7 +164,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, time_scale=req.time_scale, faults=req.faults, start_pose=tuple(start[:3]),
+                cfg_path, time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
                 rate_hz=rate_hz))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
@@ -224,7 +225,8 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
 
 
 def _seeded(faults: str | None) -> str | None:
-    """``faults`` with ``seed=LOCKSTEP_SEED`` added when it names none (lockstep is repeatable)."""
+    """A fault or noise spec with ``seed=LOCKSTEP_SEED`` added when it names none (lockstep is
+    repeatable)."""
     if not faults or "seed=" in faults:
         return faults
     return f"{faults},seed={LOCKSTEP_SEED}"
