@@ -49,6 +49,7 @@ class LockstepClock:
         self._tx: Callable[[], int] = lambda: 0
         self._tx_last = 0
         self._now_s = 0.0
+        self._known = False             # _now_s is the emulator's time (no request since)
         self._pace: tuple[float, float] | None = None    # (robot s, wall s) when pacing started
         self.requests = 0
         self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
@@ -78,14 +79,20 @@ class LockstepClock:
         return delta
 
     def now(self) -> float:
-        """Robot time, s (bus exchanges so far included)."""
-        self._now_s = float(self._ask(f"now {self._delta()}")[1])
+        """Robot time, s (bus exchanges so far included).
+
+        Without bytes written since the last answer, robot time cannot have moved (this client
+        is the one that moves it), so the last answer is returned without asking."""
+        if self._tx() != self._tx_last or not self._known:
+            self._now_s = float(self._ask(f"now {self._delta()}")[1])
+            self._known = True
         return self._now_s
 
     def sleep_until(self, t: float) -> None:
         """Advance robot time to ``t`` (the physics runs there); with a time scale, also wait
         until the wall clock has caught up with it."""
         self._now_s = float(self._ask(f"advance {t!r} {self._delta()}")[1])
+        self._known = True
         if self.time_scale is None:
             return
         wall = time.monotonic()
@@ -112,12 +119,14 @@ class LockstepClock:
         """True body pose ``(x_m, y_m, theta_rad)`` after every byte written so far was served."""
         words = self._ask(f"pose {self._delta()}")
         self._now_s = float(words[1])
+        self._known = True
         return float(words[2]), float(words[3]), float(words[4])
 
     def fault(self, what: str, *args) -> None:
         """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,
         ``fault("restore", 7)``, ``fault("hwerror", 5, "overload")``."""
         self._ask(" ".join(["fault", str(self._delta()), what, *map(str, args)]))
+        self._known = False
 
     def counters(self) -> dict[str, int]:
         """The emulator's bus counters (``replies_dropped``, ``packets_received``, ...)."""

@@ -203,13 +203,13 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
         counters = clock.counters() if clock is not None else None
     emulator = None
-    if counters is not None:
-        emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
-    elif req.emulate and emu.final_stats:
+    if req.emulate and emu.final_stats:
         bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
         emulator = EmulatorStats(bus_stats.get("replies_dropped", 0),
                                  None if req.lockstep else clock_stats.get("achieved_scale"),
-                                 clock_stats.get("lost_sim_s"))
+                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"))
+    elif counters is not None:
+        emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
     aborted = result.aborted
     summary = RunSummary(
         trajectory=traj.name, port="emulator" if req.emulate or req.lockstep else port, config=str(cfg_path),
