@@ -1,7 +1,7 @@
-"""Controller benchmarks (issue 5): Riccati synthesis, the paper's CG, gradient cost, tracking.
+"""Controller benchmarks: Riccati synthesis, the paper's CG, gradient cost, tracking.
 
 Run ``.venv/bin/python bench/bench_controller.py`` from the repository root. Results are
-printed and written to the "## Controller (issue 5)" section of BENCHMARKS.md
+printed and written to the "## Controller" section of BENCHMARKS.md
 (``--no-write`` to leave it alone; ``--cg-seconds`` caps each cold-start CG run).
 ``--per-cycle`` measures only the online loop's per-cycle CPU (tracking law, odometry, cycle
 record, run-log write) and writes the "## Controller per-cycle cost" section instead.
@@ -40,7 +40,7 @@ from swerve.tools.run.loop import TrackingLoop  # noqa: E402
 from swerve.tools.run.robot import load_robot  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
-SECTION = "## Controller (issue 5)"
+SECTION = "## Controller"
 SECTION_CYCLE = "## Controller per-cycle cost"
 GEOM, LIMITS = load_robot()
 

@@ -1,4 +1,4 @@
-"""Driver benchmark (issue 2): codec throughput and the full 8-servo cycle over a pty.
+"""Driver benchmark: codec throughput and the full 8-servo cycle over a pty.
 
 Usage: python bench/bench_driver.py [--cycles N] [--no-write]. Measures
   1. encode/decode throughput of ``driver.packets`` / ``driver.parser`` (ops/s),
@@ -6,7 +6,7 @@ Usage: python bench/bench_driver.py [--cycles N] [--no-write]. Measures
      the 8 goals + one Sync Read (or Fast Sync Read) of 126..135, wall and CPU time per cycle,
      with and without cable timing (``wire_timing``: replies paced at 10 bits/byte, 1 Mbps),
   3. the same cycle through dynamixel-sdk 4.1 (GroupBulkWrite + GroupSyncRead) for reference.
-Results are printed and written to the "## Driver (issue 2)" section of BENCHMARKS.md.
+Results are printed and written to the "## Driver" section of BENCHMARKS.md.
 """
 from __future__ import annotations
 
@@ -30,7 +30,7 @@ from swerve.driver.wheelset import WheelSet  # noqa: E402
 from swerve.emulator.robot_emulator import build_emulator  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
-SECTION = "## Driver (issue 2)"
+SECTION = "## Driver"
 
 
 def rate(fn, min_s: float = 0.5) -> float:

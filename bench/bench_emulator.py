@@ -8,7 +8,7 @@ wire-time limit is computed from the byte counts (10 bits per byte, no gaps).
 
     .venv/bin/python bench/bench_emulator.py [--seconds 3] [--no-write]
 
-Writes the section "## Emulator bus (issue 3)" of BENCHMARKS.md (other sections untouched).
+Writes the section "## Emulator bus" of BENCHMARKS.md (other sections untouched).
 """
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from swerve.tools.commands.emulate import parse_port_line  # noqa: E402
 IDS = list(range(1, 9))
 BAUD = 1_000_000
 ADDRESS, LENGTH = 132, 4                       # Present Position
-SECTION = "## Emulator bus (issue 3)"
+SECTION = "## Emulator bus"
 DRIVER_MARGIN_S = 0.02
 
 

@@ -1,4 +1,4 @@
-"""Benchmark: the emulator with physics (issue 4) — physics cost inside the running emulator,
+"""Benchmark: the emulator with physics — physics cost inside the running emulator,
 the largest time scale at which the bus still answers a 62.5 Hz cycle, and the step tests
 through the bus.
 

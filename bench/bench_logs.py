@@ -1,4 +1,4 @@
-"""Run-log write cost: microseconds and bytes per control cycle (issue 6).
+"""Run-log write cost: microseconds and bytes per control cycle.
 
 Usage: python bench/bench_logs.py [--cycles N]. Writes N synthetic cycles (circle with noise,
 emulator: all topics incl. /true_pose) for several flush intervals and reports the median

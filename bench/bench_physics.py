@@ -53,7 +53,7 @@ def measure(seconds: float, rate_hz: float) -> dict[str, float]:
 
 
 def step_report(dt_s: float) -> None:
-    """Print the step tests of issue #4 (paper-spec gains and e-Manual defaults)."""
+    """Print the step tests (paper-spec gains and e-Manual defaults)."""
     cfg = load_config(ROOT / "configs" / "emulator.yaml")
     g = cfg.paper_spec_gains
     gear = cfg.gear_ratio("xh430-w210")

@@ -1,4 +1,4 @@
-"""Full-stack benchmark (issue 6): the 62.5 Hz loop against the emulated robot.
+"""Full-stack benchmark: the 62.5 Hz loop against the emulated robot.
 
 For each time scale: run the line trajectory (40 s robot time) through the driver against the
 emulator in its own process, and report the loop period p50/p99/max (wall), overruns, missed

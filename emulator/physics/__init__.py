@@ -1,4 +1,4 @@
-"""Pure servo and robot-body physics for the emulator (issue #4): no I/O, no clocks.
+"""Pure servo and robot-body physics for the emulator: no I/O, no clocks.
 
 Modules: :mod:`units` (control-table LSBs), :mod:`params` (config dataclasses and loader),
 :mod:`motor` (DC motor + gearbox, exact ZOH), :mod:`bessel` (2nd-order Bessel filter),

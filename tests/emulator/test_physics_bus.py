@@ -1,4 +1,4 @@
-"""Servo step tests THROUGH THE BUS: driver.bus.Bus against robot_emulator (issue #4).
+"""Servo step tests THROUGH THE BUS: driver.bus.Bus against robot_emulator.
 
 Deterministic: the emulator runs without a clock (``time_scale=0``) and the test advances
 simulated time with ``emu.advance`` between bus transactions, so nothing depends on machine load.

@@ -1,5 +1,5 @@
 """``swerve emulate --physics`` as a subprocess: the status file gives the true pose to another
-process, beside the bus (issue #4). Deterministic: ``--time-scale 0`` (no clock), so nothing
+process, beside the bus. Deterministic: ``--time-scale 0`` (no clock), so nothing
 moves and nothing depends on machine load; the moving robot is covered in test_robot_drive.py."""
 from __future__ import annotations
 

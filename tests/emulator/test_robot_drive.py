@@ -1,4 +1,4 @@
-"""The emulated robot driven through the bus with the project's WheelSet (issue #4).
+"""The emulated robot driven through the bus with the project's WheelSet.
 
 The robot is moved only by bus traffic (one Bulk Write of goals and one Sync Read of state per
 16 ms cycle, as the controller does); the true pose comes from the emulator's in-process API or

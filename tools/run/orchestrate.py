@@ -25,7 +25,7 @@ log = logging.getLogger(__name__)
 EMULATOR_TIMEOUT_MARGIN_S = 0.05
 #: Seed of the emulator's fault and noise generators in lockstep when none is given.
 LOCKSTEP_SEED = 0
-#: Physics rate of the emulated robot in tracking runs, Hz: the lowest the issue allows, so the
+#: Physics rate of the emulated robot in tracking runs, Hz: low enough that the
 #: clock keeps up at time scale 5 (configs/emulator.yaml's 2 kHz is for servo step tests).
 EMULATOR_PHYSICS_RATE_HZ = 1000.0
 

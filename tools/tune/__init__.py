@@ -1,4 +1,4 @@
-"""``swerve tune``: identify a servo's DC motor and design its loop gains (issue #7).
+"""``swerve tune``: identify a servo's DC motor and design its loop gains.
 
 Modules: :mod:`experiments` (step experiments through a :class:`driver.bus.Bus`, with safety),
 :mod:`identify` (Levenberg–Marquardt fit with confidence intervals), :mod:`design` (gain search by
