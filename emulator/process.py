@@ -6,7 +6,10 @@ process keeps it from competing with the control loop for one interpreter lock, 
 timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
 shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
 emulator after every run of physics steps (at least every millisecond of wall time while the
-clock runs). The child parses the robot file and the physics config, once each.
+clock runs). The child parses the robot file and the physics config, once each. With
+``lockstep=True`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
+its control socket (read the pose through it, since shared memory is not synchronised with the
+bytes on the pty).
 
 ::
 
