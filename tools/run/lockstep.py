@@ -45,7 +45,7 @@ class LockstepClock:
             self._sock.connect(str(control_path))
         except OSError as exc:
             raise LockstepError(f"cannot connect to the lockstep control socket {control_path}: {exc}") from None
-        self._file = self._sock.makefile("rwb", buffering=0)
+        self._reader = self._sock.makefile("rb")      # buffered: one recv per reply line
         self._tx: Callable[[], int] = lambda: 0
         self._tx_last = 0
         self._now_s = 0.0
@@ -62,8 +62,8 @@ class LockstepClock:
     def _ask(self, request: str) -> list[str]:
         self.requests += 1
         try:
-            self._file.write(request.encode("ascii") + b"\n")
-            line = self._file.readline()
+            self._sock.sendall(request.encode("ascii") + b"\n")
+            line = self._reader.readline()
         except OSError as exc:
             raise LockstepError(f"lockstep emulator: {request.split()[0]} failed: {exc}") from None
         words = line.decode("ascii", "replace").split()
@@ -139,7 +139,7 @@ class LockstepClock:
         return {k: float(v) for k, v in zip(words[::2], words[1::2])}
 
     def close(self) -> None:
-        for closer in (self._file.close, self._sock.close):
+        for closer in (self._reader.close, self._sock.close):
             try:
                 closer()
             except OSError:
