@@ -562,30 +562,14 @@ class Emulator:
     def _transmit(self, replies: list[_Reply], start_t: float) -> None:
         if not replies:
             return
-        faults = self.faults
         byte_t = self._byte_time_s()
         if self._transmit_charged(replies, byte_t):
             return
         t = start_t
-        fast_dropped = fast_drawn = False
         last = replies[-1]
         pending = bytearray()
-        for r in replies:
-            frame = r.frame
-            if r.fast:
-                if not fast_drawn:
-                    fast_dropped, fast_drawn = faults.should_drop(), True
-                    if fast_dropped:
-                        self.stats.replies_dropped += 1
-                if fast_dropped:
-                    continue
-            elif faults.should_drop():
-                self.stats.replies_dropped += 1
-                continue
-            frame, corrupted = faults.maybe_corrupt(frame)
-            if corrupted:
-                self.stats.replies_corrupted += 1
-            due = t + r.delay_s + faults.delay_s
+        for r, frame in self._surviving(replies):
+            due = t + r.delay_s + self.faults.delay_s
             if self.wire_timing:
                 due += len(frame) * byte_t     # the last byte reaches the host then
             ahead = due - time.monotonic()
@@ -594,20 +578,13 @@ class Emulator:
                 pending.clear()
                 self._sleep_until(due)      # never early for the reply that ends the exchange
             pending += frame                  # replies due together go out in one write
-            self.stats.replies_sent += 1
             t = max(due, time.monotonic()) if not self.wire_timing else due
         self._write(pending)
 
-    def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
-        """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
-        once and return True. Fault draws happen in the same order as with wall pacing."""
+    def _surviving(self, replies: list[_Reply]):
+        """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
+        corrupted), drawing faults in reply order (a fast-read frame draws once); counts them."""
         faults = self.faults
-        wire_s = sum(r.delay_s + faults.delay_s + len(r.frame) * byte_t for r in replies)
-        answering = sum(1 for r in replies if not r.fast) + (1 if any(r.fast for r in replies) else 0)
-        steps = self.clock.stats.steps
-        if not self.clock.on_replies(self, wire_s, answering):
-            return False
-        out = bytearray()
         fast_dropped = fast_drawn = False
         for r in replies:
             if r.fast:
@@ -623,9 +600,19 @@ class Emulator:
             frame, corrupted = faults.maybe_corrupt(r.frame)
             if corrupted:
                 self.stats.replies_corrupted += 1
-            out += frame
             self.stats.replies_sent += 1
-        self._write(out)
+            yield r, frame
+
+    def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
+        """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
+        once and return True. Fault draws happen in the same order as with wall pacing."""
+        faults = self.faults
+        wire_s = sum(r.delay_s + faults.delay_s + len(r.frame) * byte_t for r in replies)
+        answering = sum(1 for r in replies if not r.fast) + (1 if any(r.fast for r in replies) else 0)
+        steps = self.clock.stats.steps
+        if not self.clock.on_replies(self, wire_s, answering):
+            return False
+        self._write(b"".join(frame for _, frame in self._surviving(replies)))
         if self.observers and self.clock.stats.steps != steps:
             self._notify()
         return True
