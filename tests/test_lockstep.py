@@ -118,6 +118,12 @@ def test_emulate_lockstep_prints_its_control_socket_and_stays_paused():
             proc.wait()
 
 
+def test_emulate_lockstep_with_a_time_scale_is_a_one_line_error():
+    out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "emulate", "--lockstep", "--time-scale", "2"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+
+
 def test_run_lockstep_with_a_port_is_a_one_line_error():
     out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "line",
                           "--lockstep", "--port", "/dev/null", "--no-log"],

@@ -70,8 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None,
                         help="fault injection, e.g. drop=0.05,corrupt=0.01,delay=0.002,vanish=3,"
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
-    parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="simulated seconds per wall second (default 1)")
+    parser.add_argument("--time-scale", type=float, default=None,
+                        help="simulated seconds per wall second (default 1; not with --lockstep)")
     parser.add_argument("--lockstep", action="store_true",
                         help="simulated time advances only on request through a control socket "
                              "(its path ends the PORT line; see emulator/README.md)")
@@ -117,6 +117,10 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("with --physics the IDs and model come from --config")
     if not args.lockstep and (args.control or args.reply_latency_us is not None):
         raise ConfigError("--control and --reply-latency-us need --lockstep")
+    if args.lockstep and args.time_scale is not None:
+        raise ConfigError("--time-scale and --lockstep exclude each other (the client paces a lockstep bus)")
+    if args.time_scale is None:
+        args.time_scale = 1.0
     lockstep = {}
     if args.lockstep:
         lockstep = dict(lockstep=True, control_path=args.control)
