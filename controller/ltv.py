@@ -67,20 +67,43 @@ def closed_loop(Ad, Bd, K):
     return Ad + Bd @ K
 
 
-def rollout(M, X0):
-    """Error trajectories ``X(i+1) = M_i X(i)``: X0 (5, m) -> X (N+1, 5, m)."""
+def rollout(M, X0, starts=None):
+    """Error trajectories ``X(i+1) = M_i X(i)``: X0 (5, m) -> X (N+1, 5, m).
+
+    ``starts`` (m,) ints, optional: column c is zero before step ``starts[c]`` and equals
+    ``X0[:, c]`` there (an error injected later in the horizon); default all 0.
+    """
     X0 = np.asarray(X0, dtype=float).reshape(5, -1)
     N = M.shape[0]
     X = np.empty((N + 1,) + X0.shape)
-    X[0] = X0
+    if starts is None:
+        X[0] = X0
+        for i in range(N):
+            np.matmul(M[i], X[i], out=X[i + 1])
+        return X
+    starts = np.asarray(starts, dtype=int).reshape(-1)
+    X[0] = np.where(starts == 0, X0, 0.0)
+    inject = {int(i): np.flatnonzero(starts == i) for i in np.unique(starts) if 0 < i <= N}
     for i in range(N):
         np.matmul(M[i], X[i], out=X[i + 1])
+        cols = inject.get(i + 1)
+        if cols is not None:
+            X[i + 1][:, cols] = X0[:, cols]
     return X
 
 
-def cost(Ad, Bd, K, Q, R, tau, X0) -> float:
-    """Exact discrete cost ``J`` of gains K (N,3,5) from initial errors X0 (5,) or (5, m)."""
-    X = rollout(closed_loop(Ad, Bd, K), X0)[:-1]
+def injected_cost(P, X0, starts=None) -> float:
+    """``sum_c x_c' P[starts[c]] x_c``: the cost of errors injected at ``starts`` under the
+    cost-to-go matrices ``P`` (N+1, 5, 5) (Riccati's for the optimum J*)."""
+    X0 = np.asarray(X0, dtype=float).reshape(5, -1)
+    s = np.zeros(X0.shape[1], int) if starts is None else np.asarray(starts, int)
+    return float(np.einsum("im,mij,jm->", X0, P[s], X0))
+
+
+def cost(Ad, Bd, K, Q, R, tau, X0, starts=None) -> float:
+    """Exact discrete cost ``J`` of gains K (N,3,5) from initial errors X0 (5,) or (5, m)
+    injected at steps ``starts`` (see :func:`rollout`)."""
+    X = rollout(closed_loop(Ad, Bd, K), X0, starts)[:-1]
     U = K @ X
     return float(tau * (np.einsum("nim,ij,njm->", X, Q, X) + np.einsum("nim,ij,njm->", U, R, U)))
 

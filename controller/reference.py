@@ -20,14 +20,21 @@ from swerve.configs.loader import Section, read_yaml
 from swerve.controller.chained import to_chained, wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath, read_csv_path
+from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, fit_samples,
+                                     read_csv_path, read_csv_samples)
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = shipped("trajectories")
 
-#: Weights for a CSV path given without a YAML file (the line case's, R exponents negative).
+#: Weights for a CSV path given without a YAML file: the line case's Q, and R with negative
+#: exponents (tight tracking, the tracking law clips what the servos cannot do; a YAML
+#: wrapper sets other weights).
 DEFAULT_Q_DIAG = (1e3, 1.0, 1e2, 1.0, 1e3)
 DEFAULT_R_DIAG = (1e-4, 1e-2, 1e-2)
+#: Fit of CSV samples (:class:`controller.paths.FittedPath`): lines and arcs are recognised
+#: within this tolerance (m), and curvature blends between them over this length (m).
+CSV_TOLERANCE_M = 2e-5
+CSV_BLEND_M = 0.05
 #: Sampling period of the robot's loop, s (62.5 Hz).
 DEFAULT_TAU_S = 0.016
 #: Below this speed (m/s) a path counts as stopped (standstill or cusp).
@@ -44,8 +51,10 @@ class Trajectory:
     """A path to track and the synthesis problem's data.
 
     Attributes: ``name``; ``path`` (see :mod:`controller.paths`); ``tf_s``; ``n_steps`` (N);
-    ``tau_s``; ``Q`` (5, 5); ``R`` (3, 3); ``start`` the robot's start state (5,) or ``None``
-    for "on the reference, aligned" (steering set from the path's curvature).
+    ``tau_s``; ``Q`` (5, 5); ``R`` (3, 3); ``start`` the robot's start state (5,), or pose
+    (3,) with the steering that fits the path's curvature at t = 0, or ``None`` for "on the
+    reference, aligned"; ``direction`` +1 (body faces the direction of travel) or -1 (driven
+    in reverse: heading opposite to travel, v1 < 0).
     """
 
     name: str
@@ -57,12 +66,19 @@ class Trajectory:
     R: np.ndarray
     start: np.ndarray | None = None
     source: str = ""
+    direction: int = 1
+
+    def __post_init__(self):
+        if self.direction not in (1, -1):
+            raise ControllerError(f"{self.name}: direction must be +1 (forwards) or -1 (reverse)")
 
     def start_state(self, geom: Geometry = Geometry()) -> np.ndarray:
         """The robot's start state ``(x, y, theta, delta1, delta2)``, shape (5,)."""
-        if self.start is not None:
-            return np.array(self.start, dtype=float)
-        return desired_states(self.path, np.array([0.0]), geom)[0][0]
+        on_path = desired_states(self.path, np.array([0.0]), geom, self.direction)[0][0]
+        if self.start is None:
+            return on_path
+        start = np.array(self.start, dtype=float)
+        return start if start.size == 5 else np.concatenate([start, on_path[3:]])
 
 
 #: Plausibility bounds of trajectory-file keys (a larger value is a typo or a wrong unit).
@@ -93,18 +109,19 @@ def _path_from_spec(sec: Section, tf_s: float, base: Path):
     elif kind == "curvilinear":
         path = CurvilinearPath(sec.number("offset_m", 0.6, **pos), sec.number("period_s", tf_s, **span), tf_s)
     else:
-        path = read_csv_path(base / sec.string("file"), sec.number("smoothing_m", 1e-4, nonneg=True,
-                                                                   max=TRAJ_LENGTH_MAX_M))
+        path = read_csv_path(base / sec.string("file"),
+                             sec.number("tolerance_m", CSV_TOLERANCE_M, positive=True, max=1.0),
+                             sec.number("blend_m", CSV_BLEND_M, positive=True, max=10.0))
     sec.check_unknown()
     return path
 
 
-def _start_from_spec(sec: Section, path, geom):
+def _start_from_spec(sec: Section, path, geom, direction: int = 1):
     pose = [sec.number(k, 0.0, min=-TRAJ_LENGTH_MAX_M, max=TRAJ_LENGTH_MAX_M) for k in ("x_m", "y_m")]
     pose.append(sec.number("theta_rad", 0.0, min=-100.0, max=100.0))
     if sec.raw("steering_rad", "ackermann") == "ackermann":
         # steering that fits the path's curvature at t = 0 (the paper's circle start)
-        steer = desired_states(path, np.array([0.0]), geom)[0][0][3:]
+        steer = desired_states(path, np.array([0.0]), geom, direction)[0][0][3:]
         if not np.all(np.isfinite(steer)):
             sec.fail("the path's steering at t = 0 is undefined (path at rest)", "steering_rad")
     else:
@@ -134,13 +151,7 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
     if not p.is_file():
         raise ControllerError(f"trajectory file {p} does not exist")
     if p.suffix.lower() == ".csv":
-        path = read_csv_path(p)
-        tf = path.t_end_s
-        n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
-        if n < 10:
-            raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
-        return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
-                          np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), None, str(p))
+        return load_csv_trajectory(p)
     top = read_yaml(p, ControllerError, "trajectory file").root()
     tau = top.number("tau_s", DEFAULT_TAU_S, positive=True, max=10.0)
     tf_given = top.number("tf_s", None, positive=True, max=TRAJ_DURATION_MAX_S)
@@ -154,14 +165,37 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
         top.fail(f"tf_s = {tf:g} s is longer than the path ({path0.t_end_s:g} s)", "tf_s")
     Q = _diag(top, "Q_diag", 5, DEFAULT_Q_DIAG)
     R = _diag(top, "R_diag", 3, DEFAULT_R_DIAG)
-    start = _start_from_spec(top.section("start"), path0, geom) if "start" in top else None
+    direction = getattr(path0, "direction", 1)
+    if "direction" in top:
+        direction = top.choice("direction", {"forward": 1, "reverse": -1})
+    start = (_start_from_spec(top.section("start"), path0, geom, direction) if "start" in top
+             else None)
     name = top.string("name", p.stem)
     top.check_unknown()
-    return Trajectory(name, path0, tf, n, tau, Q, R, start, str(p))
+    return Trajectory(name, path0, tf, n, tau, Q, R, start, str(p), direction)
 
 
-def desired_states(path, t, geom: Geometry = Geometry()):
+def load_csv_trajectory(p: Path) -> Trajectory:
+    """A trajectory CSV file (format: ``controller/README.md``, "Trajectory files") with
+    ``tau = 0.016 s``, ``N = floor(tf / tau)``, :data:`DEFAULT_Q_DIAG`,
+    :data:`DEFAULT_R_DIAG`, its ``# start`` line (else on the path) and its direction."""
+    smp = read_csv_samples(p)
+    path = fit_samples(smp, CSV_TOLERANCE_M, CSV_BLEND_M, str(p))
+    tf = path.t_end_s
+    n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
+    if n < 10:
+        raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
+    start = None if smp.start is None else np.array(smp.start, dtype=float)
+    return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
+                      np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), start, str(p),
+                      smp.direction)
+
+
+def desired_states(path, t, geom: Geometry = Geometry(), direction: int = 1):
     """Desired states and inputs of a path (body along the velocity, symmetric steering).
+
+    ``direction = -1``: driven in reverse (heading opposite to travel, v1 < 0, steering
+    mirrored so that the body still turns with the path).
 
     Returns
     -------
@@ -185,10 +219,12 @@ def desired_states(path, t, geom: Geometry = Geometry()):
         th_rate = cross / V2
         th_acc = (v[0] * j[1] - v[1] * j[0]) / V2 - 2 * cross * dot / V2 ** 2
     theta = np.unwrap(np.arctan2(v[1], v[0]))
+    if direction < 0:
+        theta = theta + np.pi
     q = geom.r2_m2 / geom.a_m
-    delta = np.arctan(q * kappa)
-    delta_rate = q * kappa_dot / (1 + (q * kappa) ** 2)
-    v1 = V / np.cos(delta)
+    delta = direction * np.arctan(q * kappa)
+    delta_rate = direction * q * kappa_dot / (1 + (q * kappa) ** 2)
+    v1 = direction * V / np.cos(delta)
     states = np.stack([p[0], p[1], theta, delta, -delta], axis=-1)
     inputs = np.stack([v1, delta_rate, -delta_rate], axis=-1)
     extra = dict(speed_mps=V, curvature_1pm=kappa, theta_rate_radps=th_rate,
@@ -219,7 +255,8 @@ def _np(ufunc, *args) -> float:
     return float(ufunc(*args))
 
 
-def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry()):
+def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry(),
+              direction: int = 1):
     """Scalar twin of :func:`desired_states` + :func:`chained_desired` at one time.
 
     Parameters
@@ -230,6 +267,8 @@ def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry()):
         An unwrapped heading near the answer, rad: ``theta_d`` is taken on its branch.
     phi : float
         Chained frame, rad.
+    direction : int
+        +1 forwards, -1 reverse (see :func:`desired_states`).
 
     Returns
     -------
@@ -253,13 +292,15 @@ def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry()):
     th_rate = cross / V2
     th_acc = (vx * jy - vy * jx) / V2 - 2 * cross * dot / (V2 * V2)
     heading = _np(np.arctan2, vy, vx)
+    if direction < 0:
+        heading = heading + math.pi
     theta = theta_near + ((heading - theta_near + math.pi) % (2 * math.pi) - math.pi)
     q = geom.r2_m2 / geom.a_m
     qk = q * kappa
-    delta = _np(np.arctan, qk)
-    delta_rate = q * kappa_dot / (1 + qk * qk)
+    delta = direction * _np(np.arctan, qk)
+    delta_rate = direction * q * kappa_dot / (1 + qk * qk)
     state = (px, py, theta, delta, -delta)
-    inputs = (V / math.cos(delta), delta_rate, -delta_rate)
+    inputs = (direction * V / math.cos(delta), delta_rate, -delta_rate)
     # chained_desired, with to_chained of the state (delta2 = -delta)
     c, s = math.cos(phi), math.sin(phi)
     vxr, vyr = c * vx + s * vy, -s * vx + c * vy
@@ -361,7 +402,7 @@ class Reference:
             return rows[i]
         der = self.trajectory.path.derivatives(np.array([t])).reshape(8).tolist()
         try:
-            return sample_at(der, thetas[i], phi, self.geom)
+            return sample_at(der, thetas[i], phi, self.geom, self.trajectory.direction)
         except ZeroDivisionError:
             raise ControllerError(f"the reference is undefined at t = {t:.3f} s (the path stops, "
                                   "or travels along the chained frame's y-axis)") from None
@@ -379,7 +420,8 @@ class Reference:
         N = self.n_steps
         v = self.extra["derivatives"][1]
         states = self.states.copy()
-        states[:, 2] += wrap_angle(np.arctan2(v[1], v[0]) - states[:, 2])  # as sample_at does
+        heading = np.arctan2(v[1], v[0]) + (np.pi if self.trajectory.direction < 0 else 0.0)
+        states[:, 2] += wrap_angle(heading - states[:, 2])  # as sample_at does
         xd, ud = chained_desired(states, self.extra, self.phi_rad, self.geom)
         rows = zip(*(map(tuple, a[:N].tolist()) for a in (states, self.inputs, xd, ud)))
         return (self.times_s[:N].tolist(), self.phi_rad[:N].tolist(),
@@ -401,7 +443,7 @@ def build_reference(traj: Trajectory, geom: Geometry = Geometry(), limits: Limit
     """
     N, tau = traj.n_steps, traj.tau_s
     t = np.arange(N + 1) * tau
-    states, inputs, extra = desired_states(traj.path, t, geom)
+    states, inputs, extra = desired_states(traj.path, t, geom, traj.direction)
     name = traj.name
     if not (np.all(np.isfinite(extra["derivatives"]))):
         raise ControllerError(f"trajectory {name!r}: the path has NaN or infinite values")

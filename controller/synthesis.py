@@ -23,6 +23,10 @@ the paper's printed (55)-(59) has an index typo and drops the ``B K`` term)::
     lambda_N = 0,  lambda_i = 2 tau (Q + K_i'R K_i) x_i + M_i' lambda_{i+1}
     dJ/dK_i = 2 tau R K_i x_i x_i' + Bd_i' lambda_{i+1} x_i'
 
+summed over the errors J sees, in moment form (``lambda_i = 2 P_i x_i``, see
+:func:`cost_and_gradient`), so that errors may also enter later in the horizon
+(:func:`error_injections`): with errors at t0 only, the late gains barely affect J.
+
 Sign convention: ``u = ud + K x~`` (see :mod:`controller.ltv`).
 """
 from __future__ import annotations
@@ -35,7 +39,7 @@ import numpy as np
 from scipy.optimize import line_search
 
 from swerve.controller.errors import ControllerError
-from swerve.controller.ltv import closed_loop, policy_cost_matrices, rollout
+from swerve.controller.ltv import closed_loop, policy_cost_matrices
 
 #: (mu, nu) of each member of the beta family (44).
 BETA_METHODS = {"dai-yuan": (1.0, 0.0), "fletcher-reeves": (1.0, 1.0),
@@ -46,6 +50,9 @@ BETA_ALIASES = {"dy": "dai-yuan", "fr": "fletcher-reeves", "prp": "polak-ribiere
 #: Scales of the unit initial errors used when the start error is zero
 #: (x m, x2 1/m, theta rad, x4 -, y m).
 BASIS_ERROR_SCALES = (0.05, 0.5, 0.1, 0.1, 0.05)
+#: Spacing (steps) of the errors injected along the horizon by :func:`error_injections`:
+#: about one second, shorter than the closed loop's settling time.
+SPREAD_EVERY_STEPS = 62
 #: Relative regularisation of X_i X_i' in the preconditioner (rank-deficient for few errors).
 PRECONDITIONER_REG = 1e-10
 
@@ -73,8 +80,59 @@ def initial_error_set(x0, mode: str = "auto") -> np.ndarray:
                           f"got {mode!r}")
 
 
-def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0):
+def error_injections(x0, n_steps: int, mode: str = "spread",
+                     every_steps: int = SPREAD_EVERY_STEPS):
+    """Errors the paper's cost sums over, and the steps at which they enter.
+
+    Returns ``X0`` (5, m) and ``starts`` (m,) for :func:`cost_and_gradient`. Modes of
+    :func:`initial_error_set` enter at step 0. ``"spread"``: those of ``"both"`` at step 0
+    plus the scaled unit errors :data:`BASIS_ERROR_SCALES` again every ``every_steps`` steps
+    along the horizon, so that every gain is seen by errors that have not decayed yet (with
+    errors at step 0 only, the cost barely depends on the late gains).
+    """
+    if mode != "spread":
+        X0 = initial_error_set(x0, mode)
+        return X0, np.zeros(X0.shape[1], int)
+    X0 = initial_error_set(x0, "both")
+    later = np.arange(every_steps, n_steps, every_steps)
+    B = np.diag(BASIS_ERROR_SCALES)
+    X = np.concatenate([X0, np.tile(B, len(later))], axis=1)
+    starts = np.concatenate([np.zeros(X0.shape[1], int), np.repeat(later, 5)])
+    return X, starts
+
+
+def error_moments(M, X0, starts=None):
+    """Second moments ``S_i = sum_c x_c(i) x_c(i)'`` of the error trajectories of
+    :func:`controller.ltv.rollout`, without forming them: ``S_0 = W_0``,
+    ``S_{i+1} = M_i S_i M_i' + W_{i+1}`` with ``W_i`` the moment of the errors entering at i.
+    ``M`` (N, 5, 5), ``X0`` (5, m), ``starts`` (m,) -> ``S`` (N+1, 5, 5)."""
+    X0 = np.asarray(X0, dtype=float).reshape(5, -1)
+    N = M.shape[0]
+    s = np.zeros(X0.shape[1], int) if starts is None else np.asarray(starts, int)
+    W = np.zeros((N + 1, 5, 5))
+    keep = s <= N
+    np.add.at(W, s[keep], np.einsum("im,jm->mij", X0[:, keep], X0[:, keep]))
+    S = np.empty((N + 1, 5, 5))
+    S[0] = W[0]
+    MT = np.swapaxes(M, 1, 2)
+    for i in range(N):
+        S[i + 1] = M[i] @ S[i] @ MT[i] + W[i + 1]
+    return S
+
+
+def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0, starts=None):
     """Cost J and its exact gradient dJ/dK.
+
+    With ``M_i = Ad_i + Bd_i K_i``, ``P`` the cost-to-go of K
+    (:func:`controller.ltv.policy_cost_matrices`) and ``S`` the errors' second moments
+    (:func:`error_moments`)::
+
+        J = tau sum_i tr((Q + K_i'R K_i) S_i)
+        dJ/dK_i = 2 (tau R K_i + Bd_i' P_{i+1} M_i) S_i
+
+    the adjoint recursion of ``shared/reference/paper-equations.md`` §5 summed over the
+    errors (``lambda_i = 2 P_i x(i)``). Two 5x5 recursions: the cost does not grow with the
+    number of errors.
 
     Parameters
     ----------
@@ -83,6 +141,8 @@ def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0):
     Q, R : ndarray, shapes (5, 5), (3, 3)
     tau : float
     X0 : ndarray, shape (5,) or (5, m)
+    starts : ndarray of int, shape (m,), optional
+        Step at which each column of ``X0`` enters (:func:`controller.ltv.rollout`).
 
     Returns
     -------
@@ -90,35 +150,26 @@ def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0):
         ``inf`` if the error trajectory overflows.
     G : ndarray, shape (N, 3, 5)
     """
-    N = K.shape[0]
     with np.errstate(over="ignore", invalid="ignore"):
         M = closed_loop(Ad, Bd, K)
-        X = rollout(M, X0)
-        Xs = X[:-1]
-        KX = K @ Xs
-        J = tau * (np.einsum("nim,ij,njm->", Xs, Q, Xs) + np.einsum("nim,ij,njm->", KX, R, KX))
-        if not np.isfinite(J):
+        S = error_moments(M, X0, starts)[:-1]
+        KS = K @ S
+        J = tau * (np.einsum("ij,nji->", Q, S)
+                   + np.einsum("ij,nji->", R, KS @ np.swapaxes(K, 1, 2)))
+        if not (np.isfinite(J) and J >= 0):    # overflow, or moments too large to be PSD
             return np.inf, np.zeros_like(K)
-        L = 2 * tau * (Q @ Xs + np.swapaxes(K, 1, 2) @ (R @ KX))
-        MT = np.swapaxes(M, 1, 2)
-        lam = np.empty_like(X)
-        lam[N] = 0.0
-        for i in range(N - 1, -1, -1):
-            np.matmul(MT[i], lam[i + 1], out=lam[i])
-            lam[i] += L[i]
-        XT = np.swapaxes(Xs, 1, 2)
-        G = 2 * tau * (R @ KX) @ XT + (np.swapaxes(Bd, 1, 2) @ lam[1:]) @ XT
+        P = policy_cost_matrices(Ad, Bd, K, Q, R, tau)
+        G = 2 * (tau * R @ KS + np.swapaxes(Bd, 1, 2) @ P[1:] @ M @ S)
     if not np.all(np.isfinite(G)):
         return np.inf, np.zeros_like(K)
     return float(J), G
 
 
-def _preconditioner(K, Ad, Bd, Q, R, tau, X0):
+def _preconditioner(K, Ad, Bd, Q, R, tau, X0, starts=None):
     """Return ``apply(G) -> Z``, the block-diagonal Hessian solve at gains K."""
     P = policy_cost_matrices(Ad, Bd, K, Q, R, tau)
     H = tau * R + np.swapaxes(Bd, 1, 2) @ P[1:] @ Bd             # (N, 3, 3)
-    X = rollout(closed_loop(Ad, Bd, K), X0)[:-1]
-    S = X @ np.swapaxes(X, 1, 2)                                  # (N, 5, 5)
+    S = error_moments(closed_loop(Ad, Bd, K), X0, starts)[:-1]    # (N, 5, 5)
     tr = np.trace(S, axis1=1, axis2=2)
     eps = PRECONDITIONER_REG * np.maximum(tr, 1e-300) + 1e-300
     if not (np.all(np.isfinite(H)) and np.all(np.isfinite(S))):
@@ -149,7 +200,7 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                        precondition: bool = True, max_iter: int = 2000,
                        target_cost: float | None = None, rtol: float = 1e-10,
                        c2: float = 0.1, refresh: int = 1, max_seconds: float = np.inf,
-                       progress: bool = False) -> SynthesisResult:
+                       progress: bool = False, starts=None) -> SynthesisResult:
     """Minimise J over all K(i) by nonlinear CG with a strong-Wolfe line search.
 
     Parameters
@@ -178,6 +229,8 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
         Stop after this much wall time.
     progress : bool
         Show a tqdm progress bar.
+    starts : ndarray of int, shape (m,), optional
+        Step at which each error enters (:func:`error_injections`); default all at step 0.
     """
     name = BETA_ALIASES.get(beta.lower(), beta.lower())
     if name not in BETA_METHODS:
@@ -197,7 +250,7 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
 
     def evaluate(x):
         if cache["x"] is None or not np.array_equal(x, cache["x"]):
-            f, G = cost_and_gradient(x.reshape(shape), Ad, Bd, Q, R, tau, X0)
+            f, G = cost_and_gradient(x.reshape(shape), Ad, Bd, Q, R, tau, X0, starts)
             count[0] += 1
             cache.update(x=x.copy(), f=f, g=G.reshape(-1))
         return cache["f"], cache["g"]
@@ -214,7 +267,7 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
         if not precondition:
             return g
         if renew or pre["apply"] is None:
-            pre["apply"] = _preconditioner(x.reshape(shape), Ad, Bd, Q, R, tau, X0)
+            pre["apply"] = _preconditioner(x.reshape(shape), Ad, Bd, Q, R, tau, X0, starts)
         return pre["apply"](g.reshape(shape)).reshape(-1)
 
     f, g = evaluate(k)
@@ -284,7 +337,7 @@ def conjugate_gradient(Ad, Bd, Q, R, tau, X0, K0=None, beta: str = "dai-yuan",
                            time.perf_counter() - t0, message, history)
 
 
-def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 62):
+def frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every: int = 8):
     """Initial gains for :func:`conjugate_gradient`: the stationary (infinite-horizon) discrete
     LQR gain of the error system frozen at knots every ``knot_every`` steps, held between knots.
 
@@ -336,12 +389,17 @@ def conjugate_gradient_continuation(Ad, Bd, Q, R, tau, X0, n0: int = 64, growth:
     evals = iters = 0
     t0 = time.perf_counter()
     max_seconds = options.pop("max_seconds", np.inf)
+    X0 = np.asarray(X0, dtype=float).reshape(5, -1)
+    starts = options.pop("starts", None)
+    starts = np.zeros(X0.shape[1], int) if starts is None else np.asarray(starts, int)
     while True:
         last = n == N
         opts = dict(options, max_seconds=max_seconds - (time.perf_counter() - t0))
         if not last:
             opts.update(max_iter=stage_iter, target_cost=None, rtol=stage_rtol, progress=False)
-        res = conjugate_gradient(Ad[:n], Bd[:n], Q, R, tau, X0, K0=K, **opts)
+        cols = starts < n
+        res = conjugate_gradient(Ad[:n], Bd[:n], Q, R, tau, X0[:, cols], K0=K,
+                                 starts=starts[cols], **opts)
         t_done = time.perf_counter() - t0
         if last:
             offset_t = t_done - res.seconds
@@ -357,7 +415,9 @@ def conjugate_gradient_continuation(Ad, Bd, Q, R, tau, X0, n0: int = 64, growth:
         Kn[:n] = res.K
         Kn[n // 2:] = res.K[n // 2]
         with np.errstate(over="ignore", invalid="ignore"):
-            if not np.isfinite(exact_cost(Ad[:m], Bd[:m], Kn, Q, R, tau, X0)):
+            cols = starts < m
+            if not np.isfinite(exact_cost(Ad[:m], Bd[:m], Kn, Q, R, tau, X0[:, cols],
+                                          starts[cols])):
                 Kn[n // 2:] = 0.0
                 Kn[:n] = res.K
         K, n = Kn, m

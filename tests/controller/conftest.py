@@ -39,7 +39,7 @@ def switching_reference():
 @pytest.fixture(scope="session")
 def short_line_reference(robot):
     geom, limits = robot
-    return build_reference(short(load_trajectory("line", geom), 150), geom, limits)
+    return build_reference(short(load_trajectory("line_r_negative", geom), 150), geom, limits)
 
 
 def numpy_reference(ref, t, phi):

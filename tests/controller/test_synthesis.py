@@ -88,7 +88,7 @@ def test_riccati_cost_is_exact(ref_name, request):
 def test_riccati_approaches_the_stationary_lqr_on_the_line(robot):
     from swerve.controller.reference import build_reference, load_trajectory
 
-    ref = build_reference(load_trajectory("line"), *robot)
+    ref = build_reference(load_trajectory("line_r_negative"), *robot)
     Ad, Bd, Q, R, tau = problem(ref)
     K, _ = finite_horizon_lqr(Ad, Bd, Q, R, tau)
     P = solve_discrete_are(Ad[0], Bd[0], tau * Q, tau * R)
@@ -166,7 +166,7 @@ def test_horizon_continuation_reaches_jstar(robot):
     from swerve.controller.reference import build_reference, load_trajectory
     from swerve.controller.synthesis import conjugate_gradient_continuation
 
-    traj = load_trajectory("line")
+    traj = load_trajectory("line_r_negative")
     traj = dataclasses.replace(traj, n_steps=600, tf_s=600 * traj.tau_s)
     ref = build_reference(traj, *robot)
     Ad, Bd, Q, R, tau = problem(ref)
@@ -190,3 +190,47 @@ def test_initial_error_sets():
     assert initial_error_set(np.zeros(5), "both").shape == (5, 5)
     with pytest.raises(ControllerError, match="initial-error mode"):
         initial_error_set(x0, "all")
+
+
+def test_spread_errors_cost_and_gradient(switching_reference):
+    """Errors entering along the horizon: J is the sum of x' P_start x under the gains' own
+    cost-to-go, and the moment-form gradient matches central differences."""
+    from swerve.controller.ltv import injected_cost
+    from swerve.controller.synthesis import error_injections
+
+    Ad, Bd, Q, R, tau = problem(switching_reference)
+    N = Ad.shape[0]
+    X0, starts = error_injections(np.array([0.01, 0.0, 0.05, 0.0, -0.01]), N, "spread",
+                                  every_steps=20)
+    assert X0.shape == (5, 6 + 5 * len(range(20, N, 20))) and starts.max() == 80
+    K = frozen_time_lqr_gains(Ad, Bd, Q, R, tau, knot_every=10) + 0.1 * RNG.standard_normal(
+        (N, 3, 5))
+    J, G = cost_and_gradient(K, Ad, Bd, Q, R, tau, X0, starts)
+    P = policy_cost_matrices(Ad, Bd, K, Q, R, tau)
+    assert J == pytest.approx(injected_cost(P, X0, starts), rel=1e-10)
+    assert J == pytest.approx(cost(Ad, Bd, K, Q, R, tau, X0, starts), rel=1e-10)
+    for i, r, c in [(0, 0, 0), (25, 1, 2), (61, 2, 4), (99, 0, 3)]:
+        dK = np.zeros_like(K)
+        dK[i, r, c] = 1e-5
+        fd = (cost(Ad, Bd, K + dK, Q, R, tau, X0, starts)
+              - cost(Ad, Bd, K - dK, Q, R, tau, X0, starts)) / 2e-5
+        assert G[i, r, c] == pytest.approx(fd, rel=1e-4, abs=1e-8)
+
+
+def test_default_paper_gains_track_the_curvilinear_path(robot):
+    """The default paper synthesis (spread errors, frozen-time LQR start, CG to 1.001 J*) passes
+    its own check and tracks the curvilinear path like Riccati; the former default (errors at
+    t0 only, horizon continuation) diverged there."""
+    from swerve.controller.design import synthesize
+    from swerve.controller.reference import load_trajectory
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
+
+    geom, limits = robot
+    traj = load_trajectory("curvilinear", geom)
+    ref, gains = synthesize(traj, "paper", geom, limits)
+    assert gains.cost <= 1.001 * gains.meta["J_star"]
+    assert gains.meta["check"]["max_tracking_error_m"] < 1e-3
+    m = metrics(simulate(TrackingLaw(ref, gains, limits), traj.start_state(geom)),
+                traj.Q, traj.R, traj.tau_s)
+    assert m["max_position_error_m"] < 1e-3 and m["final_position_error_m"] < 1e-4

@@ -26,7 +26,8 @@ HELP = "track a trajectory on the robot (--port) or on the emulator (--emulate)"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trajectory", required=True,
-                        help="line, circle, curvilinear, or a trajectory .yaml / path .csv file")
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: controller/README.md, Trajectory files)")
     parser.add_argument("--gains", default=None,
                         help="gain schedule .npz/.dat from `swerve synth` (default: synthesise with Riccati)")
     where = parser.add_mutually_exclusive_group()
@@ -47,11 +48,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast-read", action="store_true", help="use Fast Sync Read (firmware >= 45)")
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
+    parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
+                        help="the robot's start state in m and rad (default: the trajectory's)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
     from swerve.configs.errors import ConfigError
+    from swerve.tools.commands.sim import parse_x0
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     if args.lockstep and not args.emulate:
@@ -68,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
                      time_scale=args.time_scale, log=log,
                      fast_read=args.fast_read, faults=args.faults,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
-                     progress=sys.stderr.isatty())
+                     progress=sys.stderr.isatty(),
+                     start=None if args.x0 is None else tuple(parse_x0(args.x0)))
     out = sys.stderr if args.json else sys.stdout
     result = run_tracking(req, on_config=lambda c: print(f"config: {c.describe()}", file=out, flush=True))
     s = result.summary.to_dict()

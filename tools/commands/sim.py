@@ -9,7 +9,8 @@ HELP = "simulate LQ trajectory tracking on the kinematic model and report tracki
 
 def add_arguments(parser) -> None:
     parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: controller/README.md, Trajectory files)")
     parser.add_argument("--gains", metavar="FILE",
                         help="gain schedule from 'swerve synth' (.npz/.dat); default: "
                              "synthesise with --method now")
@@ -27,7 +28,8 @@ def add_arguments(parser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _parse_x0(text: str):
+def parse_x0(text: str):
+    """``--x0 x,y,θ,δ1,δ2`` (m, rad) as an array (5,); a one-line error otherwise."""
     import numpy as np
 
     from swerve.controller.errors import ControllerError
@@ -60,7 +62,7 @@ def run(args) -> int:
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
-    x0 = _parse_x0(args.x0) if args.x0 else traj.start_state(geom)
+    x0 = parse_x0(args.x0) if args.x0 else traj.start_state(geom)
     if args.gains:
         gains = load_gains(args.gains)
         frames = gains.meta.get("frames", args.law)
@@ -70,7 +72,7 @@ def run(args) -> int:
         ref = build_reference(traj, geom, limits, frames)
     else:
         ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law,
-                                progress=not args.quiet and sys.stderr.isatty())
+                                progress=not args.quiet and sys.stderr.isatty(), start=x0)
     law = TrackingLaw(ref, gains, limits, governor=not args.no_governor)
     res = simulate(law, x0)
     m = metrics(res, traj.Q, traj.R, traj.tau_s)
@@ -79,6 +81,9 @@ def run(args) -> int:
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
                x0=x0.tolist(), synthesis_cost=gains.cost, config=str(choice.path),
                config_source=choice.source, **m)
+    report = getattr(traj.path, "report", None)
+    if report is not None:
+        out.update(report.as_dict())
     if args.plot:
         from swerve.controller.plots import plot_run
 

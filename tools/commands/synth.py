@@ -9,7 +9,8 @@ HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz 
 
 def add_arguments(parser) -> None:
     parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, or a .yaml / t,x,y .csv file")
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: controller/README.md, Trajectory files)")
     parser.add_argument("--method", choices=("riccati", "paper"), default="riccati",
                         help="riccati: exact finite-horizon optimum (default); "
                              "paper: nonlinear conjugate gradient (42)-(59)")
@@ -25,19 +26,26 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-precondition", action="store_true",
                         help="paper method: no block-Hessian preconditioner (with --init zero: "
                              "the paper exactly as printed, slow)")
-    parser.add_argument("--initial-errors", choices=("both", "auto", "start", "basis"),
-                        default="both",
-                        help="paper method: optimise for the start error and a basis of "
-                             "scaled unit errors (default), the start error alone, the basis "
-                             "alone, or auto (start, or basis when the start error is zero)")
-    parser.add_argument("--init", choices=("continuation", "zero", "frozen-lqr"),
-                        default="continuation",
-                        help="paper method: K = 0 with horizon continuation (default), K = 0 "
-                             "on the full horizon (as printed), or frozen-time LQR gains")
+    parser.add_argument("--initial-errors", choices=("spread", "both", "auto", "start", "basis"),
+                        default="spread",
+                        help="paper method: the errors J sums over: spread (default: the start "
+                             "error and scaled unit errors at t0, and unit errors again every "
+                             "second along the horizon), both (start error and unit errors at "
+                             "t0), start, basis, or auto (start, or basis when it is zero)")
+    parser.add_argument("--init", choices=("frozen-lqr", "continuation", "zero"),
+                        default="frozen-lqr",
+                        help="paper method: frozen-time LQR gains (default), K = 0 with "
+                             "horizon continuation, or K = 0 on the full horizon (as printed)")
+    parser.add_argument("--no-check", action="store_true",
+                        help="paper method: write the gains even if they fail the check "
+                             "(nonlinear closed loop and closed-loop spectrum)")
     parser.add_argument("--target-ratio", type=float, default=1.001,
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
     parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
+    parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
+                        help="robot start state in m and rad (default: the trajectory's); its "
+                             "error is part of the paper method's cost and of its check")
     add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
@@ -51,18 +59,21 @@ def run(args) -> int:
     from swerve.controller.gains_io import save_gains
     from swerve.configs import locate_robot_file
     from swerve.controller.reference import load_trajectory
+    from swerve.tools.commands.sim import parse_x0
     from swerve.tools.run.robot import load_robot
 
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom)
+    start = parse_x0(args.x0) if args.x0 else None
     if args.max_iter < 1:
         raise ControllerError("--max-iter must be at least 1")
     ref, gains = synthesize(traj, args.method, geom, limits, frames=args.law, beta=args.beta,
                             precondition=not args.no_precondition,
                             initial_errors=args.initial_errors, max_iter=args.max_iter,
                             init=args.init, target_ratio=args.target_ratio,
-                            progress=not args.quiet and sys.stderr.isatty())
+                            progress=not args.quiet and sys.stderr.isatty(),
+                            check=not args.no_check, start=start)
     out = Path(args.out) if args.out else Path("out/gains") / f"{traj.name}_{args.method}.npz"
     if out.suffix != ".npz":
         raise ControllerError(f"--out must end in .npz, got {out}")

@@ -51,6 +51,7 @@ class RunRequest:
     start_timeout_s: float = 5.0
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
+    start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
@@ -138,7 +139,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
     cfg = wall_clock_guards(cfg, loop_scale)
     geom, limits = geometry_and_limits(cfg)
     traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
-    start = traj.start_state(geom)
+    start = traj.start_state(geom) if req.start is None else np.asarray(req.start, dtype=float)
     sim = simulated_poses(law, start) if req.log is not None else None
 
     rate_hz = req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ
