@@ -39,10 +39,10 @@ def _marker_kwargs(request, name: str) -> dict:
 def emulated_bus(request) -> Iterator[str]:
     """Yield the pty path (``"/dev/pts/N"``) of an emulated bus, served by a thread of this process.
 
-    Default: IDs 1-8, XH430-W210, 1 Mbps, every servo running its motor and firmware loops at
-    real time (as ``swerve emulate``). Marker keywords are those of
-    :func:`swerve.emulator.robot_emulator.build_emulator` plus ``physics`` (False: a
-    register-only bus). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
+    Default: IDs 1-8, XH430-W210, 1 Mbps, a register-only bus (every instruction and error
+    rule of the control table; Present* items stay put). Marker keywords are those of
+    :func:`swerve.emulator.robot_emulator.build_emulator` plus ``physics`` (True: every servo
+    runs its motor and firmware loops at ``time_scale`` x real time, as ``swerve emulate``). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
     serial tool. The emulator object is ``request.node.emulator`` (faults, counters).
     """
     from swerve.configs import shipped
@@ -50,7 +50,7 @@ def emulated_bus(request) -> Iterator[str]:
     from swerve.emulator.robot_emulator import build_emulator
 
     kw = _marker_kwargs(request, "emulated_bus")
-    physics = load_config(shipped("emulator.yaml")) if kw.pop("physics", True) else None
+    physics = load_config(shipped("emulator.yaml")) if kw.pop("physics", False) else None
     kw.setdefault("ids", range(1, 9))
     with build_emulator(None, physics, **kw) as emu:
         request.node.emulator = emu

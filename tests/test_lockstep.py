@@ -16,7 +16,7 @@ from swerve.driver.control_table import Reg
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.commands.emulate import parse_control, parse_port_line
-from swerve.tools.run.lockstep import LockstepClock, LockstepError
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock, LockstepError
 
 ROOT = Path(__file__).resolve().parents[1]
 BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
@@ -26,7 +26,8 @@ BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
 def bus_in_lockstep():
     """A register-only 3-servo bus in lockstep, its driver, and a clock on its control channel."""
     with build_emulator(ids=[1, 2, 3], lockstep=True) as emu:
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210") as bus:
+        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             yield emu, bus, clock
 
@@ -97,7 +98,8 @@ def test_emulate_lockstep_prints_its_control_socket_and_stays_paused():
         port, baud, ids = parse_port_line(line)
         control = parse_control(line)
         assert ids == [1, 2] and control is not None and Path(control).exists()
-        with LockstepClock(control) as clock, Bus(port, baud, default_model="xh430-w210") as bus:
+        with LockstepClock(control) as clock, Bus(port, baud, default_model="xh430-w210",
+                                                  timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             assert bus.ping(1).id == 1
             t = clock.now()
@@ -132,7 +134,7 @@ def test_run_lockstep_with_a_port_is_a_one_line_error():
     assert len(out.stderr.strip().splitlines()) == 1 and "--lockstep" in out.stderr
 
 
-@pytest.mark.emulated_bus(ids=[4, 5, 6], physics=False)
+@pytest.mark.emulated_bus(ids=[4, 5, 6], physics=True)
 def test_emulated_bus_fixture_takes_its_servos_from_the_marker(emulated_bus):
     with Bus(emulated_bus, 1_000_000) as bus:
         assert [r.id for r in bus.scan(range(1, 8))] == [4, 5, 6]
