@@ -104,6 +104,11 @@ def test_tracks_the_line_on_the_wall_clock(tmp_path, config):
     res = run_tracking(RunRequest(trajectory="line", emulate=True, time_scale=SCALE, log=tmp_path / "log",
                                   config=config))
     s = res.summary.to_dict()
+    lost_s, achieved = s.get("emulator_lost_sim_s") or 0.0, s.get("emulator_achieved_time_scale") or 0.0
+    if lost_s > 0 or achieved < 0.9 * SCALE:
+        pytest.skip(f"the host could not run the emulator at {SCALE}x (achieved {achieved:.2f}x, lost "
+                    f"{lost_s:.2f} s of robot time): a wall-clock run then measures the host, not the code "
+                    f"(the lockstep tests do)")
     assert res.aborted is None, s.get("abort_message")
     assert s["completed"] and s["error_source"] == "true_pose" and s["clock"] == "wall"
     for key in ("final_position_error_m", "rms_position_error_m", "max_position_error_m"):
