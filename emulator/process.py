@@ -61,8 +61,9 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
             break
         try:                           # ("fault", method, args): e.g. ("fault", "vanish", (3,))
             _, method, fargs = msg
-            with emu.lock:
-                getattr(emu.faults, method)(*fargs)
+            # Faults are safe to change while the emulator runs; raise_hardware_error takes the
+            # emulator's (non-reentrant) lock itself.
+            getattr(emu.faults, method)(*fargs)
             conn.send(("ok", None))
         except Exception as exc:  # noqa: BLE001 - reported to the parent
             conn.send(("error", f"{type(exc).__name__}: {exc}"))

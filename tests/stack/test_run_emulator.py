@@ -6,7 +6,8 @@ process. All but the process-level tests run in lockstep (the ``emulated_robot``
 and the run is the same on an idle or a loaded machine, so the error bounds are tight absolute
 bounds on the emulated robot's errors (servo lag, encoder quantisation, odometry), measured at
 a few mm. One tracking test stays on the wall clock (time-scaled, ``SWERVE_TEST_TIME_SCALE``,
-default 5) with the wall-clock allowance of 2x the ideal simulation + 3 cm; the killed-controller
+default 5) with the wall-clock allowance of 2x the ideal simulation + 3 cm, and skips (saying so)
+when the host cannot run the emulator at that scale; the killed-controller
 and Ctrl-C tests stay there too, because what they test (a dead or interrupted controller
 process) pauses a lockstep robot instead. Under a time scale the run stretches the Bus Watchdog
 and the failed-read limit to their wall-clock length (``swerve.tools.run.orchestrate.

@@ -12,6 +12,7 @@ emulator/README.md); a bus nobody drives stays paused.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import signal
 import sys
 import threading
@@ -94,6 +95,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with the robot body: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,
                         help="sensor noise, e.g. position=0.5,current=0.002,seed=1")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="with the robot body: stream the true pose (/true_pose) over the Foxglove "
+                             "WebSocket protocol on PORT (127.0.0.1 unless HOST is given)")
     parser.add_argument("--no-baud-check", action="store_true",
                         help="answer whatever line speed the client sets")
     parser.add_argument("-v", "--verbose", action="store_true", help="log dispatch errors (debug)")
@@ -141,12 +145,22 @@ def run(args: argparse.Namespace) -> int:
     def _on_signal(signum, _frame):
         stop.set()
 
+    if args.live and emu.world is None:
+        raise ConfigError("--live streams the robot body's true pose: drop --frozen and emulate the "
+                          "robot's servos")
     previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    stack = contextlib.ExitStack()
     try:
         try:
             emu.start()
         except OSError as exc:
             raise ConfigError(f"cannot open the pty or link: {exc}") from None
+        if args.live:
+            from swerve.tools.live import LivePublisher, PosePump, parse_live
+
+            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator"))
+            stack.callback(PosePump(live, lambda: emu.pose).start().close)
+            print(f"LIVE {live.url}", file=sys.stderr, flush=True)
         freeze_startup_heap()
         ids_text = format_ids(s.id for s in emu.servos)
         control = f" CONTROL {emu.control.path}" if emu.control is not None else ""
@@ -160,6 +174,7 @@ def run(args: argparse.Namespace) -> int:
         while not stop.wait(1.0):
             pass
     finally:
+        stack.close()
         emu.close()
         for s, h in previous.items():
             signal.signal(s, h)

@@ -50,6 +50,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="the robot's start state in m and rad (default: the trajectory's)")
+    parser.add_argument("--on-servo-fault", choices=("stop", "recover"), default="stop",
+                        help="on a servo's hardware error: stop the robot (default), or recover: stop, "
+                             "reboot the servo, restore its settings from the robot file, re-home the "
+                             "steering and resume (at most 3 times a minute)")
+    parser.add_argument("--live", default=None, metavar="[HOST:]PORT",
+                        help="stream the run log's topics live over the Foxglove WebSocket protocol "
+                             "(127.0.0.1 unless HOST is given; e.g. 8765 or 0.0.0.0:8765)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
@@ -72,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
                      time_scale=args.time_scale, log=log,
                      fast_read=args.fast_read, faults=args.faults,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
-                     progress=sys.stderr.isatty(),
+                     progress=sys.stderr.isatty(), on_servo_fault=args.on_servo_fault, live=args.live,
                      start=None if args.x0 is None else tuple(parse_x0(args.x0)))
     out = sys.stderr if args.json else sys.stdout
     result = run_tracking(req, on_config=lambda c: print(f"config: {c.describe()}", file=out, flush=True))

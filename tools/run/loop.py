@@ -110,6 +110,11 @@ class TrackingLoop:
         fields (SI; NaN where unknown), e.g. to write the log.
     clock : Clock, optional
         Where time comes from (default :class:`~swerve.tools.run.ticker.WallClock`).
+    fault_policy : object, optional
+        ``recover(abort, wheels, rehome) -> bool`` (:mod:`swerve.tools.recovery`), asked when a
+        servo reports a hardware error; True resumes the run after ``rehome()`` has steered back
+        to the last commanded angles. The trajectory time does not advance meanwhile, so the
+        reference waits for the robot. ``None``: stop, as on any other abort.
     count_host_cpu : bool
         The clock is simulated (lockstep): host CPU time does not pass on it, so count the cycles
         whose clock time plus measured CPU time would not fit in a period (``host_cpu_overruns``).
@@ -119,7 +124,7 @@ class TrackingLoop:
                  max_failed_reads: int = 3, watchdog_s: float = 0.1, max_time_factor: float = 1.5,
                  true_pose: Callable[[], tuple] | None = None,
                  on_cycle: Callable[[dict], None] | None = None,
-                 clock: Clock | None = None, count_host_cpu: bool = False):
+                 clock: Clock | None = None, fault_policy=None, count_host_cpu: bool = False):
         if not time_scale > 0:
             raise ValueError(f"time scale must be positive, got {time_scale}")
         self.wheels, self.law, self.geom = wheels, law, geom
@@ -133,6 +138,7 @@ class TrackingLoop:
         self.clock = WallClock() if clock is None else clock
         self._stamp_ns = getattr(self.clock, "stamp_ns", time.time_ns)
         self.count_host_cpu = bool(count_host_cpu)
+        self.fault_policy = fault_policy
         self.failed_reads = 0
 
     # --- helpers -----------------------------------------------------------------------------
@@ -216,19 +222,30 @@ class TrackingLoop:
         k = 0
         cpu_s: list[float] = []
         cpu_overruns = 0
+        k_base = 0                       # slots run before the last recovery from a servo fault
         with collector_paused():         # a full GC pass would cost ~2 periods
             ticker.start()
             try:
                 t_max = self.max_time_factor * law.reference.tf_s
                 cpu0 = time.thread_time()
                 while True:
-                    t = k * tau
+                    t = (k_base + k) * tau
                     if t > t_max:
                         raise LoopAbort(f"the robot could not follow the reference: after {t:.1f} s the "
                                         f"reference clock stands at {law.reference_time_s:.1f} of "
                                         f"{law.reference.tf_s:.1f} s; stopping", "diverged")
                     self._touch_bus()
-                    st = self._read()
+                    try:
+                        st = self._read()
+                    except LoopAbort as exc:
+                        if not self._recovered(exc, d1, d2):
+                            raise
+                        k_base += k      # resume at the same trajectory time, on a new schedule
+                        k = 0
+                        ticker.start()
+                        self._last_tx = t_prev_meas = None
+                        odo = Odometry(geom, odo.pose)   # a rebooted servo's wheel angle starts over
+                        continue
                     t_meas = self.clock.now()     # the reply's time on the loop's clock
                     flags = 0
                     if st is None:
@@ -256,8 +273,8 @@ class TrackingLoop:
                     rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
                                  out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
                     if self.on_cycle is not None:
-                        fields = self._cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose,
-                                             out.desired_state, truth, flags)
+                        fields = self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
+                                             pose, out.desired_state, truth, flags)
                         fields["stamp_ns"] = self._stamp_ns()
                         self.on_cycle(fields)
                     cpu = time.thread_time() - cpu0
@@ -272,6 +289,12 @@ class TrackingLoop:
             finally:
                 self._stop_quietly()
         return self._result(rows, ticker, aborted, cpu_s, cpu_overruns)
+
+    def _recovered(self, exc: LoopAbort, d1: float, d2: float) -> bool:
+        """Let the fault policy handle a servo's hardware error; True when the run may resume."""
+        if self.fault_policy is None or exc.cause != "hardware error":
+            return False
+        return bool(self.fault_policy.recover(exc, self.wheels, lambda: self.move_to_start(d1, d2)))
 
     def _stop_quietly(self) -> None:
         try:

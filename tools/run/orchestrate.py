@@ -17,7 +17,7 @@ from swerve.configs import ConfigChoice
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.loop import LoopResult
 from swerve.tools.run.robot import geometry_and_limits, locate_and_load
-from swerve.tools.run.summary import EmulatorStats, RunSummary
+from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +52,8 @@ class RunRequest:
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
+    on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
+    live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
@@ -121,6 +123,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
     """
     from swerve.driver.bus import Bus
     from swerve.driver.wheelset import WheelSet
+    from swerve.tools.recovery import policy
     from swerve.tools.run.loop import TrackingLoop
 
     from swerve.configs.errors import ConfigError
@@ -176,6 +179,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         margin = req.timeout_margin_s if req.timeout_margin_s is not None else (
             LOCKSTEP_TIMEOUT_MARGIN_S if req.lockstep else EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
         margin = {} if margin is None else {"timeout_margin_s": margin}
+        fault_policy = policy(req.on_servo_fault, **margin)
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         if clock is not None:
             clock.count_tx(lambda: bus.bytes_written)
@@ -186,13 +190,20 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         bus.retries = 0
         if not req.lockstep:
             bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
-        on_cycle = None
+        callbacks = []
         if req.log is not None:
-            on_cycle = _log_writer(stack, req, cfg, traj, sim, choice)
+            callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
+        live = None
+        if req.live is not None:
+            from swerve.tools.live import LivePublisher, parse_live
+
+            live = stack.enter_context(LivePublisher(*parse_live(req.live), wheels=[w.name for w in cfg.wheels]))
+            log.warning("live view on %s", live.url)
+            callbacks.append(live.on_cycle)
         loop = TrackingLoop(wheels, law, geom, time_scale=loop_scale,
                             max_failed_reads=cfg.max_consecutive_timeouts,
-                            watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=on_cycle,
-                            clock=clock, count_host_cpu=req.lockstep)
+                            watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=_chain(callbacks),
+                            fault_policy=fault_policy, clock=clock, count_host_cpu=req.lockstep)
         wheels.enable()
         loop.move_to_start(start[3], start[4], timeout_s=req.start_timeout_s)
         if clock is not None:
@@ -203,6 +214,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         robot_s = clock.now() - robot0 if clock is not None else wall_s * loop_scale
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
         counters = clock.counters() if clock is not None else None
+        live_stats = None if live is None else LiveStats(live.url, live.published, live.dropped)
     emulator = None
     if req.emulate and emu.final_stats:
         bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
@@ -221,8 +233,23 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         abort_message=None if aborted is None else str(aborted), **bus_counts,
         log=None if req.log is None else str(req.log), emulator=emulator,
         clock="lockstep" if req.lockstep else "wall", wall_time_s=wall_s,
-        real_time_factor=robot_s / wall_s if wall_s > 0 else None)
+        real_time_factor=robot_s / wall_s if wall_s > 0 else None,
+        servo_faults=fault_policy.summary(), live=live_stats)
     return RunResult(summary, result)
+
+
+def _chain(callbacks):
+    """One ``on_cycle`` callback calling each of ``callbacks`` in turn (None for none)."""
+    if not callbacks:
+        return None
+    if len(callbacks) == 1:
+        return callbacks[0]
+
+    def on_cycle(fields: dict) -> None:
+        for cb in callbacks:
+            cb(fields)
+
+    return on_cycle
 
 
 def _seeded(faults: str | None) -> str | None:

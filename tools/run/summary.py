@@ -73,6 +73,25 @@ class EmulatorStats:
 
 
 @dataclass(frozen=True)
+class ServoFaults:
+    """How servo faults were handled: the ``on_servo_fault`` policy (stop / recover), the
+    ``recoveries`` done, and every step as ``"<t_s> ID <ids> <step>: <detail>"``."""
+
+    on_servo_fault: str
+    recoveries: int
+    recovery_steps: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
+class LiveStats:
+    """The live view: its ``live_url`` and the records it ``live_published`` and ``live_dropped``."""
+
+    live_url: str
+    live_published: int
+    live_dropped: int
+
+
+@dataclass(frozen=True)
 class RunSummary:
     """One tracking run.
 
@@ -81,7 +100,8 @@ class RunSummary:
     ``shipped``); ``time_scale`` robot s per wall s; ``completed`` (False: stopped, see
     ``abort_cause``/``abort_message``); ``cycles`` run; ``failed_reads`` over the run;
     ``tracking`` (None if no cycle ran); ``timing``; the bus's ``bus_stray_replies`` and
-    ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot).
+    ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot);
+    ``servo_faults`` how hardware errors were handled; ``live`` the live view (None without).
     ``clock``: ``"wall"`` or ``"lockstep"`` (robot time owned by the emulator; ``time_scale``
     is then the pacing, ``None`` for as fast as possible); ``wall_time_s`` of the loop and
     ``real_time_factor`` (robot s per wall s over the loop) are host-measured.
@@ -103,6 +123,8 @@ class RunSummary:
     bus_corrupt_frames: int = 0
     log: str | None = None
     emulator: EmulatorStats | None = None
+    servo_faults: ServoFaults | None = None
+    live: LiveStats | None = None
     clock: str = "wall"
     wall_time_s: float | None = None
     real_time_factor: float | None = None

@@ -65,11 +65,16 @@ def write_gains(path: str | Path, group: str, gains: dict[str, int]) -> None:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from exc
-    new = update_gains_text(text, group, gains, str(path))
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=path.name, suffix=".tmp")
+    write_text_atomic(path, update_gains_text(text, group, gains, str(path)))
+
+
+def write_text_atomic(path: Path, text: str) -> None:
+    """Replace the file at ``path`` by ``text``: a temporary file in the same folder (same mode)
+    renamed over it with :func:`os.replace`, so a reader sees the old or the new file, never half."""
+    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
     try:
         with os.fdopen(fd, "w") as f:
-            f.write(new)
+            f.write(text)
         os.chmod(tmp, path.stat().st_mode & 0o777)
         os.replace(tmp, path)
     except BaseException:

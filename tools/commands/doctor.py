@@ -1,0 +1,62 @@
+"""``swerve doctor``: a checklist of the servo bus against the robot file, pass / warn / fail.
+
+Exit status 0 only when every check passes, 1 otherwise (2 for bad input, as every command).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+
+from swerve.tools.cli import add_config_option
+
+NAME = "doctor"
+HELP = ("check the bus against the robot file: latency timer, IDs and baud, model and firmware, "
+        "voltage, temperature, hardware errors, settings, timed read/write cycle")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
+    where.add_argument("--emulate", action="store_true",
+                       help="check an emulated bus of the robot file's servos (started here)")
+    add_config_option(parser)
+    parser.add_argument("--fix", action="store_true",
+                        help="repair what can be repaired: move servos to the file's ID and baud, reboot "
+                             "servos with a latched hardware error, write modes/return delay/gains, set "
+                             "the latency timer (needs write access to sysfs)")
+    parser.add_argument("--cycles", type=int, default=200, help="timed read/write cycles (default 200)")
+    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+                        help="slack on every reply deadline (default 2 ms; 50 ms with --emulate)")
+    parser.add_argument("--json", action="store_true", help="print the report as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    import contextlib
+
+    from swerve.driver.errors import ConfigError
+    from swerve.configs import locate_robot_file
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.tools.doctor import diagnose
+
+    if args.cycles < 1:
+        raise ConfigError(f"--cycles must be >= 1, got {args.cycles}")
+    cfg = load_robot_config(locate_robot_file(args.config).path)
+    margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (50.0 if args.emulate else 2.0)
+    with contextlib.ExitStack() as stack:
+        if args.emulate:
+            from swerve.emulator.robot_emulator import build_emulator
+
+            emu = stack.enter_context(build_emulator(cfg))      # register-only: nothing moves
+            port = emu.port
+        else:
+            port = args.port or cfg.link.port
+        report = diagnose(cfg, port, fix=args.fix, margin_s=margin_ms * 1e-3, cycles=args.cycles)
+    if args.json:
+        print(json.dumps(report.as_dict(), indent=2))
+    else:
+        for c in report.checks:
+            print(c.line())
+        for f in report.fixed:
+            print(f"fixed: {f}")
+        print("all checks pass" if report.ok else "some checks did not pass")
+    return 0 if report.ok else 1
