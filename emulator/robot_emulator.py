@@ -60,7 +60,7 @@ _INPUTS = ("torque_enable", "operating_mode", "drive_mode", "goal_pwm", "goal_cu
            "velocity_p_gain", "position_d_gain", "position_i_gain", "position_p_gain",
            "feedforward_1st_gain", "feedforward_2nd_gain", "pwm_limit", "current_limit",
            "velocity_limit", "max_position_limit", "min_position_limit", "moving_threshold",
-           "homing_offset", "bus_watchdog")
+           "homing_offset", "bus_watchdog", "temperature_limit", "max_voltage_limit", "min_voltage_limit")
 
 
 class _ServoDynamics:
@@ -73,6 +73,7 @@ class _ServoDynamics:
 
     def __init__(self, model: ServoModel, servo: VirtualServo):
         self.model = model
+        self._servo = servo
         self._memory = servo.memory
         regs = [servo.table[n] for n in _INPUTS]
         self._end = max(r.address + r.size for r in regs)
@@ -91,6 +92,8 @@ class _ServoDynamics:
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """One physics step under the servo's current input items."""
         self.model.advance(dt_s, self.inputs())
+        if self.model.pending_hardware_error:       # the physics tripped a protection: latch it
+            self._servo.raise_hardware_error(self.model.take_hardware_error())
 
     def outputs(self) -> dict[str, int]:
         """Present items as of the last step (at rest before the first)."""

@@ -12,6 +12,7 @@ import argparse
 import time
 from pathlib import Path
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.cli import add_config_option
 
 NAME = "demo"
@@ -33,6 +34,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "scale on a 2-core machine)")
     parser.add_argument("--trajectories", default=",".join(TRAJECTORIES),
                         help="comma-separated trajectory names or files (default: the paper's three)")
+    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,7 +80,8 @@ def run(args: argparse.Namespace) -> int:
             import shutil
             shutil.rmtree(log_dir)
         res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=choice,
-                                      emulate=True, lockstep=lockstep, time_scale=scale, log=log_dir))
+                                      emulate=True, lockstep=lockstep, time_scale=scale, log=log_dir,
+                                      emulator_config=args.emulator_config))
         figs = plot_run(read_log(log_dir), out / "plots" / stem)
         s = res.summary.to_dict()
         state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"
@@ -86,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
               f"overruns {s.get('overruns')}, real-time factor {s.get('real_time_factor', float('nan')):.1f}",
               flush=True)
         rows.append((name, sim, s, figs, gains_file, log_dir))
-    summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice)
+    summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
+                             str(args.emulator_config or "ideal"))
     print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
     return 0 if all(r[2].get("completed") for r in rows) else 1
 
@@ -98,13 +102,13 @@ def _fmt(v, scale=1e3, digits=1) -> str:
         return "-"
 
 
-def _write_summary(out: Path, rows, pace: str, wall_s: float, choice) -> Path:
+def _write_summary(out: Path, rows, pace: str, wall_s: float, choice, physics: str = "ideal") -> Path:
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "
              f"closed loop simulated on model (1)-(5) and run at 62.5 Hz against the emulated robot "
              f"(Table 1 motors, firmware loops, robot body) {pace}; "
              f"{wall_s:.0f} s wall in all.", "",
-             f"Robot file: `{choice.path}` ({choice.source}).", "",
+             f"Robot file: `{choice.path}` ({choice.source}); emulator physics: `{physics}`.", "",
              "Errors in mm (rms and max over t >= tf/4); emulator errors use the emulator's true pose.", "",
              "| trajectory | sim rms | sim max | sim final | emu rms | emu max | emu final | odometry vs true max "
              "| loop p50 / p99 ms | overruns | status |",

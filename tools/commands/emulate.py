@@ -20,6 +20,7 @@ import threading
 from swerve.configs.options import parse_ids
 from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
@@ -90,7 +91,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "(default: added when the robot's servos are all on the bus)")
     mode.add_argument("--frozen", action="store_true",
                       help="register-only bus: Present* items stay put (protocol tests)")
-    parser.add_argument("--emulator-config", default=None, help="physics config (default configs/emulator.yaml)")
+    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
     parser.add_argument("--status-file", default=None,
                         help="with the robot body: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,
@@ -106,9 +107,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     import logging
 
-    from swerve.configs import locate_robot_file, shipped
+    from swerve.configs import locate_robot_file
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
+    from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.robot_emulator import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
@@ -131,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
         if args.reply_latency_us is not None:
             lockstep["reply_latency_s"] = args.reply_latency_us * 1e-6
     robot = load_robot_config(locate_robot_file(args.config).path)
-    physics = None if args.frozen else load_config(args.emulator_config or shipped("emulator.yaml"))
+    physics = None if args.frozen else load_config(resolve_emulator_config(args.emulator_config or "ideal"))
     try:
         emu = build_emulator(robot, physics, ids=ids, model=args.model, baud=args.baud,
                              body=True if args.physics else None, time_scale=args.time_scale,

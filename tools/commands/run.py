@@ -18,6 +18,7 @@ import sys
 import time
 from pathlib import Path
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.cli import add_config_option
 
 NAME = "run"
@@ -48,6 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast-read", action="store_true", help="use Fast Sync Read (firmware >= 45)")
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
+    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}")
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="the robot's start state in m and rad (default: the trajectory's)")
     parser.add_argument("--on-servo-fault", choices=("stop", "recover"), default="stop",
@@ -71,13 +73,15 @@ def run(args: argparse.Namespace) -> int:
         args.time_scale = 1.0
     if args.time_scale is not None and not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
+    if args.emulator_config is not None and not args.emulate:
+        raise ConfigError("--emulator-config needs --emulate")
     log = None if args.no_log else (
         Path(args.log) if args.log else
         Path("out/runs") / f"{Path(args.trajectory).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
     req = RunRequest(trajectory=args.trajectory, gains=args.gains, config=args.config,
                      port=args.port, emulate=args.emulate, lockstep=args.lockstep,
                      time_scale=args.time_scale, log=log,
-                     fast_read=args.fast_read, faults=args.faults,
+                     fast_read=args.fast_read, faults=args.faults, emulator_config=args.emulator_config,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty(), on_servo_fault=args.on_servo_fault, live=args.live,
                      start=None if args.x0 is None else tuple(parse_x0(args.x0)))

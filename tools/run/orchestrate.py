@@ -51,6 +51,7 @@ class RunRequest:
     start_timeout_s: float = 5.0
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
+    emulator_config: str | Path | None = None   # emulator physics: "ideal", "realistic" or a file
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
@@ -155,20 +156,24 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             port = req.port
             true_pose = clock.pose
         elif req.lockstep:
+            from swerve.emulator.physics.profiles import resolve_emulator_config
             from swerve.emulator.process import EmulatorProcess
             from swerve.tools.run.lockstep import LockstepClock
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, lockstep=True, faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
+                faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
                 start_pose=tuple(start[:3]), rate_hz=rate_hz))
             clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
             port = emu.port
             true_pose = clock.pose
         elif req.emulate:
+            from swerve.emulator.physics.profiles import resolve_emulator_config
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
+                time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
                 rate_hz=rate_hz))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
