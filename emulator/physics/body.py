@@ -75,23 +75,28 @@ class RobotBody:
     def step(self, dt_s: float, speeds_mps, steer_rad) -> tuple[float, float, float]:
         """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``."""
         self.twist = self.fit_twist(speeds_mps, steer_rad)
-        vx, vy, w = (float(v) for v in self.twist)
-        h = w * dt_s
-        if abs(h) > 1e-9:                         # exact SE(2) motion at constant twist
-            s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w
-            dx, dy = s * vx - c * vy, c * vx + s * vy
-        else:
-            dx, dy = vx * dt_s, vy * dt_s
-        ct, st = math.cos(self.theta_rad), math.sin(self.theta_rad)
-        self.x_m += ct * dx - st * dy
-        self.y_m += st * dx + ct * dy
-        self.theta_rad += h
+        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, self.twist, dt_s)
         return self.x_m, self.y_m, self.theta_rad
 
     @property
     def pose(self) -> tuple[float, float, float]:
         """World pose ``(x_m, y_m, theta_rad)``."""
         return self.x_m, self.y_m, self.theta_rad
+
+
+def se2_step(pose: tuple[float, float, float], twist, dt_s: float) -> tuple[float, float, float]:
+    """World pose ``(x_m, y_m, theta_rad)`` after ``dt_s`` at the body twist ``(vx, vy, ω)`` held
+    constant (exact SE(2) motion)."""
+    x, y, theta = pose
+    vx, vy, w = (float(v) for v in twist)
+    h = w * dt_s
+    if abs(h) > 1e-9:
+        s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w
+        dx, dy = s * vx - c * vy, c * vx + s * vy
+    else:
+        dx, dy = vx * dt_s, vy * dt_s
+    ct, st = math.cos(theta), math.sin(theta)
+    return x + ct * dx - st * dy, y + st * dx + ct * dy, theta + h
 
 
 def paper_model_rates(theta: float, delta1: float, delta2: float, v1: float, a: float, b: float

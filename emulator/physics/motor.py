@@ -10,15 +10,22 @@ with ``tau`` a load torque at the motor shaft::
 The electrical pole (``R/L`` ≈ 3 kHz) is stiff, so each step uses the exact ZOH transition
 ``[Ad Bd] = expm([[A B], [0 0]] dt)`` (scipy.linalg.expm), cached per ``(dt, J)``. With the torque
 disabled the bridge is open: ``i = 0`` and only the mechanical part (friction, load) acts.
+
+Optional gearbox friction (:class:`GearFrictionParams`, output side) uses a stick/slip state
+(Karnopp): while slipping, Coulomb + Stribeck + viscous torque opposes the motion and is held over
+the step like any load; a step that would reverse the speed ends at rest and the shaft sticks.
+While stuck the speed is exactly 0 (only the armature circuit evolves) until the driving torque
+exceeds the breakaway torque. No smoothing, so no chattering around zero speed.
 """
 from __future__ import annotations
 
+import math
 from functools import lru_cache
 
 import numpy as np
 from scipy.linalg import expm
 
-from .params import MotorParams
+from .params import GearFrictionParams, MotorParams
 
 
 def state_space(p: MotorParams, inertia_kg_m2: float) -> tuple[np.ndarray, np.ndarray]:
@@ -59,11 +66,17 @@ class GearedMotor:
         Motor-side electro-mechanical constants.
     gear_ratio : float
         Reduction, e.g. 212.6 for XH430-W210.
+    friction : GearFrictionParams, optional
+        Gearbox friction at the output shaft; ``None`` or all zero: none.
     """
 
-    def __init__(self, params: MotorParams, gear_ratio: float):
+    def __init__(self, params: MotorParams, gear_ratio: float, friction: GearFrictionParams | None = None):
         self.params = params
         self.gear_ratio = float(gear_ratio)
+        self.friction = friction if friction is not None and friction.enabled else None
+        self.stuck = self.friction is not None    # stick/slip state (at rest: stuck)
+        self.blocked = False            # shaft held by the outside world (a stall test)
+        self.friction_torque_nm = 0.0   # output side, opposing positive speed, last step
         self.current_a = 0.0
         self.speed_radps = 0.0          # motor side
         self.angle_rad = 0.0            # motor side
@@ -94,7 +107,41 @@ class GearedMotor:
 
     def step(self, dt_s: float, voltage_v: float | None) -> None:
         """Advance ``dt_s`` with the armature voltage held at ``voltage_v`` (None: bridge open)."""
-        tau = self.load_torque_nm / self.gear_ratio
+        if self.friction is None and not self.blocked:
+            self._step_linear(dt_s, voltage_v, self.load_torque_nm)
+            return
+        f = self.friction
+        if self.blocked or self.stuck:
+            self._step_electrical(dt_s, voltage_v)
+            drive = self.gear_ratio * self.params.torque_nm_per_a * self.current_a - self.load_torque_nm
+            if self.blocked or abs(drive) <= f.breakaway_nm:
+                self.friction_torque_nm = 0.0 if self.blocked else drive
+                return
+            self.stuck = False          # breakaway: slip from rest in the direction of the drive
+            direction = math.copysign(1.0, drive)
+        else:
+            direction = math.copysign(1.0, self.speed_radps)
+        w_out = self.speed_radps / self.gear_ratio
+        tf = direction * (f.coulomb_nm + (f.breakaway_nm - f.coulomb_nm)
+                          * math.exp(-(w_out / f.stribeck_speed_radps) ** 2)) + f.viscous_nm_s_per_rad * w_out
+        self.friction_torque_nm = tf
+        self._step_linear(dt_s, voltage_v, self.load_torque_nm + tf)
+        if self.speed_radps * direction <= 0.0:     # friction stopped the shaft within the step
+            self.speed_radps = 0.0
+            self.stuck = True
+
+    def _step_electrical(self, dt_s: float, voltage_v: float | None) -> None:
+        """Armature circuit alone with the shaft at rest (exact for a held voltage)."""
+        if voltage_v is None:
+            self.current_a = 0.0
+        else:
+            p = self.params
+            decay = math.exp(-p.resistance_ohm / p.inductance_h * dt_s)
+            self.current_a = self.current_a * decay + (1.0 - decay) * voltage_v / p.resistance_ohm
+        self.speed_radps = 0.0
+
+    def _step_linear(self, dt_s: float, voltage_v: float | None, load_torque_nm: float) -> None:
+        tau = load_torque_nm / self.gear_ratio
         coasting = voltage_v is None
         key = (dt_s, self.load_inertia_kg_m2, coasting)
         if key != self._key:            # one dict-free lookup per step; _discrete caches the expm

@@ -87,6 +87,80 @@ class BodyParams:
 
 
 @dataclass(frozen=True)
+class GearFrictionParams:
+    """Gearbox friction at the output shaft (N·m, rad/s); all zero = none (Table 1 viscous only).
+
+    ``τ_f(ω) = sign(ω)·(Tc + (Ts − Tc)·exp(−(ω/ωs)²)) + b·ω`` while slipping; at rest the shaft
+    sticks until the driving torque exceeds ``Ts`` (breakaway).
+    """
+
+    coulomb_nm: float = 0.0
+    static_nm: float = 0.0
+    stribeck_speed_radps: float = 1.0
+    viscous_nm_s_per_rad: float = 0.0
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any friction term is non-zero."""
+        return bool(self.coulomb_nm or self.static_nm or self.viscous_nm_s_per_rad)
+
+    @property
+    def breakaway_nm(self) -> float:
+        """Torque needed to start the shaft from rest, N·m."""
+        return max(self.static_nm, self.coulomb_nm)
+
+
+@dataclass(frozen=True)
+class SupplyParams:
+    """Battery behind the bus: open-circuit voltage is ``physics.supply_voltage_v``."""
+
+    internal_resistance_ohm: float = 0.0
+    idle_current_a: float = 0.0          # per servo, drawn whatever the motor does
+
+    @property
+    def enabled(self) -> bool:
+        """Whether the bus voltage sags under load."""
+        return self.internal_resistance_ohm > 0.0
+
+
+@dataclass(frozen=True)
+class ContactParams:
+    """Wheel-ground contact: friction-limited tyres instead of the least-squares kinematic fit."""
+
+    enabled: bool = False
+    friction_coefficient: float = 0.8
+    slip_stiffness_n_s_per_m: float = 300.0      # force per slip speed below saturation
+    lateral_stiffness_ratio: float = 1.0         # lateral / longitudinal slip stiffness
+    yaw_inertia_kg_m2: float = 0.0               # 0: a uniform square plate through the wheels
+    gravity_mps2: float = 9.81
+
+
+@dataclass(frozen=True)
+class ToleranceParams:
+    """Build tolerances the robot file does not know (wheel order of ``robot.yaml``)."""
+
+    wheel_radius_scale: tuple[float, ...] = ()       # true radius / nominal, per wheel
+    steer_zero_offset_rad: tuple[float, ...] = ()    # true straight-ahead minus nominal centre
+    steer_backlash_rad: float = 0.0                  # free play between steering horn and wheel
+    encoder_offset_pulse: tuple[float, ...] = ()     # steering encoders: reading minus true angle
+
+    @property
+    def enabled(self) -> bool:
+        """Whether any tolerance differs from nominal."""
+        return (any(s != 1.0 for s in self.wheel_radius_scale) or any(self.steer_zero_offset_rad)
+                or self.steer_backlash_rad > 0.0 or any(self.encoder_offset_pulse))
+
+
+@dataclass(frozen=True)
+class ProtectionParams:
+    """Firmware protection raised from the physics (Hardware Error Status bits)."""
+
+    enabled: bool = False
+    overload_current_a: float = 1.0      # |armature current| above this counts towards Overload
+    overload_time_s: float = 1.0         # sustained this long: Overload (bit 5)
+
+
+@dataclass(frozen=True)
 class PhysicsConfig:
     """Everything in ``configs/emulator.yaml``."""
 
@@ -100,6 +174,12 @@ class PhysicsConfig:
     thermal: ThermalParams = field(default_factory=ThermalParams)
     body: BodyParams = field(default_factory=BodyParams)
     paper_spec_gains: Mapping[str, int] = field(default_factory=dict)
+    drive_friction: GearFrictionParams = field(default_factory=GearFrictionParams)
+    steering_friction: GearFrictionParams = field(default_factory=GearFrictionParams)
+    supply: SupplyParams = field(default_factory=SupplyParams)
+    contact: ContactParams = field(default_factory=ContactParams)
+    tolerances: ToleranceParams = field(default_factory=ToleranceParams)
+    protection: ProtectionParams = field(default_factory=ProtectionParams)
 
     def gear_ratio(self, model: str) -> float:
         """Gear ratio of a servo model name such as ``"xh430-w210"``."""
@@ -181,10 +261,65 @@ def parse_config(doc: Mapping[str, Any] | Document, where: str = "emulator confi
         drive_motor=_motor(motors.section("drive")),
         steering_motor=_motor(motors.section("steering")),
         gear_ratios=gear_ratios, firmware=firmware, sensors=sensors, thermal=thermal,
-        body=body, paper_spec_gains=gains)
+        body=body, paper_spec_gains=gains, **_realism_sections(top))
     for sec in (top, phys, motors, fw, bes, sen, th, bo):
         sec.check_unknown()
     return cfg
+
+
+def _friction(sec: Section) -> GearFrictionParams:
+    d = GearFrictionParams()
+    f = GearFrictionParams(
+        coulomb_nm=sec.number("coulomb_nm", d.coulomb_nm, nonneg=True, max=MOTOR_VALUE_MAX),
+        static_nm=sec.number("static_nm", d.static_nm, nonneg=True, max=MOTOR_VALUE_MAX),
+        stribeck_speed_radps=sec.number("stribeck_speed_radps", d.stribeck_speed_radps, positive=True,
+                                        max=MOTOR_VALUE_MAX),
+        viscous_nm_s_per_rad=sec.number("viscous_nm_s_per_rad", d.viscous_nm_s_per_rad, nonneg=True,
+                                        max=MOTOR_VALUE_MAX))
+    if f.static_nm and f.static_nm < f.coulomb_nm:
+        sec.fail(f"must be >= coulomb_nm ({f.coulomb_nm:g}), got {f.static_nm:g}", "static_nm")
+    sec.check_unknown()
+    return f
+
+
+def _realism_sections(top: Section) -> dict[str, Any]:
+    """The optional sections that make the world disagree with the controller's model
+    (``gearbox_friction``, ``supply``, ``contact``, ``tolerances``, ``protection``)."""
+    gf = top.section("gearbox_friction", required=False)
+    sup = top.section("supply", required=False)
+    con = top.section("contact", required=False)
+    tol = top.section("tolerances", required=False)
+    pro = top.section("protection", required=False)
+    cd, pd = ContactParams(), ProtectionParams()
+    out = dict(
+        drive_friction=_friction(gf.section("drive", required=False)),
+        steering_friction=_friction(gf.section("steering", required=False)),
+        supply=SupplyParams(
+            internal_resistance_ohm=sup.number("internal_resistance_ohm", 0.0, nonneg=True, max=1e3),
+            idle_current_a=sup.number("idle_current_a", 0.0, nonneg=True, max=1e3)),
+        contact=ContactParams(
+            enabled=con.boolean("enabled", cd.enabled),
+            friction_coefficient=con.number("friction_coefficient", cd.friction_coefficient, positive=True,
+                                            max=10.0),
+            slip_stiffness_n_s_per_m=con.number("slip_stiffness_n_s_per_m", cd.slip_stiffness_n_s_per_m,
+                                                positive=True, max=1e9),
+            lateral_stiffness_ratio=con.number("lateral_stiffness_ratio", cd.lateral_stiffness_ratio,
+                                               positive=True, max=1e3),
+            yaw_inertia_kg_m2=con.number("yaw_inertia_kg_m2", cd.yaw_inertia_kg_m2, nonneg=True, max=1e3),
+            gravity_mps2=con.number("gravity_mps2", cd.gravity_mps2, positive=True, max=100.0)),
+        tolerances=ToleranceParams(
+            wheel_radius_scale=tol.numbers("wheel_radius_scale", 4, None, min=0.5, max=2.0) or (),
+            steer_zero_offset_rad=tol.numbers("steer_zero_offset_rad", 4, None, min=-0.5, max=0.5) or (),
+            steer_backlash_rad=tol.number("steer_backlash_rad", 0.0, nonneg=True, max=0.5),
+            encoder_offset_pulse=tol.numbers("encoder_offset_pulse", 4, None, min=-PULSE_MAX, max=PULSE_MAX) or ()),
+        protection=ProtectionParams(
+            enabled=pro.boolean("enabled", pd.enabled),
+            overload_current_a=pro.number("overload_current_a", pd.overload_current_a, positive=True, max=1e3),
+            overload_time_s=pro.number("overload_time_s", pd.overload_time_s, positive=True, max=1e6)),
+    )
+    for sec in (gf, sup, con, tol, pro):
+        sec.check_unknown()
+    return out
 
 
 def load_config(path: str | Path = DEFAULT_PATH) -> PhysicsConfig:

@@ -2,6 +2,11 @@
 
 ``RobotPhysics.step(dt, tables)`` advances every servo with its raw control-table items, then the
 body from the drive-wheel ground speeds and the steering angles (``configs/robot.yaml``).
+
+The body is the least-squares kinematic fit (:class:`RobotBody`) or, with ``contact.enabled``,
+the tyre-force model (:class:`ContactBody`) whose reactions load the drive shafts. Build
+tolerances (``tolerances``) change the true wheels, never ``robot.yaml``; with a ``supply``
+internal resistance the bus voltage sags under the servos' current.
 """
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_con
 
 from . import units as u
 from .body import RobotBody
+from .contact import ContactBody
 from .params import PhysicsConfig
 from .servo_model import ServoModel, wheel_servo
 
@@ -57,25 +63,43 @@ class RobotPhysics:
     def __init__(self, cfg: PhysicsConfig, geometry: RobotGeometry, rng: np.random.Generator | None = None):
         self.geometry = geometry
         rng = rng if rng is not None else np.random.default_rng()
+        self.cfg = cfg
+        n = len(geometry.wheels)
+        tol = cfg.tolerances
+        self.wheel_radius_m = geometry.wheel_radius_m * np.asarray(tol.wheel_radius_scale or (1.0,) * n)
+        self.steer_zero_offset_rad = np.asarray(tol.steer_zero_offset_rad or (0.0,) * n)
+        encoder_offsets = tol.encoder_offset_pulse or (0.0,) * n
         self.servos: dict[int, ServoModel] = {}
-        wheel_inertia = cfg.body.total_mass_kg / len(geometry.wheels) * geometry.wheel_radius_m ** 2
-        for w in geometry.wheels:
+        wheel_inertia = cfg.body.total_mass_kg / n * geometry.wheel_radius_m ** 2
+        for w, enc in zip(geometry.wheels, encoder_offsets):
             self.servos[w.drive_id] = wheel_servo(cfg, geometry.model, steering=False, rng=rng)
-            if cfg.body.load_enabled:   # the robot's mass, reflected onto each drive shaft
+            if cfg.body.load_enabled and not cfg.contact.enabled:   # the mass, reflected onto each shaft
                 self.servos[w.drive_id].external_load(0.0, wheel_inertia)
-            # steering servos start with the wheels straight
-            self.servos[w.steer_id] = wheel_servo(cfg, geometry.model, steering=True,
-                                                  center_pulse=w.center_pulse, rng=rng)
-        self.body = RobotBody([(w.x_m, w.y_m) for w in geometry.wheels])
+            steer = self.servos[w.steer_id] = wheel_servo(cfg, geometry.model, steering=True, rng=rng)
+            steer.encoder_offset_pulse = enc
+            # reads its centre with the wheel straight; a µpulse inside the count, clear of round-off
+            steer.set_shaft_angle((w.center_pulse - enc + (1e-6 if enc else 0.0)) * u.RAD_PER_PULSE)
+        xy = [(w.x_m, w.y_m) for w in geometry.wheels]
+        self.body: RobotBody | ContactBody = (ContactBody(xy, cfg.body.total_mass_kg, cfg.contact)
+                                              if cfg.contact.enabled else RobotBody(xy))
+        self._wheel_steer_rad: np.ndarray | None = None    # wheel angles behind the backlash
+        self.bus_voltage_v = cfg.supply_voltage_v
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ground speeds (m/s, signed, forward positive) and steering angles (rad), shape (4,) each."""
         g = self.geometry
-        speeds = np.array([w.drive_direction * self.servos[w.drive_id].velocity_radps * g.wheel_radius_m
-                           for w in g.wheels])
-        steer = np.array([w.steer_direction * (self.servos[w.steer_id].position_pulse - w.center_pulse)
-                          * u.RAD_PER_PULSE for w in g.wheels])
-        return speeds, steer
+        speeds = np.array([w.drive_direction * self.servos[w.drive_id].velocity_radps
+                           for w in g.wheels]) * self.wheel_radius_m
+        horn = np.array([w.steer_direction * (self.servos[w.steer_id].true_position_pulse - w.center_pulse)
+                         * u.RAD_PER_PULSE for w in g.wheels]) - self.steer_zero_offset_rad
+        half = 0.5 * self.cfg.tolerances.steer_backlash_rad
+        if half <= 0.0:
+            return speeds, horn
+        if self._wheel_steer_rad is None:
+            self._wheel_steer_rad = horn.copy()
+        # the wheel stays where it is until the horn takes up the free play on either side
+        self._wheel_steer_rad = np.clip(self._wheel_steer_rad, horn - half, horn + half)
+        return speeds, self._wheel_steer_rad.copy()
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
@@ -85,6 +109,19 @@ class RobotPhysics:
 
     def step_body(self, dt_s: float) -> tuple[float, float, float]:
         """Advance only the body from the servos' present shaft states (servos stepped elsewhere,
-        e.g. by the emulator's servo loop); return the pose."""
-        return self.body.step(dt_s, *self.wheel_state())
+        e.g. by the emulator's servo loop); return the pose. With tyre contact the reactions
+        become the drive shafts' loads, and with a supply resistance the bus voltage sags, both
+        seen by the servos from their next step."""
+        pose = self.body.step(dt_s, *self.wheel_state())
+        if isinstance(self.body, ContactBody):
+            for w, r, f in zip(self.geometry.wheels, self.wheel_radius_m, self.body.force_long_n):
+                s = self.servos[w.drive_id]
+                s.external_load(w.drive_direction * s.frame_sign * r * float(f))
+        sup = self.cfg.supply
+        if sup.enabled:
+            current = sum(s.supply_current_a for s in self.servos.values()) + sup.idle_current_a * len(self.servos)
+            self.bus_voltage_v = self.cfg.supply_voltage_v - sup.internal_resistance_ohm * current
+            for s in self.servos.values():
+                s.supply_voltage_v = self.bus_voltage_v
+        return pose
 

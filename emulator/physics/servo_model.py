@@ -15,7 +15,9 @@ from . import units as u
 from .bessel import BesselFilter
 from .firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
 from .motor import GearedMotor
-from .params import FirmwareParams, MotorParams, PhysicsConfig, SensorParams, ThermalParams
+from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
+                     SensorParams, ThermalParams)
+from .protection import Protection
 
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
@@ -41,12 +43,20 @@ class ServoModel:
         Fixed firmware constants, sensor noise, winding thermal model.
     rng : numpy.random.Generator, optional
         Noise source; required only when a noise standard deviation is non-zero.
+    friction : GearFrictionParams, optional
+        Gearbox friction (output side); default none.
+    protection : ProtectionParams, optional
+        Firmware protection raised from the physics (:mod:`.protection`); default off.
     """
 
     def __init__(self, params: MotorParams, gear_ratio: float, supply_voltage_v: float,
                  firmware: FirmwareParams = FirmwareParams(), sensors: SensorParams = SensorParams(),
-                 thermal: ThermalParams = ThermalParams(), rng: np.random.Generator | None = None):
-        self.motor = GearedMotor(params, gear_ratio)
+                 thermal: ThermalParams = ThermalParams(), rng: np.random.Generator | None = None,
+                 friction: GearFrictionParams | None = None, protection: ProtectionParams | None = None):
+        self.motor = GearedMotor(params, gear_ratio, friction)
+        self.protection = Protection(protection) if protection is not None and protection.enabled else None
+        self.pending_hardware_error = 0  # bits detected by the protection, not yet taken by the servo
+        self.encoder_offset_pulse = 0.0  # encoder reading minus the true output angle, pulse
         self.supply_voltage_v = float(supply_voltage_v)
         self.fw = firmware
         self.sensors = sensors
@@ -91,13 +101,33 @@ class ServoModel:
     @property
     def position_pulse(self) -> float:
         """Continuous (unquantised) position in Present Position's frame, pulse."""
-        return (self._sign * self.motor.output_angle_rad / u.RAD_PER_PULSE - self._wrap_pulse
-                + self._homing)
+        return (self._sign * (self.motor.output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
+                - self._wrap_pulse + self._homing)
+
+    @property
+    def true_position_pulse(self) -> float:
+        """:attr:`position_pulse` without the encoder offset: where the shaft really is, pulse."""
+        return self.position_pulse - self._sign * self.encoder_offset_pulse
+
+    @property
+    def frame_sign(self) -> int:
+        """+1, or -1 when Drive Mode bit 0 reverses the servo's frame against the shaft's."""
+        return self._sign
 
     @property
     def velocity_radps(self) -> float:
         """True output speed in the servo's frame (Drive Mode direction applied), rad/s."""
         return self._sign * self.motor.output_speed_radps
+
+    @property
+    def supply_current_a(self) -> float:
+        """Current drawn from the supply by the bridge (duty × armature current), A."""
+        return self._sign * self.duty * self.motor.current_a
+
+    def take_hardware_error(self) -> int:
+        """Hardware Error Status bits the protection detected since the last call (then cleared)."""
+        bits, self.pending_hardware_error = self.pending_hardware_error, 0
+        return bits
 
     def prepare(self, dt_s: float) -> None:
         """Compute the discretisations for steps of ``dt_s`` now (motor driven and coasting,
@@ -127,10 +157,13 @@ class ServoModel:
         self.duty = 0.0
         self._last = None
         self._rewrap(self._encoder_pulse(self._sign))
+        self.pending_hardware_error = 0
+        if self.protection is not None:
+            self.protection.reset()
 
     # ---- sensors -------------------------------------------------------------------------------
     def _encoder_pulse(self, sign: int) -> int:
-        x = sign * self.motor.output_angle_rad / u.RAD_PER_PULSE
+        x = sign * (self.motor.output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
         if self.sensors.position_noise_std_pulse:
             x += self.rng.normal(0.0, self.sensors.position_noise_std_pulse)
         return math.floor(x)
@@ -205,6 +238,9 @@ class ServoModel:
             self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
         self.motor.step(dt_s, voltage)
         self._heat(dt_s)
+        if self.protection is not None:
+            self.pending_hardware_error |= self.protection.update(
+                dt_s, self.motor.current_a, self.temperature_c, self.supply_voltage_v, table)
         self._prev_key = key
         self._prev_goal_position = table["goal_position"]
         self._last = (table, mode, torque, present, v_meas, sign)
@@ -361,15 +397,17 @@ def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse:
 
     ``steering`` picks the steering or drive motor of ``cfg``; ``model`` (e.g. ``"xh430-w210"``)
     the gear ratio. A steering servo with ``center_pulse`` starts at rest at that raw position.
-    ``sensors`` overrides ``cfg.sensors``; ``ideal`` drops sensor noise and uses the default
-    thermal model (for gain design). ``rng`` is the shared noise source.
+    ``sensors`` overrides ``cfg.sensors``; ``ideal`` drops sensor noise, gearbox friction and
+    protection and uses the default thermal model (for gain design). ``rng`` is the shared noise source.
     """
     params = cfg.steering_motor if steering else cfg.drive_motor
     if ideal:
         servo = ServoModel(params, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware, rng=rng)
     else:
         servo = ServoModel(params, cfg.gear_ratio(model), cfg.supply_voltage_v, cfg.firmware,
-                           cfg.sensors if sensors is None else sensors, cfg.thermal, rng)
+                           cfg.sensors if sensors is None else sensors, cfg.thermal, rng,
+                           friction=cfg.steering_friction if steering else cfg.drive_friction,
+                           protection=cfg.protection)
     if steering and center_pulse is not None:
         servo.set_shaft_angle(center_pulse * u.RAD_PER_PULSE)
     return servo

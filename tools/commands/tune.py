@@ -10,6 +10,7 @@ from __future__ import annotations
 import argparse
 import math
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
 from swerve.tools.cli import add_config_option
 
@@ -38,11 +39,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="abort above this |Present Current|, A (default: the servo's Current Limit)")
     add_config_option(parser)
     parser.add_argument("--prior", default=None,
-                        help="motor parameters to start from and to fix L, Km (paper Table 1; "
-                             "default: the shipped emulator.yaml)")
+                        help="motor parameters to start from and to fix L, Km (paper Table 1; a profile "
+                             "name or a physics .yaml; default: the shipped emulator.yaml)")
     parser.add_argument("--emulator-config", default=None,
-                        help="--emulate: the emulated motor's physics (e.g. a copy with +30 %% inertia; "
-                             "default: the shipped emulator.yaml)")
+                        help="--emulate: " + EMULATOR_CONFIG_HELP.replace("%", "%%")
+                             + " (e.g. a copy with +30 %% inertia)")
     parser.add_argument("--emulator", choices=("servo", "robot"), default="servo",
                         help="--emulate: 'servo' = each servo alone, unloaded, 1 kHz physics (default); "
                              "'robot' = the project's robot emulator (2 kHz physics, robot mass on the "
@@ -64,9 +65,10 @@ def run(args: argparse.Namespace) -> int:
     from swerve.driver.bus import Bus
     from swerve.driver.control_table import Reg
     from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
-    from swerve.configs import locate_robot_file, shipped
+    from swerve.configs import locate_robot_file
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
+    from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.tools.tune.config_io import write_gains
     from swerve.tools.tune.design import Spec
     from swerve.tools.tune.experiments import Limits
@@ -75,10 +77,10 @@ def run(args: argparse.Namespace) -> int:
 
     choice = locate_robot_file(args.config)
     robot_file = choice.path
-    emulator_file = args.emulator_config or shipped("emulator.yaml")
+    emulator_file = resolve_emulator_config(args.emulator_config or "ideal")
     print(f"config: {choice.describe()}")
     rc = load_robot_config(robot_file)
-    prior_cfg = load_config(args.prior or shipped("emulator.yaml"))
+    prior_cfg = load_config(resolve_emulator_config(args.prior or "ideal"))
     if not 0.0 < args.pwm <= 1.0:
         raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
     if args.current_max is not None and not args.current_max > 0:
