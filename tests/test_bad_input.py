@@ -26,6 +26,8 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "logs"))
 
+pytestmark = pytest.mark.slow      # about 130 subprocesses of a second or two each
+
 #: Hang guard for one command, s (a healthy case takes about one second).
 HANG_GUARD_S = 180
 #: Status ``swerve`` uses for a bug (an unexpected exception).
