@@ -35,7 +35,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "scale on a 2-core machine)")
     parser.add_argument("--trajectories", default=",".join(TRAJECTORIES),
                         help="comma-separated trajectory names or files (default: the paper's three)")
-    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
+    parser.add_argument("--emulator-config", default="realistic",
+                        help=EMULATOR_CONFIG_HELP + "; default realistic")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -91,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
               flush=True)
         rows.append((name, sim, s, figs, gains_file, log_dir))
     summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
-                             str(args.emulator_config or "ideal"))
+                             str(args.emulator_config))
     print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
     return 0 if all(r[2].get("completed") for r in rows) else 1
 

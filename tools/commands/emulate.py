@@ -92,7 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "(default: added when the robot's servos are all on the bus)")
     mode.add_argument("--frozen", action="store_true",
                       help="register-only bus: Present* items stay put (protocol tests)")
-    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
+    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP + "; default ideal")
     parser.add_argument("--status-file", default=None,
                         help="with the robot body: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,

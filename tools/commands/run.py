@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast-read", action="store_true", help="use Fast Sync Read (firmware >= 45)")
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
-    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}")
+    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}; default ideal")
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="the robot's start state in m and rad (default: the trajectory's)")
     parser.add_argument("--on-servo-fault", choices=("stop", "recover"), default="stop",
