@@ -46,7 +46,7 @@ def _trajectory_arg(name: str) -> str:
 
 
 def _x0_args(start) -> list[str]:
-    return [] if start is None else ["--x0", ",".join(f"{v:g}" for v in start)]
+    return [] if start is None else ["--x0=" + ",".join(f"{v:g}" for v in start)]
 
 
 def _last_line(text: str) -> str:
