@@ -6,7 +6,6 @@ file and must find the truth from what the operator sees (``--yes`` on the emula
 """
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import pytest
@@ -19,7 +18,6 @@ from swerve.tools.cli import main
 
 TRUE_CENTERS = [2078, 2020, 2061, 2035]
 TRUE_RADIUS_M = 0.0345
-SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "5"))
 
 
 def _robot_copy(tmp_path: Path, name: str, watchdog_s: float = 0.25, **values) -> Path:
@@ -67,7 +65,7 @@ def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch
     truth = _robot_copy(tmp_path, "truth.yaml", center_pulse=TRUE_CENTERS, wheel_radius_m=TRUE_RADIUS_M)
     work = _robot_copy(tmp_path, "robot.yaml", drive_direction=[1, 1, 1, -1])   # rear_right sign wrong
     assert main(["calibrate", "--emulate", "--emulated-robot", str(truth), "--config", str(work),
-                 "--yes", "--write", "--time-scale", str(SCALE), "--distance", "0.5"]) == 0
+                 "--yes", "--write", "--lockstep", "--distance", "0.5"]) == 0
     err = capsys.readouterr().err
     assert "rear_right: drive direction -1 (flipped)" in err
     got = load_robot_config(work)
@@ -76,6 +74,8 @@ def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch
     for c, t in zip((w.center_pulse for w in got.wheels), TRUE_CENTERS):
         assert abs(c - t) <= 2
     assert got.wheel_radius_m == pytest.approx(TRUE_RADIUS_M, rel=0.005)
+    print(f"calibrated centres {[w.center_pulse for w in got.wheels]} (truth {TRUE_CENTERS}), "
+          f"radius {got.wheel_radius_m * 1e3:.3f} mm (truth {TRUE_RADIUS_M * 1e3:.1f} mm)")
 
     # Track the circle on the true robot with the shipped file, then with the calibrated one, in
     # lockstep: robot time is the emulator's, so both runs give the same numbers on any machine.
