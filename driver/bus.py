@@ -121,6 +121,11 @@ class Bus:
     def __repr__(self) -> str:
         return f"Bus({self.port!r}, {self.baud})"
 
+    @property
+    def bytes_written(self) -> int:
+        """Bytes sent to the port since it was opened (what a lockstep clock's barrier counts)."""
+        return self._transport.bytes_written
+
     # --- models ------------------------------------------------------------------------------
 
     def table(self, id_: int) -> ControlTable:

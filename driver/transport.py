@@ -140,6 +140,8 @@ class Transport:
                 self._fd = self._port.fileno()
             except (AttributeError, NotImplementedError, OSError, serial.SerialException):
                 self._fd = None
+        #: Bytes handed to the port since it was opened (a lockstep barrier counts on it).
+        self.bytes_written = 0
         #: Latency timer of the adapter in ms (0 when not a ttyUSB).
         self.latency_timer_ms = latency_timer_ms(url) or 0 if "://" not in url else 0
 
@@ -177,12 +179,15 @@ class Transport:
                 n = self._port.write(data)
                 if n is not None and n != len(data):
                     raise self._failed("write", f"only {n} of {len(data)} bytes sent")
+                self.bytes_written += len(data)
                 return
             termios.tcflush(fd, termios.TCIFLUSH)
             view, deadline = memoryview(data), None
             while view:
                 try:
-                    view = view[os.write(fd, view):]
+                    n = os.write(fd, view)
+                    self.bytes_written += n
+                    view = view[n:]
                 except BlockingIOError:  # output queue full: wait until it drains
                     deadline = deadline or time.monotonic() + max(1.0, len(data) * 20 / self.baud)
                     remaining = deadline - time.monotonic()

@@ -10,9 +10,14 @@ may block in ``select`` before calling again. Its behaviour is passed in, as pys
   still steps it by hand, e.g. in tests).
 * :class:`WallClock`: ``time_scale`` simulated seconds per wall second, in steps of ``1/rate_hz``.
 
-A lockstep clock (simulated time advanced only when a client asks) is one more class here: its
-``run`` steps what the client requested and returns ``math.inf`` until the next request, which
-reaches it through a method of its own plus :meth:`StepWorld.wake` (see emulator/README.md).
+* :class:`LockstepClock`: simulated time advances only when asked (Gazebo's lockstep, ROS
+  ``use_sim_time``): a client moves it with :meth:`LockstepClock.advance_to` (through the control
+  channel, :mod:`swerve.emulator.control`), and every bus exchange is charged at its wire time.
+
+Besides ``run``, a clock sees each exchange: :meth:`PhysicsClock.on_request` once an instruction
+has arrived (``wire_s``: its bytes at the line speed) and :meth:`PhysicsClock.on_replies` before
+the replies go out. A wall-paced clock ignores both (the server then paces replies in wall time);
+the lockstep clock charges them in simulated time and runs the physics through them.
 """
 from __future__ import annotations
 
@@ -64,6 +69,14 @@ class PhysicsClock(Protocol):
         """Run the steps that are due; return wall seconds the bus thread may block (``inf``: until
         a request or :meth:`StepWorld.wake`). Called by the bus thread only, between requests."""
 
+    def on_request(self, world: StepWorld, wire_s: float) -> None:
+        """An instruction of ``wire_s`` seconds on the wire has arrived (before it is executed)."""
+
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+        """``replies`` status frames totalling ``wire_s`` (bytes, return delays) are due. True: the
+        clock charged them in simulated time, so they go out at once; False: the server paces
+        them in wall time."""
+
 
 @dataclass
 class ClockStats:
@@ -108,6 +121,12 @@ class FrozenClock:
 
     def run(self, world: StepWorld) -> float:
         return math.inf
+
+    def on_request(self, world: StepWorld, wire_s: float) -> None:
+        pass
+
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+        return False
 
 
 class WallClock:
@@ -174,6 +193,88 @@ class WallClock:
             st.backlog_s = (backlog - n) * dt
             st.cpu_s += time.thread_time() - cpu0
         return 0.0 if n < backlog else MIN_SLEEP_S
+
+    def on_request(self, world: StepWorld, wire_s: float) -> None:
+        pass
+
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+        return False
+
+
+#: Time a servo takes to start answering once an instruction has arrived, on top of its Return
+#: Delay Time, s (UNCONFIRMED: 50 us per servo, as reported for MX-series buses at RoboCup).
+DEFAULT_REPLY_LATENCY_S = 50e-6
+#: Slack when a requested time is compared with the step grid, in steps (float round-off).
+_GRID_SLACK = 1e-6
+
+
+class LockstepClock:
+    """Simulated time that advances only when asked; the bus costs what it would on the cable.
+
+    :attr:`now_s` is robot time (s since start). It moves forward in two ways, both in the bus
+    thread: :meth:`advance_to` (a client's request through the control channel), and every bus
+    exchange: the instruction's bytes (``on_request``), then per reply the Return Delay Time,
+    ``reply_latency_s`` and its bytes (``on_replies``). After each move the physics runs every
+    whole step of ``1/rate_hz`` up to :attr:`now_s`, so a read sees the state at the time its
+    instruction ended on the wire (to one step), and at a requested time on the step grid the
+    physics stands exactly there. :meth:`run` runs nothing new and lets the bus thread sleep
+    until the next request: a client that stops asking leaves the robot paused.
+    ``stats.achieved_scale`` is then the real-time factor (robot s per wall s).
+    """
+
+    def __init__(self, rate_hz: float = 1000.0, reply_latency_s: float = DEFAULT_REPLY_LATENCY_S):
+        if not rate_hz > 0:
+            raise ConfigError(f"clock rate must be > 0 Hz, got {rate_hz:g}")
+        if not (math.isfinite(reply_latency_s) and reply_latency_s >= 0):
+            raise ConfigError(f"reply latency must be >= 0 s, got {reply_latency_s:g}")
+        self.rate_hz = float(rate_hz)
+        self.reply_latency_s = float(reply_latency_s)
+        self.stats = ClockStats(time_scale=0.0, rate_hz=self.rate_hz)
+        self.now_s = 0.0
+        self.bus_s = 0.0                  # robot time spent on bus exchanges
+        self._t0: float | None = None     # wall time of the first call
+
+    def run(self, world: StepWorld) -> float:
+        self._run_to(world)
+        return math.inf
+
+    def advance_to(self, world: StepWorld, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back) and run the physics there; returns :attr:`now_s`."""
+        if not math.isfinite(t_s):
+            raise ConfigError(f"cannot advance to t = {t_s!r} s")
+        self.now_s = max(self.now_s, float(t_s))
+        self._run_to(world)
+        return self.now_s
+
+    def on_request(self, world: StepWorld, wire_s: float) -> None:
+        self.now_s += wire_s
+        self.bus_s += wire_s
+        self._run_to(world)
+
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+        cost = wire_s + replies * self.reply_latency_s
+        self.now_s += cost
+        self.bus_s += cost
+        self._run_to(world)
+        return True
+
+    def _run_to(self, world: StepWorld) -> None:
+        st = self.stats
+        now = time.monotonic()
+        if self._t0 is None:
+            self._t0 = now
+        due = math.floor(self.now_s * self.rate_hz + _GRID_SLACK) - st.steps
+        if due > 0:
+            dt = 1.0 / self.rate_hz
+            cpu0 = time.thread_time()
+            try:
+                for _ in range(due):
+                    world.step(dt)
+                    st.steps += 1
+            finally:
+                st.batches += 1
+                st.cpu_s += time.thread_time() - cpu0
+        st.wall_s = time.monotonic() - self._t0
 
 
 def clock_for(time_scale: float, rate_hz: float = 1000.0) -> PhysicsClock:

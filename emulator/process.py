@@ -6,7 +6,10 @@ process keeps it from competing with the control loop for one interpreter lock, 
 timing is the loop's own. The true pose, which never crosses the bus, comes back through a small
 shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
 emulator after every run of physics steps (at least every millisecond of wall time while the
-clock runs). The child parses the robot file and the physics config, once each.
+clock runs). The child parses the robot file and the physics config, once each. With
+``lockstep=True`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
+its control socket (read the pose through it, since shared memory is not synchronised with the
+bytes on the pty).
 
 ::
 
@@ -48,7 +51,7 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     freeze_startup_heap()
-    conn.send(("port", emu.port))
+    conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
             msg = conn.recv()
@@ -94,6 +97,8 @@ class EmulatorProcess:
         self._proc = None
         self._conn = None
         self.port: str | None = None
+        #: The lockstep control socket (``lockstep=True``), else None.
+        self.control_path: str | None = None
         self.final_stats: dict | None = None
 
     def start(self) -> "EmulatorProcess":
@@ -115,7 +120,7 @@ class EmulatorProcess:
         if kind == "error":
             self.close()
             raise ConfigError(f"emulator: {value}")
-        self.port = value
+        self.port, self.control_path = value
         return self
 
     @property

@@ -37,7 +37,8 @@ import numpy as np
 from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
-from swerve.emulator.clock import clock_for
+from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
+from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
@@ -206,7 +207,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                    noise: str | Mapping[str, float] | None = None, wheel_load: bool | None = None,
                    start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
                    faults: Faults | str | None = None, status_file: str | os.PathLike | None = None,
-                   status_hz: float = 20.0, limit_error=None, **link: object) -> Emulator:
+                   status_hz: float = 20.0, limit_error=None, lockstep: bool = False,
+                   control_path: str | os.PathLike | None = None,
+                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S, **link: object) -> Emulator:
     """The emulated bus, built from already-parsed configs (nothing is read from disk here).
 
     Parameters
@@ -234,6 +237,11 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         Fault injection (:mod:`emulator.faults`).
     status_file : path, optional
         JSON status (:func:`status`) rewritten atomically at ``status_hz`` wall Hz (needs a body).
+    lockstep : bool
+        Robot time advances only when a client asks, through the control channel (a Unix socket
+        at ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is
+        charged at its wire time plus ``reply_latency_s`` per answering servo
+        (:class:`~swerve.emulator.clock.LockstepClock`). ``time_scale`` is then ignored.
     **link
         :class:`~swerve.emulator.server.LinkSettings` fields (``path``, ``wire_timing``, ...).
 
@@ -258,8 +266,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         if noise is not None:
             raise ConfigError("sensor noise needs physics")
         servos = make_servos(ids, model, baud, **extra)
-        clock = clock_for(time_scale, rate_hz or FROZEN_RATE_HZ)
-        return Emulator(servos, link=settings, clock=clock, faults=faults)
+        clock, control = _clock(lockstep, time_scale, rate_hz or FROZEN_RATE_HZ, control_path, reply_latency_s)
+        return Emulator(servos, link=settings, clock=clock, faults=faults, control=control)
 
     rate_hz = float(rate_hz or physics.rate_hz)
     if rate_hz < 1000:
@@ -288,10 +296,22 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     for s in servos:                    # present items from the physics, not the table defaults
         if s.dynamics is not None:
             s.memory.stale = True
-    emu = Emulator(servos, link=settings, clock=clock_for(time_scale, rate_hz), faults=faults, world=world)
+    clock, control = _clock(lockstep, time_scale, rate_hz, control_path, reply_latency_s)
+    emu = Emulator(servos, link=settings, clock=clock, faults=faults, world=world, control=control)
     if status_file is not None:
         emu.observers.append(StatusFile(status_file, status_hz))
     return emu
+
+
+def _clock(lockstep: bool, time_scale: float, rate_hz: float, control_path, reply_latency_s: float):
+    """``(clock, control channel or None)`` for :func:`build_emulator`."""
+    if not lockstep:
+        return clock_for(time_scale, rate_hz), None
+    clock = LockstepClock(rate_hz, reply_latency_s)
+    try:
+        return clock, ControlServer(control_path)
+    except OSError as exc:
+        raise ConfigError(f"cannot open the lockstep control socket: {exc}") from None
 
 
 def robot_emulator(robot_config: str | os.PathLike | None = None, emulator_config: str | os.PathLike | None = None,

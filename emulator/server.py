@@ -31,6 +31,7 @@ from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber
 from swerve.driver.parser import PacketParser
 
 from swerve.emulator.clock import ClockStats, FrozenClock, HandOverLock, PhysicsClock
+from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
 from swerve.emulator.pty_link import PtyLink
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
@@ -168,10 +169,14 @@ class Emulator:
         Fault settings (:mod:`emulator.faults`), also reachable as :attr:`faults`.
     world : World, optional
         The robot body, stepped after the servos; gives :attr:`pose`.
+    control : ControlServer, optional
+        The lockstep control channel (:mod:`swerve.emulator.control`), served by the bus thread;
+        needs a clock with ``advance_to`` (:class:`~swerve.emulator.clock.LockstepClock`).
     """
 
     def __init__(self, servos: Sequence[VirtualServo], *, link: LinkSettings = LinkSettings(),
-                 clock: PhysicsClock | None = None, faults: Faults | str | None = None, world: World | None = None):
+                 clock: PhysicsClock | None = None, faults: Faults | str | None = None, world: World | None = None,
+                 control: ControlServer | None = None):
         self.servos: tuple[VirtualServo, ...] = tuple(sorted(servos, key=lambda s: s.id))
         if not self.servos:
             raise ConfigError("an emulated bus needs at least one servo")
@@ -183,6 +188,11 @@ class Emulator:
         self.clock: PhysicsClock = clock if clock is not None else FrozenClock()
         self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
         self.world = world
+        if control is not None and not hasattr(self.clock, "advance_to"):
+            raise ConfigError("a lockstep control channel needs a lockstep clock")
+        self.control = control
+        #: Bytes received from the client on the pty (the control channel's barrier counts them).
+        self.rx_bytes = 0
         self.stats = Stats()
         #: Simulated seconds stepped so far (clock and :meth:`advance` together).
         self.sim_time_s = 0.0
@@ -230,6 +240,8 @@ class Emulator:
             self._notify()             # the final state, after the clock stopped
         self._pty.close()
         self._pty = None
+        if self.control is not None:
+            self.control.close()
         for fd in (self._wake_r, self._wake_w):
             try:
                 os.close(fd)
@@ -293,36 +305,104 @@ class Emulator:
     # --- reader thread -------------------------------------------------------------------------
     def _serve(self) -> None:
         pty, parser = self._pty, self._parser
-        first_byte_t = last_rx_t = 0.0
+        control = self.control
+        self._first_byte_t = self._last_rx_t = 0.0
         inter_byte_s = self.settings.inter_byte_timeout_s
         while not self._stop.is_set():
-            timeout = inter_byte_s if parser.pending else IDLE_POLL_S
+            timeout = inter_byte_s if parser.pending and control is None else IDLE_POLL_S
             timeout = min(timeout, self._run_clock())
+            fds = [pty.master, self._wake_r] + (control.fds() if control is not None else [])
             try:
-                ready, _, _ = select.select([pty.master, self._wake_r], [], [], timeout)
+                ready, _, _ = select.select(fds, [], [], timeout)
             except (OSError, ValueError):
                 break
             if self._stop.is_set():
                 break
             if self._wake_r in ready:
                 os.read(self._wake_r, 512)
-            now = time.monotonic()
-            packets = []
             if pty.master in ready:
-                data = pty.read()
-                if data:
-                    if not parser.pending:
-                        first_byte_t = now
-                    last_rx_t = now
-                    packets = parser.feed(data)
-            elif parser.pending and now - last_rx_t >= inter_byte_s:
-                packets = parser.flush()       # the sender went silent mid-frame: abandon it
-                if parser.pending:
-                    parser.reset()
-            self._count_parser_errors()
-            for pkt in packets:
-                self._handle(pkt, first_byte_t, now)
-                first_byte_t = now
+                self._receive()
+            elif parser.pending and control is None and time.monotonic() - self._last_rx_t >= inter_byte_s:
+                self._abandon_partial()        # the sender went silent mid-frame
+            if control is not None:
+                for fd in ready:
+                    if fd not in (pty.master, self._wake_r):
+                        control.handle(fd, self)
+
+    def _receive(self) -> None:
+        """Read what the client sent and serve every instruction it completes."""
+        data = self._pty.read()
+        if not data:
+            return
+        now = time.monotonic()
+        if not self._parser.pending:
+            self._first_byte_t = now
+        self._last_rx_t = now
+        self.rx_bytes += len(data)
+        packets = self._parser.feed(data)
+        self._count_parser_errors()
+        for pkt in packets:
+            self._handle(pkt, self._first_byte_t, now)
+            self._first_byte_t = now
+
+    def _abandon_partial(self) -> None:
+        packets = self._parser.flush()
+        if self._parser.pending:
+            self._parser.reset()
+        self._count_parser_errors()
+        now = time.monotonic()
+        for pkt in packets:
+            self._handle(pkt, self._first_byte_t, now)
+
+    # --- lockstep control (called by the control channel, in the bus thread) -------------------
+    def receive_until(self, rx_bytes: int, timeout_s: float) -> bool:
+        """Serve the pty until ``rx_bytes`` bytes have arrived in all (False after ``timeout_s``).
+
+        A frame still incomplete then is abandoned, as after an idle gap on the wire."""
+        deadline = time.monotonic() + timeout_s
+        while self.rx_bytes < rx_bytes:
+            remaining = deadline - time.monotonic()
+            if remaining <= 0 or self._stop.is_set():
+                return False
+            try:
+                if not select.select([self._pty.master], [], [], min(remaining, IDLE_POLL_S))[0]:
+                    continue
+            except (OSError, ValueError):
+                return False
+            self._receive()
+        if self._parser.pending:
+            self._abandon_partial()
+        return True
+
+    def advance_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (lockstep clock) and run the physics there; the new time."""
+        steps = self.clock.stats.steps
+        now = self.clock.advance_to(self, t_s)
+        if self.observers and self.clock.stats.steps != steps:
+            self._notify()
+        return now
+
+    def robot_time_s(self) -> float:
+        """Robot time of a lockstep clock (bus exchanges included); the physics time otherwise."""
+        return getattr(self.clock, "now_s", self.sim_time_s)
+
+    def inject_fault(self, what: str, args: list[str]) -> None:
+        """A fault from the control channel: ``vanish ID``, ``restore ID``, ``hwerror ID BITS``."""
+        if what in ("vanish", "restore") and len(args) == 1:
+            with self._lock:
+                getattr(self.faults, what)(int(args[0]))
+        elif what == "hwerror" and len(args) == 2:
+            bits = int(args[1]) if args[1].isdigit() else args[1]
+            self.faults.raise_hardware_error(int(args[0]), bits)
+        else:
+            raise ValueError(f"unknown fault {what} {' '.join(args)} (vanish ID, restore ID, hwerror ID BITS)")
+
+    def counters(self) -> dict[str, int]:
+        return self.stats.as_dict()
+
+    def control_info(self) -> str:
+        return (f"rate_hz {self.clock.rate_hz!r} reply_latency_s "
+                f"{getattr(self.clock, 'reply_latency_s', 0.0)!r} baud {self.line_baud()}")
 
     def _count_parser_errors(self) -> None:
         p = self._parser
@@ -347,6 +427,10 @@ class Emulator:
             return
         self.stats.packets_received += 1
         try:
+            steps = self.clock.stats.steps
+            self.clock.on_request(self, len(pkt.encode()) * self._byte_time_s())
+            if self.observers and self.clock.stats.steps != steps:
+                self._notify()
             with self._lock:
                 try:
                     replies, touched = self._dispatch(pkt)
@@ -478,14 +562,31 @@ class Emulator:
     def _transmit(self, replies: list[_Reply], start_t: float) -> None:
         if not replies:
             return
-        faults = self.faults
-        t = start_t
         byte_t = self._byte_time_s()
-        fast_dropped = fast_drawn = False
+        if self._transmit_charged(replies, byte_t):
+            return
+        t = start_t
         last = replies[-1]
         pending = bytearray()
+        for r, frame in self._surviving(replies):
+            due = t + r.delay_s + self.faults.delay_s
+            if self.wire_timing:
+                due += len(frame) * byte_t     # the last byte reaches the host then
+            ahead = due - time.monotonic()
+            if ahead > 0 and (r is last or ahead > EARLY_WRITE_S):
+                self._write(pending)           # what is due goes out before the wait
+                pending.clear()
+                self._sleep_until(due)      # never early for the reply that ends the exchange
+            pending += frame                  # replies due together go out in one write
+            t = max(due, time.monotonic()) if not self.wire_timing else due
+        self._write(pending)
+
+    def _surviving(self, replies: list[_Reply]):
+        """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
+        corrupted), drawing faults in reply order (a fast-read frame draws once); counts them."""
+        faults = self.faults
+        fast_dropped = fast_drawn = False
         for r in replies:
-            frame = r.frame
             if r.fast:
                 if not fast_drawn:
                     fast_dropped, fast_drawn = faults.should_drop(), True
@@ -496,21 +597,25 @@ class Emulator:
             elif faults.should_drop():
                 self.stats.replies_dropped += 1
                 continue
-            frame, corrupted = faults.maybe_corrupt(frame)
+            frame, corrupted = faults.maybe_corrupt(r.frame)
             if corrupted:
                 self.stats.replies_corrupted += 1
-            due = t + r.delay_s + faults.delay_s
-            if self.wire_timing:
-                due += len(frame) * byte_t     # the last byte reaches the host then
-            ahead = due - time.monotonic()
-            if ahead > 0 and (r is last or ahead > EARLY_WRITE_S):
-                self._write(pending)           # what is due goes out before the wait
-                pending.clear()
-                self._sleep_until(due)      # never early for the reply that ends the exchange
-            pending += frame                  # replies due together go out in one write
             self.stats.replies_sent += 1
-            t = max(due, time.monotonic()) if not self.wire_timing else due
-        self._write(pending)
+            yield r, frame
+
+    def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
+        """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
+        once and return True. Fault draws happen in the same order as with wall pacing."""
+        faults = self.faults
+        wire_s = sum(r.delay_s + faults.delay_s + len(r.frame) * byte_t for r in replies)
+        answering = sum(1 for r in replies if not r.fast) + (1 if any(r.fast for r in replies) else 0)
+        steps = self.clock.stats.steps
+        if not self.clock.on_replies(self, wire_s, answering):
+            return False
+        self._write(b"".join(frame for _, frame in self._surviving(replies)))
+        if self.observers and self.clock.stats.steps != steps:
+            self._notify()
+        return True
 
     def _write(self, data: bytes) -> None:
         if data:

@@ -132,3 +132,46 @@ def test_a_clock_passed_in_owns_simulated_time():
         with emu.lock:
             assert emu.sim_time_s == pytest.approx(0.250)
             assert emu.servo(1).read("realtime_tick") == 250
+
+
+def test_lockstep_clock_steps_only_when_asked_and_exactly_to_the_step_grid():
+    from swerve.emulator.clock import LockstepClock
+
+    c, world = LockstepClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
+    assert c.run(world) == math.inf and world.dts == []        # nobody asked: nothing runs
+    assert c.advance_to(world, 0.016) == 0.016
+    assert len(world.dts) == 16 and c.stats.steps == 16
+    assert c.advance_to(world, 0.010) == 0.016 and len(world.dts) == 16    # never back
+    assert c.run(world) == math.inf and len(world.dts) == 16
+    for k in range(1, 1001):                  # float deadlines t0 + k * period land on the grid
+        c.advance_to(world, 0.016 + k * 0.016)
+        assert c.stats.steps == 16 * (k + 1)
+
+
+def test_lockstep_clock_charges_requests_and_replies_and_runs_the_physics_through_them():
+    from swerve.emulator.clock import LockstepClock
+
+    c, world = LockstepClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
+    c.on_request(world, 0.6e-3)               # the instruction ends on the wire at 0.6 ms
+    assert world.dts == [] and c.now_s == pytest.approx(0.6e-3)
+    assert c.on_replies(world, 1.0e-3, replies=8) is True      # 1 ms of frames + 8 x 50 us
+    assert c.now_s == pytest.approx(2.0e-3) and c.bus_s == pytest.approx(2.0e-3)
+    assert len(world.dts) == 2                # the physics stands at 2 ms, the last whole step
+
+
+def test_wall_and_frozen_clocks_leave_reply_pacing_to_the_server():
+    world = FakeWorld()
+    for c in (FrozenClock(), WallClock(1.0)):
+        c.on_request(world, 1e-3)
+        assert c.on_replies(world, 1e-3, 1) is False and world.dts == []
+
+
+def test_lockstep_clock_rejects_bad_settings():
+    from swerve.emulator.clock import LockstepClock
+
+    with pytest.raises(ConfigError):
+        LockstepClock(rate_hz=0.0)
+    with pytest.raises(ConfigError):
+        LockstepClock(reply_latency_s=-1e-6)
+    with pytest.raises(ConfigError):
+        LockstepClock().advance_to(FakeWorld(), math.nan)

@@ -4,6 +4,10 @@ The first line on stdout is ``PORT /dev/pts/N BAUD 1000000 IDS 1-8`` (then ``LIN
 ``--link`` was given); open that path with the SDK, the driver or any serial tool at that baud rate.
 Every servo runs its motor and firmware loops (a free shaft); when the robot file's servos are all
 on the bus, they also move the robot body. ``--frozen`` serves a register-only bus.
+
+``--lockstep``: robot time advances only when a client asks through the control socket named at
+the end of the PORT line (``... IDS 1-8 CONTROL /tmp/.../control.sock``; protocol in
+emulator/README.md); a bus nobody drives stays paused.
 """
 from __future__ import annotations
 
@@ -34,8 +38,11 @@ def format_ids(ids) -> str:
 
 
 def parse_port_line(line: str) -> tuple[str, int, list[int]]:
-    """``"PORT /dev/pts/3 BAUD 1000000 IDS 1-8"`` -> ``("/dev/pts/3", 1000000, [1, ..., 8])``."""
+    """``"PORT /dev/pts/3 BAUD 1000000 IDS 1-8"`` -> ``("/dev/pts/3", 1000000, [1, ..., 8])``
+    (a trailing ``CONTROL path`` is allowed: :func:`parse_control`)."""
     words = line.split()
+    if len(words) == 8 and words[6] == "CONTROL":
+        words = words[:6]
     if len(words) != 6 or words[0] != "PORT" or words[2] != "BAUD" or words[4] != "IDS":
         raise ConfigError(f"not a PORT line: {line.strip()!r}")
     try:
@@ -43,6 +50,13 @@ def parse_port_line(line: str) -> tuple[str, int, list[int]]:
     except ValueError:
         raise ConfigError(f"PORT line: bad baud {words[3]!r}") from None
     return words[1], baud, parse_ids(words[5], "IDS", max_id=ID_MAX)
+
+
+def parse_control(line: str) -> str | None:
+    """The lockstep control socket named on a PORT line, or None (a wall-clock bus)."""
+    parse_port_line(line)
+    words = line.split()
+    return words[7] if len(words) == 8 else None
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -58,8 +72,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None,
                         help="fault injection, e.g. drop=0.05,corrupt=0.01,delay=0.002,vanish=3,"
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
-    parser.add_argument("--time-scale", type=float, default=1.0,
-                        help="simulated seconds per wall second (default 1)")
+    parser.add_argument("--time-scale", type=float, default=None,
+                        help="simulated seconds per wall second (default 1; not with --lockstep)")
+    parser.add_argument("--lockstep", action="store_true",
+                        help="simulated time advances only on request through a control socket "
+                             "(its path ends the PORT line; see emulator/README.md)")
+    parser.add_argument("--control", default=None,
+                        help="with --lockstep: path of the control socket (default: a temporary one)")
+    parser.add_argument("--reply-latency-us", type=float, default=None,
+                        help="with --lockstep: each servo's reply latency on top of its Return Delay, "
+                             "us (default 50)")
     parser.add_argument("--clock-hz", type=float, default=None,
                         help="clock rate, Hz (default: physics.rate_hz of configs/emulator.yaml; "
                              "--frozen: 1000)")
@@ -99,6 +121,17 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--status-file, --noise and --emulator-config need physics (drop --frozen)")
     if args.physics and (ids is not None or args.model is not None):
         raise ConfigError("with --physics the IDs and model come from --config")
+    if not args.lockstep and (args.control or args.reply_latency_us is not None):
+        raise ConfigError("--control and --reply-latency-us need --lockstep")
+    if args.lockstep and args.time_scale is not None:
+        raise ConfigError("--time-scale and --lockstep exclude each other (the client paces a lockstep bus)")
+    if args.time_scale is None:
+        args.time_scale = 1.0
+    lockstep = {}
+    if args.lockstep:
+        lockstep = dict(lockstep=True, control_path=args.control)
+        if args.reply_latency_us is not None:
+            lockstep["reply_latency_s"] = args.reply_latency_us * 1e-6
     robot = load_robot_config(locate_robot_file(args.config).path)
     physics = None if args.frozen else load_config(resolve_emulator_config(args.emulator_config or "ideal"))
     try:
@@ -106,7 +139,7 @@ def run(args: argparse.Namespace) -> int:
                              body=True if args.physics else None, time_scale=args.time_scale,
                              rate_hz=args.clock_hz, noise=args.noise, faults=args.faults,
                              status_file=args.status_file, path=args.link, wire_timing=args.wire_timing,
-                             baud_check=not args.no_baud_check)
+                             baud_check=not args.no_baud_check, **lockstep)
     except ValueError as exc:            # ConfigError is a ValueError too
         raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from None
     stop = threading.Event()
@@ -132,7 +165,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"LIVE {live.url}", file=sys.stderr, flush=True)
         freeze_startup_heap()
         ids_text = format_ids(s.id for s in emu.servos)
-        print(f"PORT {emu.port} BAUD {emu.baud} IDS {ids_text}", flush=True)
+        control = f" CONTROL {emu.control.path}" if emu.control is not None else ""
+        print(f"PORT {emu.port} BAUD {emu.baud} IDS {ids_text}{control}", flush=True)
         if emu.link_path:
             print(f"LINK {emu.link_path}", flush=True)
         what = "frozen (register-only)" if physics is None else (

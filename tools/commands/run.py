@@ -5,6 +5,11 @@ or the shipped one) on its first line. Sets operating modes and gains from that 
 start angles, runs the trajectory, stops, and prints the tracking summary (the keys of
 ``swerve sim --json`` plus loop timing). Ctrl-C, an exception, a missing servo or a hardware
 error stop the wheels and turn the torque off; the log stays readable.
+
+``--emulate --lockstep``: the emulator owns robot time (it advances only when the loop has
+finished a cycle, and each bus exchange costs its wire time), so the run is the same on an idle
+or a loaded machine and the log is byte-for-byte repeatable; as fast as the host allows, or
+paced at ``--time-scale S``.
 """
 from __future__ import annotations
 
@@ -30,9 +35,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true", help="start the servo emulator on a pty and drive it")
     add_config_option(parser)
-    parser.add_argument("--time-scale", type=float, default=1.0,
+    parser.add_argument("--lockstep", action="store_true",
+                        help="with --emulate: robot time owned by the emulator (repeatable runs, "
+                             "as fast as possible unless --time-scale is given)")
+    parser.add_argument("--time-scale", type=float, default=None,
                         help="robot seconds per wall second: only for an emulator (--emulate, or --port "
-                             "on a `swerve emulate --time-scale S` pty); default 1")
+                             "on a `swerve emulate --time-scale S` pty); default 1 (--lockstep: unpaced)")
     parser.add_argument("--timeout-margin-ms", type=float, default=None,
                         help="slack on every bus reply deadline (default: 2 ms; 50 ms with --emulate)")
     parser.add_argument("--log", default=None,
@@ -59,7 +67,11 @@ def run(args: argparse.Namespace) -> int:
     from swerve.tools.commands.sim import parse_x0
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
-    if not args.time_scale > 0:
+    if args.lockstep and not args.emulate:
+        raise ConfigError("--lockstep needs --emulate (a real bus, or --port, runs on the wall clock)")
+    if args.time_scale is None and not args.lockstep:
+        args.time_scale = 1.0
+    if args.time_scale is not None and not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     if args.emulator_config is not None and not args.emulate:
         raise ConfigError("--emulator-config needs --emulate")
@@ -67,7 +79,8 @@ def run(args: argparse.Namespace) -> int:
         Path(args.log) if args.log else
         Path("out/runs") / f"{Path(args.trajectory).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
     req = RunRequest(trajectory=args.trajectory, gains=args.gains, config=args.config,
-                     port=args.port, emulate=args.emulate, time_scale=args.time_scale, log=log,
+                     port=args.port, emulate=args.emulate, lockstep=args.lockstep,
+                     time_scale=args.time_scale, log=log,
                      fast_read=args.fast_read, faults=args.faults, emulator_config=args.emulator_config,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty(), on_servo_fault=args.on_servo_fault, live=args.live,

@@ -109,19 +109,22 @@ class TrackingLoop:
         Called each cycle with a dict whose keys are :class:`swerve.tools.logs.record.CycleRecord`
         fields (SI; NaN where unknown), e.g. to write the log.
     clock : Clock, optional
-        Where wall time comes from (default :class:`~swerve.tools.run.ticker.WallClock`).
+        Where time comes from (default :class:`~swerve.tools.run.ticker.WallClock`).
     fault_policy : object, optional
         ``recover(abort, wheels, rehome) -> bool`` (:mod:`swerve.tools.recovery`), asked when a
         servo reports a hardware error; True resumes the run after ``rehome()`` has steered back
         to the last commanded angles. The trajectory time does not advance meanwhile, so the
         reference waits for the robot. ``None``: stop, as on any other abort.
+    count_host_cpu : bool
+        The clock is simulated (lockstep): host CPU time does not pass on it, so count the cycles
+        whose clock time plus measured CPU time would not fit in a period (``host_cpu_overruns``).
     """
 
     def __init__(self, wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
                  max_failed_reads: int = 3, watchdog_s: float = 0.1, max_time_factor: float = 1.5,
                  true_pose: Callable[[], tuple] | None = None,
                  on_cycle: Callable[[dict], None] | None = None,
-                 clock: Clock | None = None, fault_policy=None):
+                 clock: Clock | None = None, fault_policy=None, count_host_cpu: bool = False):
         if not time_scale > 0:
             raise ValueError(f"time scale must be positive, got {time_scale}")
         self.wheels, self.law, self.geom = wheels, law, geom
@@ -133,6 +136,8 @@ class TrackingLoop:
         self.true_pose = true_pose
         self.on_cycle = on_cycle
         self.clock = WallClock() if clock is None else clock
+        self._stamp_ns = getattr(self.clock, "stamp_ns", time.time_ns)
+        self.count_host_cpu = bool(count_host_cpu)
         self.fault_policy = fault_policy
         self.failed_reads = 0
 
@@ -160,10 +165,11 @@ class TrackingLoop:
         self._consecutive = 0
         return st
 
-    def _touch_bus(self) -> None:
+    def _touch_bus(self, now: float | None = None) -> None:
         """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
-        (the servos have then stopped and ignore goals; a Bulk Write would not tell us)."""
-        now = self.clock.now()
+        (the servos have then stopped and ignore goals; a Bulk Write would not tell us).
+        ``now``: the clock's time if just read."""
+        now = self.clock.now() if now is None else now
         if self._last_tx is not None and (now - self._last_tx) * self.time_scale > self.watchdog_s:
             raise LoopAbort(f"the loop stalled for {(now - self._last_tx) * 1e3:.0f} ms wall, longer "
                             f"than the servos' Bus Watchdog ({self.watchdog_s} s): they have stopped",
@@ -214,11 +220,14 @@ class TrackingLoop:
         t_prev_meas = None
         meas = None
         k = 0
+        cpu_s: list[float] = []
+        cpu_overruns = 0
         k_base = 0                       # slots run before the last recovery from a servo fault
         with collector_paused():         # a full GC pass would cost ~2 periods
             ticker.start()
             try:
                 t_max = self.max_time_factor * law.reference.tf_s
+                cpu0 = time.thread_time()
                 while True:
                     t = (k_base + k) * tau
                     if t > t_max:
@@ -237,12 +246,13 @@ class TrackingLoop:
                         self._last_tx = t_prev_meas = None
                         odo = Odometry(geom, odo.pose)   # a rebooted servo's wheel angle starts over
                         continue
+                    t_meas = self.clock.now()     # the reply's time on the loop's clock
                     flags = 0
                     if st is None:
                         flags |= _STALE
                     else:
-                        dt = tau if t_prev_meas is None else (st.t_s - t_prev_meas) * self.time_scale
-                        t_prev_meas = st.t_s
+                        dt = tau if t_prev_meas is None else (t_meas - t_prev_meas) * self.time_scale
+                        t_prev_meas = t_meas
                         odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
                         meas = st
                     pose = odo.pose
@@ -254,7 +264,7 @@ class TrackingLoop:
                     d1, d2 = out.delta1_rad, out.delta2_rad
                     steer = [d1, d2, d2, d1]
                     drive = [v1 / geom.wheel_radius_m] * 4
-                    self._touch_bus()
+                    self._touch_bus(t_meas)
                     self.wheels.write_goals(drive, steer)
                     truth = self._pose_truth()
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
@@ -263,15 +273,22 @@ class TrackingLoop:
                     rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
                                  out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
                     if self.on_cycle is not None:
-                        self.on_cycle(self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
-                                                  pose, out.desired_state, truth, flags))
+                        fields = self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
+                                             pose, out.desired_state, truth, flags)
+                        fields["stamp_ns"] = self._stamp_ns()
+                        self.on_cycle(fields)
+                    cpu = time.thread_time() - cpu0
+                    cpu_s.append(cpu)
                     k = ticker.wait()
+                    cpu0 = time.thread_time()
+                    if self.count_host_cpu and ticker.last_busy_s + cpu > ticker.period_s:
+                        cpu_overruns += 1
             except LoopAbort as exc:
                 aborted = exc
                 log.error("%s", exc)
             finally:
                 self._stop_quietly()
-        return self._result(rows, ticker, aborted)
+        return self._result(rows, ticker, aborted, cpu_s, cpu_overruns)
 
     def _recovered(self, exc: LoopAbort, d1: float, d2: float) -> bool:
         """Let the fault policy handle a servo's hardware error; True when the run may resume."""
@@ -303,10 +320,14 @@ class TrackingLoop:
             meas_drive_radps=meas_drive, meas_steer_rad=meas_steer, meas_current_a=meas_current,
             est_pose=pose, ref_pose=sd[:3], ref_delta=sd[3:5], true_pose=truth, flags=flags)
 
-    def _result(self, rows, ticker: Ticker, aborted) -> LoopResult:
+    def _result(self, rows, ticker: Ticker, aborted, cpu_s=(), cpu_overruns=0) -> LoopResult:
         traj = self.law.reference.trajectory
-        timing = dataclasses.replace(ticker.stats.timing(),
-                                     loop_period_target_ms=self.tau_s * 1e3 / self.time_scale)
+        cpu_ms = np.asarray(cpu_s) * 1e3
+        timing = dataclasses.replace(
+            ticker.stats.timing(), loop_period_target_ms=self.tau_s * 1e3 / self.time_scale,
+            host_cpu_p50_ms=float(np.percentile(cpu_ms, 50)) if cpu_ms.size else None,
+            host_cpu_p99_ms=float(np.percentile(cpu_ms, 99)) if cpu_ms.size else None,
+            host_cpu_overruns=cpu_overruns if self.count_host_cpu else None)
         common = dict(timing=timing, cycles=len(rows), failed_reads=self.failed_reads,
                       time_scale=self.time_scale, aborted=aborted)
         if not rows:

@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from swerve.configs import ConfigChoice
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.loop import LoopResult
 from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
@@ -22,6 +23,8 @@ log = logging.getLogger(__name__)
 
 #: Bus timeout slack when the other end is the emulator (a Python process on a shared CPU), s.
 EMULATOR_TIMEOUT_MARGIN_S = 0.05
+#: Seed of the emulator's fault and noise generators in lockstep when none is given.
+LOCKSTEP_SEED = 0
 #: Physics rate of the emulated robot in tracking runs, Hz: low enough that the
 #: clock keeps up at time scale 5 (configs/emulator.yaml's 2 kHz is for servo step tests).
 EMULATOR_PHYSICS_RATE_HZ = 1000.0
@@ -37,10 +40,13 @@ class RunRequest:
     config: str | Path | ConfigChoice | None = None
     port: str | None = None
     emulate: bool = False
-    time_scale: float = 1.0
+    lockstep: bool = False                  # robot time owned by the emulator (needs emulate or control)
+    control: str | Path | None = None       # lockstep: control socket of an emulator already serving ``port``
+    time_scale: float | None = 1.0          # lockstep: pacing, None = as fast as possible
     log: Path | None = None
     fast_read: bool = False
     faults: str | None = None
+    noise: str | None = None                # with emulate: sensor noise, e.g. "position=0.5"
     progress: bool = False
     start_timeout_s: float = 5.0
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
@@ -121,26 +127,54 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
     from swerve.tools.recovery import policy
     from swerve.tools.run.loop import TrackingLoop
 
+    from swerve.configs.errors import ConfigError
+
+    if req.lockstep and not (req.emulate or (req.control and req.port)):
+        raise ConfigError("lockstep needs the emulator (--emulate); a real bus runs on the wall clock")
+    if req.control and not req.lockstep:
+        raise ConfigError("a lockstep control socket needs lockstep")
+    if not req.lockstep and not (req.time_scale and req.time_scale > 0):
+        raise ConfigError(f"time scale must be positive, got {req.time_scale}")
     choice, cfg = locate_and_load(req.config)
     if on_config is not None:
         on_config(choice)
     cfg_path = choice.path
-    cfg = wall_clock_guards(cfg, req.time_scale)
+    loop_scale = 1.0 if req.lockstep else req.time_scale     # robot s per loop-clock s
+    cfg = wall_clock_guards(cfg, loop_scale)
     geom, limits = geometry_and_limits(cfg)
     traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
     start = traj.start_state(geom) if req.start is None else np.asarray(req.start, dtype=float)
     sim = simulated_poses(law, start) if req.log is not None else None
 
+    rate_hz = req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ
     with contextlib.ExitStack() as stack:
-        true_pose = None
-        if req.emulate:
+        true_pose = clock = None
+        if req.lockstep and not req.emulate:      # an emulator someone else started
+            from swerve.tools.run.lockstep import LockstepClock
+
+            clock = stack.enter_context(LockstepClock(str(req.control), req.time_scale))
+            port = req.port
+            true_pose = clock.pose
+        elif req.lockstep:
+            from swerve.emulator.physics.profiles import resolve_emulator_config
+            from swerve.emulator.process import EmulatorProcess
+            from swerve.tools.run.lockstep import LockstepClock
+
+            emu = stack.enter_context(EmulatorProcess(
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
+                faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
+                start_pose=tuple(start[:3]), rate_hz=rate_hz))
+            clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
+            port = emu.port
+            true_pose = clock.pose
+        elif req.emulate:
             from swerve.emulator.physics.profiles import resolve_emulator_config
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
-                time_scale=req.time_scale, faults=req.faults, start_pose=tuple(start[:3]),
-                rate_hz=req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ))
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), time_scale=req.time_scale,
+                faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
+                rate_hz=rate_hz))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
         else:
@@ -148,16 +182,19 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         # Return Delay starts at the servos' factory value; WheelSet.configure() sets the bus's.
         # The emulator is a Python process on a possibly loaded machine: give its replies slack.
         margin = req.timeout_margin_s if req.timeout_margin_s is not None else (
-            EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
+            LOCKSTEP_TIMEOUT_MARGIN_S if req.lockstep else EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
         margin = {} if margin is None else {"timeout_margin_s": margin}
         fault_policy = policy(req.on_servo_fault, **margin)
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
+        if clock is not None:
+            clock.count_tx(lambda: bus.bytes_written)
         wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
         wheels.configure()
         # In the loop every read is the same 10-byte block: a missed reply is the next cycle's
         # job (no retry), and its deadline must fit in a cycle (half the wall period at most).
         bus.retries = 0
-        bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
+        if not req.lockstep:
+            bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
         callbacks = []
         if req.log is not None:
             callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
@@ -168,28 +205,40 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             live = stack.enter_context(LivePublisher(*parse_live(req.live), wheels=[w.name for w in cfg.wheels]))
             log.warning("live view on %s", live.url)
             callbacks.append(live.on_cycle)
-        loop = TrackingLoop(wheels, law, geom, time_scale=req.time_scale,
+        loop = TrackingLoop(wheels, law, geom, time_scale=loop_scale,
                             max_failed_reads=cfg.max_consecutive_timeouts,
                             watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=_chain(callbacks),
-                            fault_policy=fault_policy)
+                            fault_policy=fault_policy, clock=clock, count_host_cpu=req.lockstep)
         wheels.enable()
         loop.move_to_start(start[3], start[4], timeout_s=req.start_timeout_s)
+        if clock is not None:
+            clock.align(1.0 / rate_hz)       # deadlines on the physics step grid
+        robot0, wall0 = (clock.now() if clock is not None else None), time.monotonic()
         result = loop.run(start)
+        wall_s = time.monotonic() - wall0
+        robot_s = clock.now() - robot0 if clock is not None else wall_s * loop_scale
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
+        counters = clock.counters() if clock is not None else None
         live_stats = None if live is None else LiveStats(live.url, live.published, live.dropped)
     emulator = None
     if req.emulate and emu.final_stats:
-        bus_stats, clock = emu.final_stats["bus"], emu.final_stats["clock"]
-        emulator = EmulatorStats(bus_stats.get("replies_dropped", 0), clock.get("achieved_scale"),
-                                 clock.get("lost_sim_s"))
+        bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
+        emulator = EmulatorStats(bus_stats.get("replies_dropped", 0),
+                                 None if req.lockstep else clock_stats.get("achieved_scale"),
+                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"))
+    elif counters is not None:
+        emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
     aborted = result.aborted
     summary = RunSummary(
-        trajectory=traj.name, port="emulator" if req.emulate else port, config=str(cfg_path),
-        config_source=choice.source, time_scale=result.time_scale, completed=result.completed,
+        trajectory=traj.name, port="emulator" if req.emulate or req.lockstep else port, config=str(cfg_path),
+        config_source=choice.source, time_scale=req.time_scale if req.lockstep else result.time_scale,
+        completed=result.completed,
         cycles=result.cycles, failed_reads=result.failed_reads, timing=result.timing,
         tracking=result.tracking, abort_cause=None if aborted is None else aborted.cause,
         abort_message=None if aborted is None else str(aborted), **bus_counts,
         log=None if req.log is None else str(req.log), emulator=emulator,
+        clock="lockstep" if req.lockstep else "wall", wall_time_s=wall_s,
+        real_time_factor=robot_s / wall_s if wall_s > 0 else None,
         servo_faults=fault_policy.summary(), live=live_stats)
     return RunResult(summary, result)
 
@@ -208,13 +257,21 @@ def _chain(callbacks):
     return on_cycle
 
 
+def _seeded(faults: str | None) -> str | None:
+    """A fault or noise spec with ``seed=LOCKSTEP_SEED`` added when it names none (lockstep is
+    repeatable)."""
+    if not faults or "seed=" in faults:
+        return faults
+    return f"{faults},seed={LOCKSTEP_SEED}"
+
+
 def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
     """Open the run log and return the loop's ``on_cycle`` callback."""
     from swerve.tools.logs.bag import RunLogWriter
     from swerve.tools.logs.record import CycleRecord
 
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
-                time_scale=req.time_scale, port="emulator" if req.emulate else (req.port or cfg.link.port),
+                time_scale=req.time_scale, port="emulator" if req.emulate or req.lockstep else (req.port or cfg.link.port),
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)

@@ -41,8 +41,12 @@ class TrackingErrors:
 
 @dataclass(frozen=True)
 class LoopTiming:
-    """Measured loop periods in wall ms (target, p50, p99, max), ``loop_cycles`` timed,
-    ``overruns`` (cycles that ran past the next deadline) and the ``missed_slots`` they skipped."""
+    """Measured loop periods in the clock's ms (wall, or robot time in lockstep: target, p50,
+    p99, max), ``loop_cycles`` timed, ``overruns`` (cycles that ran past the next deadline) and
+    the ``missed_slots`` they skipped. Host-measured, so different on every run:
+    ``host_cpu_p50_ms``/``host_cpu_p99_ms`` (the loop's CPU time per cycle) and, in lockstep,
+    ``host_cpu_overruns`` (cycles whose robot-time bus work plus that CPU time exceeds the period;
+    they are counted, not scheduled: the schedule and the log stay deterministic)."""
 
     loop_period_target_ms: float
     loop_period_p50_ms: float
@@ -51,16 +55,21 @@ class LoopTiming:
     loop_cycles: int
     overruns: int
     missed_slots: int
+    host_cpu_p50_ms: float | None = None
+    host_cpu_p99_ms: float | None = None
+    host_cpu_overruns: int | None = None
 
 
 @dataclass(frozen=True)
 class EmulatorStats:
     """What the emulator counted: replies it dropped (fault injection), the time scale it
-    achieved (robot s per wall s) and the robot time it lost to a slow host, s."""
+    achieved (robot s per wall s; wall clock only), the robot time it lost to a slow host, s, and
+    its physics' real-time factor (robot s per CPU s of physics steps; host-measured)."""
 
     emulator_replies_dropped: int
     emulator_achieved_time_scale: float | None
     emulator_lost_sim_s: float | None
+    emulator_physics_real_time_factor: float | None = None
 
 
 @dataclass(frozen=True)
@@ -93,13 +102,16 @@ class RunSummary:
     ``tracking`` (None if no cycle ran); ``timing``; the bus's ``bus_stray_replies`` and
     ``bus_corrupt_frames``; ``log`` directory; ``emulator`` counters (None on the robot);
     ``servo_faults`` how hardware errors were handled; ``live`` the live view (None without).
+    ``clock``: ``"wall"`` or ``"lockstep"`` (robot time owned by the emulator; ``time_scale``
+    is then the pacing, ``None`` for as fast as possible); ``wall_time_s`` of the loop and
+    ``real_time_factor`` (robot s per wall s over the loop) are host-measured.
     """
 
     trajectory: str
     port: str
     config: str
     config_source: str
-    time_scale: float
+    time_scale: float | None
     completed: bool
     cycles: int
     failed_reads: int
@@ -113,6 +125,9 @@ class RunSummary:
     emulator: EmulatorStats | None = None
     servo_faults: ServoFaults | None = None
     live: LiveStats | None = None
+    clock: str = "wall"
+    wall_time_s: float | None = None
+    real_time_factor: float | None = None
 
     def to_dict(self) -> dict:
         """Flat ``{key: value}`` of every field that applies (nested records inlined)."""

@@ -5,7 +5,8 @@ in a cycle. A cycle whose work runs past its successor's deadline is an *overrun
 slots are skipped (so slot index and trajectory time stay aligned with the clock) and counted.
 
 The clock is an object with ``now()`` and ``sleep_until(t)`` (:class:`Clock`): the robot uses
-:class:`WallClock` (the monotonic clock); tests pass a fake one.
+:class:`WallClock` (the monotonic clock); a lockstep emulator run uses robot time
+(:class:`swerve.tools.run.lockstep.LockstepClock`); tests pass a fake one.
 """
 from __future__ import annotations
 
@@ -29,6 +30,9 @@ class Clock(Protocol):
     def sleep_until(self, t: float) -> None:
         """Return once :meth:`now` is at or past ``t`` (s)."""
 
+    def stamp_ns(self) -> int:
+        """A log stamp for the current cycle, ns."""
+
 
 class WallClock:
     """The host's monotonic clock (:func:`time.monotonic`); sleeps with :func:`time.sleep`."""
@@ -41,6 +45,10 @@ class WallClock:
         while remaining > 0:  # sleep may return early on some platforms; never spin
             time.sleep(remaining)
             remaining = t - time.monotonic()
+
+    def stamp_ns(self) -> int:
+        """Wall-clock time (Unix epoch), ns."""
+        return time.time_ns()
 
 
 @dataclass
@@ -84,6 +92,8 @@ class Ticker:
         self._t0 = None
         self._k = 0
         self._last_wake = None
+        #: Clock seconds from the latest wake-up to the following :meth:`wait` (the cycle's work).
+        self.last_busy_s = 0.0
 
     def start(self) -> float:
         """Start the schedule now; returns ``t0`` (monotonic seconds)."""
@@ -103,6 +113,7 @@ class Ticker:
         if self._t0 is None:
             raise RuntimeError("Ticker.start() first")
         now = self.clock.now()
+        self.last_busy_s = now - self._last_wake
         nxt = self._k + 1
         if now > self.deadline(nxt):  # the work ran past the next deadline: overrun
             behind = int((now - self._t0) // self.period_s)  # last slot already begun

@@ -1,0 +1,176 @@
+"""The lockstep control channel: a Unix socket beside the pty through which a client owns time.
+
+The bytes of every request and reply still travel through the pty; this channel only moves
+robot time (:class:`swerve.emulator.clock.LockstepClock`) and reads the true state. It is served
+by the emulator's bus thread, between requests, so time, bus and physics change in one order.
+
+Protocol (ASCII lines, one reply line per request; times in s as Python ``repr`` floats)::
+
+    advance <t_s> <tx_bytes>   ->  at <now_s>                 robot time moved to max(now, t_s)
+    now <tx_bytes>             ->  at <now_s>
+    pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
+    fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
+    stats                      ->  stats <key> <int> ...      the bus counters (replies_dropped, ...)
+    info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps>
+    (anything else)            ->  error <text>
+
+``BITS`` of ``hwerror`` are ``+``-separated names (``overload+overheating``) or an integer. A
+fault sent this way takes effect at a known point of robot time (after the announced bytes).
+
+``tx_bytes`` is the number of bytes the client wrote to the pty since its previous request on
+this connection (or since it connected). Before answering, the emulator reads the pty until it
+has received that many more bytes and serves the instructions they complete: the Linux pty
+hands bytes to the other side asynchronously, and this barrier makes the order of "bytes
+written, then time advanced" deterministic. Connect before writing to the pty.
+"""
+from __future__ import annotations
+
+import logging
+import os
+import socket
+import tempfile
+from pathlib import Path
+from typing import Protocol
+
+log = logging.getLogger(__name__)
+
+#: Longest the bus thread waits for bytes a barrier announced before answering with an error, s.
+BARRIER_TIMEOUT_S = 10.0
+
+
+class ControlledBus(Protocol):
+    """What the channel needs from :class:`swerve.emulator.server.Emulator`."""
+
+    rx_bytes: int
+
+    def receive_until(self, rx_bytes: int, timeout_s: float) -> bool:
+        """Serve the pty until ``rx_bytes`` bytes have arrived in all; False on timeout."""
+
+    def advance_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back); the new robot time."""
+
+    def robot_time_s(self) -> float:
+        """Robot time now."""
+
+    def control_info(self) -> str:
+        """The ``info`` reply's fields."""
+
+    def true_state(self) -> tuple[float, tuple[float, float, float]]:
+        """``(physics_time_s, pose)``."""
+
+    def inject_fault(self, what: str, args: list[str]) -> None:
+        """Apply a fault now (``vanish``, ``restore``, ``hwerror``); ValueError if malformed."""
+
+    def counters(self) -> dict[str, int]:
+        """The bus counters."""
+
+
+class _Connection:
+    def __init__(self, sock: socket.socket, rx_base: int):
+        self.sock = sock
+        self.buffer = b""
+        self.rx_base = rx_base        # the emulator's received bytes at the previous request
+
+
+class ControlServer:
+    """The listening socket (``path``; a fresh temporary one by default) and its connections."""
+
+    def __init__(self, path: str | os.PathLike | None = None):
+        self._tmpdir = None
+        if path is None:
+            self._tmpdir = tempfile.mkdtemp(prefix="swerve-lockstep-")
+            path = Path(self._tmpdir) / "control.sock"
+        self.path = str(path)
+        if os.path.exists(self.path):
+            os.unlink(self.path)
+        self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+        self._listener.bind(self.path)
+        self._listener.listen(4)
+        self._listener.setblocking(False)
+        self._conns: dict[int, _Connection] = {}
+
+    def fds(self) -> list[int]:
+        """Descriptors the bus thread selects on."""
+        return [self._listener.fileno(), *self._conns]
+
+    def handle(self, fd: int, bus: ControlledBus) -> None:
+        """Serve a readable descriptor (a new connection or request lines)."""
+        if fd == self._listener.fileno():
+            try:
+                sock, _ = self._listener.accept()
+            except BlockingIOError:
+                return
+            sock.setblocking(True)
+            self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes)
+            return
+        conn = self._conns.get(fd)
+        if conn is None:
+            return
+        try:
+            data = conn.sock.recv(4096)
+        except OSError:
+            data = b""
+        if not data:
+            self._drop(fd)
+            return
+        conn.buffer += data
+        while b"\n" in conn.buffer:
+            line, conn.buffer = conn.buffer.split(b"\n", 1)
+            reply = self._answer(conn, line.decode("ascii", "replace").split(), bus)
+            try:
+                conn.sock.sendall(reply.encode("ascii") + b"\n")
+            except OSError:
+                self._drop(fd)
+                return
+
+    def _answer(self, conn: _Connection, words: list[str], bus: ControlledBus) -> str:
+        cmd, args = (words[0], words[1:]) if words else ("", [])
+        try:
+            if cmd == "info" and not args:
+                return f"info {bus.control_info()}"
+            if cmd == "stats" and not args:
+                return "stats " + " ".join(f"{k} {v}" for k, v in bus.counters().items())
+            if cmd == "fault" and len(args) >= 3:
+                tx, fault = int(args[0]), args[1:]
+            elif cmd in ("advance", "now", "pose") and len(args) == (2 if cmd == "advance" else 1):
+                tx = int(args[-1])
+            else:
+                return f"error unknown request {' '.join(words)!r}"
+            if tx < 0:
+                return "error tx_bytes must be >= 0"
+            target = conn.rx_base + tx
+            if not bus.receive_until(target, BARRIER_TIMEOUT_S):
+                conn.rx_base = bus.rx_bytes
+                return (f"error only {bus.rx_bytes - (target - tx)} of the {tx} announced bytes arrived "
+                        f"within {BARRIER_TIMEOUT_S:g} s")
+            conn.rx_base = target
+            if cmd == "fault":
+                bus.inject_fault(fault[0], fault[1:])
+                return "ok"
+            if cmd == "advance":
+                return f"at {bus.advance_to(float(args[0]))!r}"
+            if cmd == "now":
+                return f"at {bus.robot_time_s()!r}"
+            t, (x, y, theta) = bus.true_state()
+            return f"pose {bus.robot_time_s()!r} {float(x)!r} {float(y)!r} {float(theta)!r} {t!r}"
+        except (ValueError, KeyError) as exc:
+            return f"error {exc}"
+
+    def _drop(self, fd: int) -> None:
+        conn = self._conns.pop(fd, None)
+        if conn is not None:
+            conn.sock.close()
+
+    def close(self) -> None:
+        for fd in list(self._conns):
+            self._drop(fd)
+        self._listener.close()
+        try:
+            os.unlink(self.path)
+        except OSError:
+            pass
+        if self._tmpdir is not None:
+            try:
+                os.rmdir(self._tmpdir)
+            except OSError:
+                pass

@@ -1,0 +1,165 @@
+"""Lockstep: the emulator owns robot time. Wire-time accounting, the byte barrier, pausing,
+the command-line surface and the pytest fixtures; none of the verdicts depend on wall time."""
+from __future__ import annotations
+
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
+from swerve.emulator.robot_emulator import build_emulator
+from swerve.tools.commands.emulate import parse_control, parse_port_line
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock, LockstepError
+
+ROOT = Path(__file__).resolve().parents[1]
+BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
+
+
+@pytest.fixture
+def bus_in_lockstep():
+    """A register-only 3-servo bus in lockstep, its driver, and a clock on its control channel."""
+    with build_emulator(ids=[1, 2, 3], lockstep=True) as emu:
+        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.count_tx(lambda: bus.bytes_written)
+            yield emu, bus, clock
+
+
+def test_an_exchange_costs_its_wire_time_in_robot_time(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    t0 = clock.now()
+    assert t0 == 0.0                                  # nothing has happened yet
+    bus.ping(2)
+    delay_s = emu.servo(2).return_delay_s             # Return Delay Time item (500 us by default)
+    expected = (10 + 14) * BYTE_S + delay_s + DEFAULT_REPLY_LATENCY_S   # request, reply frames
+    assert clock.now() - t0 == pytest.approx(expected, abs=1e-12)
+    t1 = clock.now()
+    bus.write(1, Reg.LED, 1)                          # write: 13-byte request, 11-byte status
+    assert clock.now() - t1 == pytest.approx(24 * BYTE_S + emu.servo(1).return_delay_s
+                                             + DEFAULT_REPLY_LATENCY_S, abs=1e-12)
+
+
+def test_advance_runs_the_physics_to_the_requested_time_and_no_further(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    clock.sleep_until(0.016)
+    assert clock.now() == 0.016
+    assert emu.clock.stats.steps == 16 and emu.sim_time_s == pytest.approx(0.016)
+    clock.sleep_until(0.010)                          # time never goes back
+    assert clock.now() == 0.016 and emu.clock.stats.steps == 16
+    time.sleep(0.2)                                   # nobody asks: the robot stays paused
+    assert emu.clock.stats.steps == 16
+
+
+def test_the_barrier_serves_bytes_written_before_the_time_request(bus_in_lockstep):
+    """A write without a reply, then at once a time request: the write is executed first,
+    whatever the pty's delivery delay, and its wire time is charged before the advance."""
+    emu, bus, clock = bus_in_lockstep
+    for k in range(200):
+        bus.sync_write(Reg.GOAL_POSITION, {1: k, 2: k, 3: k})   # no reply
+        assert clock.now() == pytest.approx((k + 1) * (14 + 3 * 5) * BYTE_S)
+        with emu.lock:
+            assert emu.servo(3).read("goal_position") == k
+
+
+def test_a_fault_sent_on_the_channel_takes_effect_in_order(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    clock.fault("vanish", 2)
+    from swerve.driver.errors import DxlTimeoutError
+    with pytest.raises(DxlTimeoutError):
+        bus.ping(2)
+    clock.fault("restore", 2)
+    assert bus.ping(2).id == 2
+    with pytest.raises(LockstepError, match="unknown fault"):
+        clock.fault("melt", 2)
+    assert clock.counters()["packets_received"] == 2
+
+
+def test_bad_requests_get_an_error_line_and_the_channel_keeps_serving(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    with pytest.raises(LockstepError, match="unknown request"):
+        clock._ask("jump 3")
+    with pytest.raises(LockstepError):
+        clock._ask("advance nan 0")
+    assert clock.info()["rate_hz"] == 1000.0
+
+
+def test_emulate_lockstep_prints_its_control_socket_and_stays_paused():
+    proc = subprocess.Popen([sys.executable, "-m", "swerve.tools.cli", "emulate", "--lockstep", "--ids", "1-2"],
+                            cwd=ROOT, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        port, baud, ids = parse_port_line(line)
+        control = parse_control(line)
+        assert ids == [1, 2] and control is not None and Path(control).exists()
+        with LockstepClock(control) as clock, Bus(port, baud, default_model="xh430-w210",
+                                                  timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.count_tx(lambda: bus.bytes_written)
+            assert bus.ping(1).id == 1
+            t = clock.now()
+            assert t > 0
+            tick0 = bus.read(1, Reg.REALTIME_TICK)
+            t1 = clock.now()
+            time.sleep(0.3)                           # wall time passes, robot time does not
+            assert clock.now() == t1
+            clock.sleep_until(t1 + 0.5)
+            ticks = (bus.read(1, Reg.REALTIME_TICK) - tick0) % 32768      # 1 ms per tick
+            assert 500 <= ticks <= 501                # + the read's own wire time (< 1 ms)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=20) == 0
+        assert not Path(control).exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+def test_emulate_lockstep_with_a_time_scale_is_a_one_line_error():
+    out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "emulate", "--lockstep", "--time-scale", "2"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2 and len(out.stderr.strip().splitlines()) == 1
+
+
+def test_run_lockstep_with_a_port_is_a_one_line_error():
+    out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "line",
+                          "--lockstep", "--port", "/dev/null", "--no-log"],
+                         cwd=ROOT, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 2
+    assert len(out.stderr.strip().splitlines()) == 1 and "--lockstep" in out.stderr
+
+
+@pytest.mark.emulated_bus(ids=[4, 5, 6], physics=True)
+def test_emulated_bus_fixture_takes_its_servos_from_the_marker(emulated_bus):
+    with Bus(emulated_bus, 1_000_000) as bus:
+        assert [r.id for r in bus.scan(range(1, 8))] == [4, 5, 6]
+
+
+def test_emulated_robot_moves_in_robot_time_only(emulated_robot):
+    """Drive straight for ~1 s of robot time: the body moves about v * 1 s, and then stays put
+    while wall time passes."""
+    from swerve.configs import shipped
+    from swerve.driver.robot_config import load_robot_config
+    from swerve.driver.wheelset import WheelSet
+
+    cfg = load_robot_config(shipped("robot.yaml"))
+    with emulated_robot.open_bus(baud=cfg.link.baud, default_model=cfg.model) as bus:
+        with WheelSet(bus, cfg) as wheels:
+            wheels.configure()
+            wheels.enable()
+            v_mps = 0.1
+            t0 = emulated_robot.time_s
+            for _ in range(62):                       # goals every 16 ms keep the Bus Watchdog fed
+                wheels.write_goals([v_mps / cfg.wheel_radius_m] * 4, [0.0] * 4)
+                emulated_robot.advance(0.016)
+            assert 62 * 0.016 < emulated_robot.time_s - t0 < 62 * 0.018   # + each write's wire time
+            x, y, theta = emulated_robot.pose
+            assert 0.8 * v_mps < x < 1.05 * v_mps and abs(y) < 1e-3 and abs(theta) < 1e-3
+            time.sleep(0.2)
+            assert emulated_robot.pose == (x, y, theta)
+            wheels.stop()

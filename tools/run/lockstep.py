@@ -1,0 +1,152 @@
+"""Robot time from a lockstep emulator: the ticker's clock over the emulator's control channel.
+
+With this clock the loop waits on simulated time, not the wall clock: ``sleep_until(t)`` asks the
+emulator to advance its physics to ``t`` (after it has taken every byte the driver wrote to the
+pty), and ``now()`` is the emulator's robot time, which includes the wire time of every bus
+exchange. The protocol is in :mod:`swerve.emulator.control` and emulator/README.md.
+"""
+from __future__ import annotations
+
+import math
+import socket
+import time
+from typing import Callable
+
+from swerve.driver.errors import SwerveError
+
+#: Wall seconds a control request may take before the emulator is taken for dead.
+CONTROL_TIMEOUT_S = 30.0
+#: Bus timeout slack against a lockstep emulator, wall s: its replies are never late in robot
+#: time, so this only has to ride out a loaded host (a lost reply costs this much wall time).
+LOCKSTEP_TIMEOUT_MARGIN_S = 0.25
+
+
+class LockstepError(SwerveError):
+    """The lockstep emulator refused a request or stopped answering."""
+
+
+class LockstepClock:
+    """A :class:`~swerve.tools.run.ticker.Clock` in robot seconds, owned by a lockstep emulator.
+
+    ``control_path``: the emulator's control socket (``CONTROL`` on ``swerve emulate``'s PORT
+    line, or ``EmulatorProcess.control_path``). Connect before writing to the pty, then call
+    :meth:`count_tx` with the writer's byte counter (e.g. ``lambda: bus.bytes_written``).
+    ``time_scale``: pace robot time at this many robot seconds per wall second (``None``: as
+    fast as the emulator runs).
+    """
+
+    def __init__(self, control_path: str, time_scale: float | None = None):
+        if time_scale is not None and not (math.isfinite(time_scale) and time_scale > 0):
+            raise LockstepError(f"lockstep time scale must be > 0, got {time_scale}")
+        self.time_scale = time_scale
+        try:
+            self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+            self._sock.settimeout(CONTROL_TIMEOUT_S)
+            self._sock.connect(str(control_path))
+        except OSError as exc:
+            raise LockstepError(f"cannot connect to the lockstep control socket {control_path}: {exc}") from None
+        self._reader = self._sock.makefile("rb")      # buffered: one recv per reply line
+        self._tx: Callable[[], int] = lambda: 0
+        self._tx_last = 0
+        self._now_s = 0.0
+        self._known = False             # _now_s is the emulator's time (no request since)
+        self._pace: tuple[float, float] | None = None    # (robot s, wall s) when pacing started
+        self.requests = 0
+        self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
+
+    def count_tx(self, tx_bytes: Callable[[], int]) -> None:
+        """Count the bytes written to the pty with ``tx_bytes()`` from now on (the barrier)."""
+        self._tx = tx_bytes
+        self._tx_last = tx_bytes()
+
+    def _ask(self, request: str) -> list[str]:
+        self.requests += 1
+        try:
+            self._sock.sendall(request.encode("ascii") + b"\n")
+            line = self._reader.readline()
+        except OSError as exc:
+            raise LockstepError(f"lockstep emulator: {request.split()[0]} failed: {exc}") from None
+        words = line.decode("ascii", "replace").split()
+        if not words:
+            raise LockstepError("the lockstep emulator closed its control channel")
+        if words[0] == "error":
+            raise LockstepError(f"lockstep emulator: {' '.join(words[1:])}")
+        return words
+
+    def _delta(self) -> int:
+        total = self._tx()
+        delta, self._tx_last = total - self._tx_last, total
+        return delta
+
+    def now(self) -> float:
+        """Robot time, s (bus exchanges so far included).
+
+        Without bytes written since the last answer, robot time cannot have moved (this client
+        is the one that moves it), so the last answer is returned without asking."""
+        if self._tx() != self._tx_last or not self._known:
+            self._now_s = float(self._ask(f"now {self._delta()}")[1])
+            self._known = True
+        return self._now_s
+
+    def sleep_until(self, t: float) -> None:
+        """Advance robot time to ``t`` (the physics runs there); with a time scale, also wait
+        until the wall clock has caught up with it."""
+        self._now_s = float(self._ask(f"advance {t!r} {self._delta()}")[1])
+        self._known = True
+        if self.time_scale is None:
+            return
+        wall = time.monotonic()
+        if self._pace is None:
+            self._pace = (self._now_s, wall)
+            return
+        due = self._pace[1] + (self._now_s - self._pace[0]) / self.time_scale
+        while due > wall:
+            time.sleep(due - wall)
+            wall = time.monotonic()
+
+    def align(self, step_s: float) -> float:
+        """Advance to the next multiple of ``step_s`` (e.g. the physics step) and return it, so a
+        schedule started there has its deadlines on the physics grid."""
+        now = self.now()
+        self.sleep_until(math.ceil(now / step_s - 1e-9) * step_s)
+        return self._now_s
+
+    def stamp_ns(self) -> int:
+        """Robot time of the latest answer, ns (a log stamp that is the same on every run)."""
+        return round(self._now_s * 1e9)
+
+    def pose(self) -> tuple[float, float, float]:
+        """True body pose ``(x_m, y_m, theta_rad)`` after every byte written so far was served."""
+        words = self._ask(f"pose {self._delta()}")
+        self._now_s = float(words[1])
+        self._known = True
+        return float(words[2]), float(words[3]), float(words[4])
+
+    def fault(self, what: str, *args) -> None:
+        """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,
+        ``fault("restore", 7)``, ``fault("hwerror", 5, "overload")``."""
+        self._ask(" ".join(["fault", str(self._delta()), what, *map(str, args)]))
+        self._known = False
+
+    def counters(self) -> dict[str, int]:
+        """The emulator's bus counters (``replies_dropped``, ``packets_received``, ...)."""
+        words = self._ask("stats")[1:]
+        return {k: int(v) for k, v in zip(words[::2], words[1::2])}
+
+    def info(self) -> dict[str, float]:
+        """``{"rate_hz", "reply_latency_s", "baud"}`` of the emulator."""
+        words = self._ask("info")[1:]
+        return {k: float(v) for k, v in zip(words[::2], words[1::2])}
+
+    def close(self) -> None:
+        for closer in (self._reader.close, self._sock.close):
+            try:
+                closer()
+            except OSError:
+                pass
+
+    def __enter__(self) -> "LockstepClock":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
