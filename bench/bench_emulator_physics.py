@@ -87,6 +87,38 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
                 "tick_us": 1e6 * cpu / (sim * emu.rate_hz)}
 
 
+def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str = "ideal") -> dict[str, float]:
+    """Cost of one 16 ms lockstep cycle for ``n_servos`` free-shaft servos (no body), as
+    ``swerve emulate --ids 1-N`` has them: even IDs in Velocity mode at 100 units, odd IDs in
+    Position mode stepping ±512 pulse every 0.5 s; per cycle ``emu.advance(16 ms)`` and then
+    every servo's present items brought up to date (what a Sync Read of them costs the
+    physics). CPU (``process_time``) per cycle, per physics tick and per servo-tick."""
+    from swerve.emulator.physics.profiles import resolve_emulator_config
+    from swerve.emulator.robot_emulator import build_emulator
+
+    physics = load_config(resolve_emulator_config(profile))
+    emu = build_emulator(None, physics, ids=range(1, n_servos + 1), time_scale=0, rate_hz=rate_hz)
+    for s in emu.servos:
+        m = s.memory
+        m.set(Reg.OPERATING_MODE, u.MODE_VELOCITY if s.id % 2 == 0 else u.MODE_POSITION)
+        m.set(Reg.TORQUE_ENABLE, 1)
+    n = round(seconds / CYCLE_S)
+    cpu = 0.0
+    for k in range(n + 10):
+        for s in emu.servos:                              # the goals a write would set
+            s.memory.set(Reg.GOAL_VELOCITY, 100)
+            s.memory.set(Reg.GOAL_POSITION, 2048 + (512 if (k * CYCLE_S) % 1.0 < 0.5 else -512))
+        c0 = time.process_time()
+        emu.advance(CYCLE_S)
+        for s in emu.servos:                              # a read of the present items
+            s.memory.publish()
+        if k >= 10:
+            cpu += time.process_time() - c0
+    ticks = n * round(CYCLE_S * emu.rate_hz)
+    return {"servos": n_servos, "rate_hz": emu.rate_hz, "cycle_ms": 1e3 * cpu / n, "tick_us": 1e6 * cpu / ticks,
+            "servo_tick_us": 1e6 * cpu / ticks / n_servos, "rtf": n * CYCLE_S / cpu}
+
+
 # --- 2. served emulator + client cycle -------------------------------------------------------------
 def serve(time_scale: float, rate_hz: float | None, status_file: str | None) -> int:
     emu = robot_emulator(ROBOT, PHYSICS, time_scale=time_scale, rate_hz=rate_hz, status_file=status_file,
@@ -232,12 +264,23 @@ def main(argv=None) -> int:
     ap.add_argument("--sim-seconds", type=float, default=10.0)
     ap.add_argument("--cost-seconds", type=float, default=10.0)
     ap.add_argument("--skip-steps", action="store_true")
+    ap.add_argument("--bank", default=None, metavar="N,N,...",
+                    help="only the cost of a 16 ms cycle for N free-shaft servos (e.g. 8,16,32), then exit")
     args = ap.parse_args(argv)
     if args.serve:
         return serve(args.time_scale, args.rate, args.status_file)
 
     print(f"date {time.strftime('%Y-%m-%d')}, nproc {os.cpu_count()}, CPU {cpu_model()!r}, "
           f"Python {platform.python_version()}, load {os.getloadavg()}")
+    if args.bank:
+        print(f"\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor |")
+        print("|---|---|---|---|---|")
+        for n in (int(x) for x in args.bank.split(",")):
+            b = cost_bank(n, args.cost_seconds, args.rate)
+            print(f"| {n} | {b['cycle_ms']:.3f} | {b['tick_us']:.1f} | {b['servo_tick_us']:.2f} | {b['rtf']:.1f} |",
+                  flush=True)
+        print(f"load after: {os.getloadavg()}")
+        return 0
     c = cost_in_process(args.cost_seconds, args.rate)
     print(f"\ncost inside the emulator (emu.advance with a run's traffic, {c['rate_hz']:.0f} Hz): "
           f"{c['cpu_per_sim_s']:.3f} CPU s per physics s, {c['tick_us']:.0f} us per tick (8 servos + body), "
