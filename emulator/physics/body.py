@@ -18,6 +18,7 @@ The pose integrates the twist exactly for a twist held constant over the step.
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -95,7 +96,7 @@ class RobotBody:
         w = []
         for v, d in zip(speeds_mps, steer_rad):
             w += (v * math.cos(d), v * math.sin(d))
-        vx, vy, om = (sum(a * b for a, b in zip(row, w)) for row in self._pinv_rows)
+        vx, vy, om = [sum(map(operator.mul, row, w)) for row in self._pinv_rows]
         self._fit = (w, (vx, vy, om))
         self.twist = np.array((vx, vy, om))
         self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, om), dt_s)

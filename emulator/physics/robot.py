@@ -83,8 +83,8 @@ class RobotPhysics:
         self.body: RobotBody | ContactBody = (ContactBody(xy, cfg.body.total_mass_kg, cfg.contact)
                                               if cfg.contact.enabled else RobotBody(xy))
         self._wheel_steer_rad: list[float] | None = None    # wheel angles behind the backlash
-        self._wheel_radius = self.wheel_radius_m.tolist()
-        self._steer_offset = self.steer_zero_offset_rad.tolist()
+        self._wheel_servos = [(w, self.servos[w.drive_id], self.servos[w.steer_id], r, off) for w, r, off in
+                              zip(geometry.wheels, self.wheel_radius_m.tolist(), self.steer_zero_offset_rad.tolist())]
         self.bus_voltage_v = cfg.supply_voltage_v
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -95,10 +95,9 @@ class RobotPhysics:
     def _wheel_state(self) -> tuple[list[float], list[float]]:
         """:meth:`wheel_state` as lists of Python floats (per physics step: no NumPy overhead)."""
         speeds, horn = [], []
-        for w, r, off in zip(self.geometry.wheels, self._wheel_radius, self._steer_offset):
-            speeds.append(w.drive_direction * self.servos[w.drive_id].velocity_radps * r)
-            horn.append(w.steer_direction * (self.servos[w.steer_id].true_position_pulse - w.center_pulse)
-                        * u.RAD_PER_PULSE - off)
+        for w, drive, steer, r, off in self._wheel_servos:
+            speeds.append(w.drive_direction * drive.velocity_radps * r)
+            horn.append(w.steer_direction * (steer.true_position_pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
         if half <= 0.0:
             return speeds, horn
