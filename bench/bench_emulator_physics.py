@@ -6,6 +6,7 @@ Usage::
 
     python bench/bench_emulator_physics.py [--scales 1,1.5,2,3] [--sim-seconds 10] [--rate HZ]
     python bench/bench_emulator_physics.py --serve --time-scale S [--rate HZ]   # emulator process
+    python bench/bench_emulator_physics.py --bank 8,16,32 --rate 1000 [--cost-seconds 10]  # physics alone
 
 1. **Cost.** ``robot_emulator(time_scale=0)``; all eight loops busy (4 drives at 0.1 m/s, 4
    steering servos sweeping ±0.3 rad, set through the bus with WheelSet), one read and one write
@@ -17,6 +18,8 @@ Usage::
    ``--sim-seconds`` of simulated time. A cycle misses its deadline if it ends after the next
    cycle was due. Also reported: the simulated time the physics clock delivered per wall second
    and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
+``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
+free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot).
 3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
 Prints a markdown section for BENCHMARKS.md.
 """
@@ -90,9 +93,10 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
 def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str = "ideal") -> dict[str, float]:
     """Cost of one 16 ms lockstep cycle for ``n_servos`` free-shaft servos (no body), as
     ``swerve emulate --ids 1-N`` has them: even IDs in Velocity mode at 100 units, odd IDs in
-    Position mode stepping ±512 pulse every 0.5 s; per cycle ``emu.advance(16 ms)`` and then
-    every servo's present items brought up to date (what a Sync Read of them costs the
-    physics). CPU (``process_time``) per cycle, per physics tick and per servo-tick."""
+    Position mode stepping ±512 pulse every 0.5 s; per cycle the goals written as a Sync Write's
+    entries, then (timed) ``emu.advance(16 ms)`` and every servo's Present Current .. Present
+    Position read as a Sync Read's entries (no pty, no packets). CPU (``process_time``) per
+    cycle, per physics tick and per servo-tick."""
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.robot_emulator import build_emulator
 
@@ -102,16 +106,21 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
         m = s.memory
         m.set(Reg.OPERATING_MODE, u.MODE_VELOCITY if s.id % 2 == 0 else u.MODE_POSITION)
         m.set(Reg.TORQUE_ENABLE, 1)
+    table = emu.servos[0].table
+    gv, gp = table[Reg.GOAL_VELOCITY].address, table[Reg.GOAL_POSITION].address
+    first = table[Reg.PRESENT_CURRENT].address                  # present current .. present position
+    length = table[Reg.PRESENT_POSITION].address + 4 - first
     n = round(seconds / CYCLE_S)
     cpu = 0.0
     for k in range(n + 10):
-        for s in emu.servos:                              # the goals a write would set
-            s.memory.set(Reg.GOAL_VELOCITY, 100)
-            s.memory.set(Reg.GOAL_POSITION, 2048 + (512 if (k * CYCLE_S) % 1.0 < 0.5 else -512))
+        goal = 2048 + (512 if (k * CYCLE_S) % 1.0 < 0.5 else -512)
+        for s in emu.servos:                              # a Sync Write's entries
+            s.bus_write(gv, (100).to_bytes(4, "little", signed=True))
+            s.bus_write(gp, goal.to_bytes(4, "little", signed=True))
         c0 = time.process_time()
         emu.advance(CYCLE_S)
-        for s in emu.servos:                              # a read of the present items
-            s.memory.publish()
+        for s in emu.servos:                              # a Sync Read's entries
+            s.read_status(first, length)
         if k >= 10:
             cpu += time.process_time() - c0
     ticks = n * round(CYCLE_S * emu.rate_hz)
@@ -279,6 +288,10 @@ def main(argv=None) -> int:
             b = cost_bank(n, args.cost_seconds, args.rate)
             print(f"| {n} | {b['cycle_ms']:.3f} | {b['tick_us']:.1f} | {b['servo_tick_us']:.2f} | {b['rtf']:.1f} |",
                   flush=True)
+        c = cost_in_process(args.cost_seconds, args.rate)
+        print(f"\nthe robot (8 servos + body, a run's bus traffic), {c['rate_hz']:.0f} Hz: "
+              f"{1e3 * c['cpu_per_sim_s'] * CYCLE_S:.3f} ms CPU per 16 ms cycle, {c['tick_us']:.1f} us per tick, "
+              f"real-time factor {c['rtf']:.1f}")
         print(f"load after: {os.getloadavg()}")
         return 0
     c = cost_in_process(args.cost_seconds, args.rate)
