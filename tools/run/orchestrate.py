@@ -172,8 +172,8 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), time_scale=req.time_scale,
-                faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
+                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
+                time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
                 rate_hz=rate_hz))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
