@@ -29,6 +29,8 @@ from swerve.configs.errors import ConfigError
 
 #: PyYAML's safe loader, in C (libyaml) where installed: same nodes and marks, ~10x faster.
 _SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
+#: Largest YAML file read, bytes (configs and trajectories are a few kB).
+YAML_MAX_BYTES = 16 * 2**20
 
 
 class ConfigWarning(UserWarning):
@@ -85,7 +87,13 @@ class Document:
 
 
 def _line_map(node: yaml.Node, path: _Path, out: dict[_Path, int], file: str,
-              error: type[ConfigError]) -> None:
+              error: type[ConfigError], seen_nodes: set[int] | None = None) -> None:
+    seen_nodes = set() if seen_nodes is None else seen_nodes
+    if isinstance(node, (yaml.MappingNode, yaml.SequenceNode)):
+        if id(node) in seen_nodes:      # an alias (*name): nested ones grow exponentially
+            raise config_error(file, node.start_mark.line + 1, dotted(path) or None,
+                               "YAML aliases of lists or mappings (*name) are not accepted here", error)
+        seen_nodes.add(id(node))
     out.setdefault(path, node.start_mark.line + 1)
     if isinstance(node, yaml.MappingNode):
         seen: set[str] = set()
@@ -96,10 +104,10 @@ def _line_map(node: yaml.Node, path: _Path, out: dict[_Path, int], file: str,
                                    f"duplicate key (first on line {out[path + (key,)]})", error)
             seen.add(key)
             out[path + (key,)] = k.start_mark.line + 1      # a section's line is its key's
-            _line_map(v, path + (key,), out, file, error)
+            _line_map(v, path + (key,), out, file, error, seen_nodes)
     elif isinstance(node, yaml.SequenceNode):
         for i, v in enumerate(node.value):
-            _line_map(v, path + (i,), out, file, error)
+            _line_map(v, path + (i,), out, file, error, seen_nodes)
 
 
 def _yaml_problem(exc: yaml.YAMLError) -> tuple[int | None, str]:
@@ -138,9 +146,14 @@ def read_yaml(path: str | Path, error: type[ConfigError] = ConfigError, what: st
     path = Path(path)
     file = str(path)
     try:
-        raw = path.read_bytes()
+        if path.exists() and not path.is_dir() and not path.is_file():
+            raise error(f"{file}: cannot read {what}: not a regular file (a device or a pipe?)", file=file)
+        with path.open("rb") as fh:
+            raw = fh.read(YAML_MAX_BYTES + 1)
     except OSError as exc:
         raise error(f"{file}: cannot read {what}: {exc.strerror or exc}", file=file) from None
+    if len(raw) > YAML_MAX_BYTES:
+        raise config_error(file, None, None, f"larger than {YAML_MAX_BYTES // 2**20} MiB: not a config file", error)
     if b"\x00" in raw:
         raise config_error(file, None, None, "binary file (contains NUL bytes), expected YAML text", error)
     try:

@@ -14,11 +14,13 @@ and a JSON string ``meta`` (trajectory, tau_s, method, cost, frames, sign conven
 from __future__ import annotations
 
 import json
+import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from swerve.configs.atomic import atomic_write
 from swerve.controller.errors import ControllerError
 
 SIGN_CONVENTION = "u = ud + K (x - xd)"
@@ -62,7 +64,8 @@ class GainSchedule:
 def save_gains(path: str | Path, gains: GainSchedule) -> Path:
     """Write a schedule as ``.npz`` or ``.dat`` (chosen by the suffix); returns the path."""
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
+    if p.suffix not in (".npz", ".dat"):
+        raise ControllerError(f"gain file must end in .npz or .dat, got {p.name}")
     meta = gains._meta()
     if p.suffix == ".dat":
         table = np.column_stack([gains.times_s, gains.K.reshape(gains.n_steps, 15),
@@ -70,12 +73,12 @@ def save_gains(path: str | Path, gains: GainSchedule) -> Path:
         cols = " ".join(f"K{r + 1}{c + 1}" for r in range(3) for c in range(5))
         header = (f"swerve gain schedule\nmeta: {json.dumps(meta)}\n"
                   f"columns: t_s {cols} phi_rad")
-        np.savetxt(p, table, fmt="%.9g", header=header)
+        with atomic_write(p, "wb") as fh:
+            np.savetxt(fh, table, fmt="%.9g", header=header)
         return p
-    if p.suffix != ".npz":
-        raise ControllerError(f"gain file must end in .npz or .dat, got {p.name}")
-    np.savez(p, times_s=gains.times_s, K=gains.K, phi_rad=gains.phi_rad, Q=gains.Q, R=gains.R,
-             meta=json.dumps(meta))
+    with atomic_write(p, "wb") as fh:
+        np.savez(fh, times_s=gains.times_s, K=gains.K, phi_rad=gains.phi_rad, Q=gains.Q, R=gains.R,
+                 meta=json.dumps(meta))
     return p
 
 
@@ -86,7 +89,7 @@ def load_gains(path: str | Path) -> GainSchedule:
     """
     p = Path(path)
     if not p.is_file():
-        raise ControllerError(f"gain file {p} does not exist")
+        raise ControllerError(f"gain file {p} " + ("is a directory" if p.is_dir() else "does not exist"))
     try:
         if p.suffix == ".dat":
             meta = {}
@@ -97,6 +100,8 @@ def load_gains(path: str | Path) -> GainSchedule:
                     if line.startswith("# meta:"):
                         meta = json.loads(line[len("# meta:"):])
             table = np.loadtxt(p, comments="#", ndmin=2)
+            if table.size == 0:
+                raise ValueError("the file holds no table (empty)")
             if table.shape[1] != 17:
                 raise ValueError(f"expected 17 columns, found {table.shape[1]}")
             K = table[:, 1:16].reshape(-1, 3, 5)
@@ -108,8 +113,18 @@ def load_gains(path: str | Path) -> GainSchedule:
                 K, phi, Q, R = z["K"], z["phi_rad"], z["Q"], z["R"]
                 meta = json.loads(str(z["meta"]))
             tau = float(meta["tau_s"])
-    except (OSError, ValueError, KeyError, IndexError, json.JSONDecodeError) as exc:
-        raise ControllerError(f"cannot read gain schedule {p}: {exc}") from exc
+    except (zipfile.BadZipFile, EOFError) as exc:
+        raise ControllerError(f"{p} is not a gain schedule .npz (empty, truncated or not a zip archive: "
+                              f"{exc})") from None
+    except KeyError as exc:
+        raise ControllerError(f"{p} is not a gain schedule: no {exc} in it") from None
+    except (OSError, ValueError, IndexError) as exc:
+        why = str(exc).split("; use `usecols`")[0]      # NumPy's advice does not apply to a gain file
+        if "pickled" in why:
+            why = "not a gain schedule .npz (holds Python objects)"
+        elif "number of columns changed" in why:
+            why = f"{why} (a truncated file?)"
+        raise ControllerError(f"cannot read gain schedule {p}: {why}") from None
     if K.ndim != 3 or K.shape[1:] != (3, 5) or phi.shape != (K.shape[0],):
         raise ControllerError(f"{p}: gains must have shape (N, 3, 5), got {K.shape}")
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(phi))):

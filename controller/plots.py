@@ -3,6 +3,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from swerve.configs.atomic import save_figure
+
 
 
 
@@ -46,7 +48,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     ax.axis("equal")
     ax.legend()
     files.append(out / f"{name}_path.png")
-    fig.savefig(files[-1], dpi=120, bbox_inches="tight")
+    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
     plt.close(fig)
 
     fig, axs = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
@@ -60,7 +62,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     axs[1].set(xlabel="t [s]", ylabel="steering [rad]")
     axs[1].legend()
     files.append(out / f"{name}_states.png")
-    fig.savefig(files[-1], dpi=120, bbox_inches="tight")
+    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
     plt.close(fig)
 
     fig, axs = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
@@ -71,7 +73,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     axs[1].set(xlabel="t [s]", ylabel="steering rate [rad/s]")
     axs[1].legend()
     files.append(out / f"{name}_inputs.png")
-    fig.savefig(files[-1], dpi=120, bbox_inches="tight")
+    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
     plt.close(fig)
 
     fig, axs = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
@@ -84,7 +86,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     axs[0].set_title(f"{name}: gain schedule K(t), {gains.method} (cf. paper Fig. 5b/7b/9b)")
     axs[2].set_xlabel("t [s]")
     files.append(out / f"{name}_gains.png")
-    fig.savefig(files[-1], dpi=120, bbox_inches="tight")
+    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
     plt.close(fig)
     return files
 

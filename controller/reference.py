@@ -85,6 +85,9 @@ class Trajectory:
 TRAJ_DURATION_MAX_S = 1e5
 TRAJ_LENGTH_MAX_M = 1e4
 TRAJ_SPEED_MAX_MPS = 100.0
+#: Most steps a trajectory may have (gain synthesis holds ~1 kB per step: 0.2 GB at most); at
+#: 62.5 Hz this is 53 minutes.
+N_STEPS_MAX = 200_000
 WEIGHT_MAX = 1e12
 PATH_TYPES = ("line", "circle", "curvilinear", "csv")
 
@@ -158,7 +161,11 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry()) -> Tr
     spec = top.section("path")
     path0 = _path_from_spec(spec, tf_given or 1.0, p.parent)
     tf = tf_given if tf_given is not None else path0.t_end_s
-    n = top.integer("n_steps", int(np.floor(tf / tau + 1e-9)), min=10, max=10_000_000)
+    n_float = tf / tau
+    if n_float > N_STEPS_MAX and "n_steps" not in top:
+        top.fail(f"tf_s / tau_s = {tf:g} s / {tau:g} s is {n_float:.0f} steps, more than the "
+                 f"{N_STEPS_MAX} a gain schedule may hold (shorten tf_s or lengthen tau_s)", "tf_s")
+    n = top.integer("n_steps", int(np.floor(n_float + 1e-9)), min=10, max=N_STEPS_MAX)
     if abs(n * tau - tf) > 1e-6 * max(tf, 1):
         top.fail(f"need tf_s = n_steps * tau_s (got {tf:g}, {n}, {tau:g})", "n_steps")
     if tf > getattr(path0, "t_end_s", tf) + 1e-9:
@@ -185,6 +192,9 @@ def load_csv_trajectory(p: Path) -> Trajectory:
     n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
     if n < 10:
         raise ControllerError(f"{p}: path lasts {tf:.3f} s, too short for tau = 16 ms")
+    if n > N_STEPS_MAX:
+        raise ControllerError(f"{p}: path lasts {tf:g} s, {n} steps of 16 ms, more than the "
+                              f"{N_STEPS_MAX} a gain schedule may hold")
     start = None if smp.start is None else np.array(smp.start, dtype=float)
     return Trajectory(p.stem, path, n * DEFAULT_TAU_S, n, DEFAULT_TAU_S,
                       np.diag(DEFAULT_Q_DIAG), np.diag(DEFAULT_R_DIAG), start, str(p),

@@ -33,7 +33,8 @@ _START_TIMEOUT_S = 60.0
 
 def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) -> None:
     """Child process: start the robot emulator, publish the pose, stop on request."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent decides when we stop
+    for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
+        signal.signal(s, signal.SIG_IGN)
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.robot_emulator import build_emulator

@@ -36,13 +36,14 @@ class PtyLink:
         fcntl.fcntl(self.master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
         self.link: Path | None = None
         if link is not None:
+            try:                        # fails if anything exists there: nothing is replaced
+                Path(link).symlink_to(self.path)
+            except OSError as exc:
+                self.close()
+                why = "it exists (remove it or choose another path)" if isinstance(exc, FileExistsError) \
+                    else exc.strerror
+                raise FileExistsError(exc.errno, f"cannot create the link {link}: {why}") from None
             self.link = Path(link)
-            if self.link.is_symlink() or self.link.exists():
-                if not self.link.is_symlink():
-                    self.close()
-                    raise FileExistsError(f"{self.link} exists and is not a symlink")
-                self.link.unlink()
-            self.link.symlink_to(self.path)
 
     def _set_speed(self, bps: int) -> None:
         const = {v: k for k, v in _SPEED_CONSTANTS.items()}.get(int(bps))
@@ -92,8 +93,8 @@ class PtyLink:
         return sent
 
     def close(self) -> None:
-        """Close both ends and remove the symlink."""
-        if self.link is not None and self.link.is_symlink():
+        """Close both ends and remove the symlink (only if it is still the one made here)."""
+        if self.link is not None and self.link.is_symlink() and os.readlink(self.link) == self.path:
             try:
                 self.link.unlink()
             except OSError:

@@ -34,6 +34,7 @@ from typing import Iterable, Mapping
 
 import numpy as np
 
+from swerve.configs.atomic import write_text
 from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
@@ -164,13 +165,14 @@ class StatusFile:
             self._next_t = now + self.period_s
             self.write(emu)
 
-    def write(self, emu: Emulator) -> None:
-        tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
+    def write(self, emu: Emulator, strict: bool = False) -> None:
+        """Write the file now; a failure raises with ``strict`` (at start), else is logged."""
         try:
-            tmp.write_text(json.dumps(status(emu)) + "\n")
-            os.replace(tmp, self.path)
+            write_text(self.path, json.dumps(status(emu)) + "\n", fsync=False, mkdir=False)
         except OSError as exc:
-            log.warning("cannot write status file %s: %s", self.path, exc)
+            if strict:
+                raise
+            log.warning("status file: %s", exc)
 
 
 def parse_noise(spec: str | Mapping[str, float] | None, base: SensorParams) -> tuple[SensorParams, int | None]:
@@ -254,6 +256,17 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     """
     robot_ids = sorted(robot.drive_ids + robot.steer_ids) if robot is not None else None
     ids = sorted(ids) if ids is not None else (robot_ids or list(range(1, 9)))
+    if not (math.isfinite(time_scale) and time_scale >= 0):
+        raise ConfigError(f"time scale must be a finite number >= 0, got {time_scale}")
+    if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
+        raise ConfigError(f"clock rate must be a finite number > 0 Hz, got {rate_hz}")
+    if isinstance(faults, str):
+        faults = Faults.parse(faults)
+    if faults is not None:
+        stray = sorted((faults.vanished | set(faults.pending_hw_errors)) - set(ids))
+        if stray:
+            raise ConfigError(f"--faults names servo ID {', '.join(map(str, stray))}, not on the emulated bus "
+                              f"(IDs {', '.join(map(str, ids))})")
     model = model or (robot.model if robot is not None else DEFAULT_MODEL)
     baud = int(baud or (robot.link.baud if robot is not None else DEFAULT_BAUD))
     settings = LinkSettings(baud=baud, **link)
@@ -301,7 +314,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     clock, control = _clock(lockstep, time_scale, rate_hz, control_path, reply_latency_s)
     emu = Emulator(servos, link=settings, clock=clock, faults=faults, world=world, control=control)
     if status_file is not None:
-        emu.observers.append(StatusFile(status_file, status_hz))
+        writer = StatusFile(status_file, status_hz)
+        writer.write(emu, strict=True)      # an unwritable path is an error before anything is served
+        emu.observers.append(writer)
     return emu
 
 

@@ -35,6 +35,7 @@ from swerve.driver.errors import ConfigError, SwerveError
 from swerve.driver.robot_config import RobotConfig, WheelConfig, parse_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.tools.tune.config_io import _block, write_text_atomic
+from swerve.tools.signals import safe_stop
 
 #: Pulses per revolution of the X-series encoder (Present Position, 0..4095 in position mode).
 PULSES_PER_REV = 4096
@@ -122,7 +123,8 @@ class Session:
         return self
 
     def __exit__(self, *exc) -> None:
-        self.wheels.safe_shutdown()
+        with safe_stop():               # a stop signal waits until the torque is off
+            self.wheels.safe_shutdown()
 
 
 def with_calibration(cfg: RobotConfig, *, center_pulse: Sequence[int] | None = None,

@@ -2,14 +2,36 @@
 
 Each module ``tools/commands/<name>.py`` defines ``NAME``, ``HELP``, ``add_arguments(parser)``
 and ``run(args) -> int``. Heavy imports happen inside ``run`` so ``swerve --help`` stays fast.
-Errors the user can cause (:class:`swerve.configs.errors.SwerveError`) are printed as one line and
-exit with status 2; Ctrl-C exits with 130.
+
+This module is the one way errors leave the program (:func:`main`):
+
+- a bad option (argparse) or a :class:`~swerve.configs.errors.SwerveError` is one line on stderr
+  (``swerve CMD: error: ...``) and exit status 2;
+- an :class:`OSError` the command did not turn into a ``SwerveError`` is one line naming the
+  file and the reason, status 1;
+- SIGINT, SIGTERM and SIGHUP stop the command through the same clean-up as Ctrl-C
+  (:mod:`swerve.tools.signals`): one line, status 128 + signal number;
+- any other exception is a bug: one line naming its type and where it was raised, and the file
+  holding the full traceback (``$XDG_STATE_HOME/swerve/``), status 70; ``swerve -v`` prints the
+  traceback instead.
+
+Python warnings (NumPy, SciPy, matplotlib) are hidden unless ``-v``; log records of swerve's
+own modules at WARNING are printed once each as ``swerve CMD: warning: ...`` (errors are carried
+by the exception, so they are not printed twice).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
+import os
 import sys
+import tempfile
+import time
+import traceback
+import warnings
+from pathlib import Path
 
 from swerve.configs.errors import SwerveError
 
@@ -39,11 +61,26 @@ def _load(name: str):
         raise
 
 
+#: Exit status of a bug (an unexpected exception): EX_SOFTWARE of sysexits.h.
+EXIT_BUG = 70
+#: Exit status of a user error (a bad option, a SwerveError).
+EXIT_USAGE = 2
+
+
+class OneLineParser(argparse.ArgumentParser):
+    """An :class:`argparse.ArgumentParser` whose errors are one line: ``PROG: error: MESSAGE``."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
+
+
 def build_parser() -> argparse.ArgumentParser:
     """Return the top-level parser with every subcommand registered."""
-    parser = argparse.ArgumentParser(
+    parser = OneLineParser(
         prog="swerve",
         description="Four-wheel steered robot: Dynamixel driver, servo emulator, LQ tracking.")
+    parser.add_argument("-v", "--verbose", dest="_verbose", action="store_true",
+                        help="show tracebacks, Python warnings and debug logs")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for name in COMMANDS:
         mod = _load(name)
@@ -55,17 +92,132 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``swerve`` console script."""
-    args = build_parser().parse_args(argv)
+def crash_dir() -> Path:
+    """Where tracebacks of bugs are written: ``$XDG_STATE_HOME/swerve`` (``~/.local/state/swerve``)."""
+    base = os.environ.get("XDG_STATE_HOME") or Path.home() / ".local" / "state"
+    return Path(base) / "swerve"
+
+
+def _save_traceback(exc: BaseException, argv: list[str]) -> Path | None:
+    """Write the full traceback of ``exc`` to a new file; its path (``None`` if nothing is writable)."""
+    text = (f"swerve {' '.join(argv)}\n{time.strftime('%Y-%m-%dT%H:%M:%S%z')}\n\n"
+            + "".join(traceback.format_exception(exc)))
+    for folder in (crash_dir(), Path(tempfile.gettempdir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            fd, name = tempfile.mkstemp(dir=folder, prefix=f"crash-{time.strftime('%Y%m%d-%H%M%S')}-",
+                                        suffix=".txt")
+            with os.fdopen(fd, "w", encoding="utf-8") as fh:
+                fh.write(text)
+            return Path(name)
+        except OSError:
+            continue
+    return None
+
+
+def _where(exc: BaseException) -> str:
+    """``file.py:LINE in function`` of the frame that raised ``exc``."""
+    frames = traceback.extract_tb(exc.__traceback__)
+    if not frames:
+        return "unknown place"
+    f = frames[-1]
+    return f"{Path(f.filename).name}:{f.lineno} in {f.name}"
+
+
+def _one_line(text: str) -> str:
+    """``text`` with its lines joined (a message printed by :func:`main` is one line)."""
+    return " ".join(part.strip() for part in str(text).splitlines() if part.strip())
+
+
+class _WarningOnce(logging.Handler):
+    """Print swerve's WARNING log records to stderr, one line each, each text once."""
+
+    def __init__(self, prefix: str):
+        super().__init__(logging.WARNING)
+        self.prefix = prefix
+        self.seen: set[str] = set()
+
+    def emit(self, record: logging.LogRecord) -> None:
+        if record.levelno >= logging.ERROR:
+            return                       # an error travels as the exception main() prints
+        text = _one_line(record.getMessage())
+        if text not in self.seen:
+            self.seen.add(text)
+            print(f"{self.prefix}: warning: {text}", file=sys.stderr, flush=True)
+
+
+@contextlib.contextmanager
+def _quiet_boundary(verbose: bool, prefix: str):
+    """Python warnings hidden and swerve's log records shown once, unless ``verbose``."""
+    logger = logging.getLogger("swerve")
+    if verbose:
+        handler: logging.Handler = logging.StreamHandler(sys.stderr)
+        handler.setLevel(logging.DEBUG)
+        level = logging.DEBUG
+    else:
+        handler, level = _WarningOnce(prefix), logging.WARNING
+    old_level, old_propagate = logger.level, logger.propagate
+    logger.addHandler(handler)
+    logger.setLevel(level)
+    logger.propagate = False
     try:
-        return int(args._run(args) or 0)
-    except SwerveError as exc:
-        print(f"swerve {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        print(f"swerve {args.command}: interrupted", file=sys.stderr)
-        return 130
+        with warnings.catch_warnings():
+            if not verbose:
+                warnings.simplefilter("ignore")
+            yield
+    finally:
+        logger.removeHandler(handler)
+        logger.setLevel(old_level)
+        logger.propagate = old_propagate
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``swerve`` console script; returns the exit status (see module doc)."""
+    from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    args = build_parser().parse_args(argv)
+    verbose = bool(args._verbose or getattr(args, "verbose", False))
+    prefix = f"swerve {args.command}"
+    with signals_as_interrupt(), _quiet_boundary(verbose, prefix):
+        try:
+            return int(args._run(args) or 0)
+        except SwerveError as exc:
+            hold_stop_signals()
+            print(f"{prefix}: error: {_one_line(exc)}", file=sys.stderr)
+            return EXIT_USAGE
+        except Interrupted as exc:
+            hold_stop_signals()
+            print(f"{prefix}: stopped by {exc.name}", file=sys.stderr)
+            return exc.exit_code
+        except KeyboardInterrupt:
+            hold_stop_signals()
+            print(f"{prefix}: interrupted", file=sys.stderr)
+            return 130
+        except BrokenPipeError:
+            hold_stop_signals()          # the reader of stdout went away: nothing left to say
+            with contextlib.suppress(OSError):
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
+        except OSError as exc:
+            hold_stop_signals()
+            if verbose:
+                traceback.print_exc()
+            what = f"{exc.filename}: {exc.strerror}" if exc.strerror and exc.filename else (exc.strerror or exc)
+            print(f"{prefix}: error: {_one_line(what)}", file=sys.stderr)
+            return 1
+        except Exception as exc:  # noqa: BLE001 - the boundary: a bug becomes one line and a file
+            hold_stop_signals()
+            if verbose:
+                traceback.print_exc()
+                saved = None
+            else:
+                saved = _save_traceback(exc, argv)
+            where = f"{type(exc).__name__} at {_where(exc)}"
+            tail = f"; full traceback in {saved}" if saved else ("" if verbose else "; run with -v for the traceback")
+            msg = _one_line(exc)
+            print(f"{prefix}: internal error (a bug): {where}{': ' + msg if msg else ''}{tail}", file=sys.stderr)
+            return EXIT_BUG
 
 
 if __name__ == "__main__":  # pragma: no cover

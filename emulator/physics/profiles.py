@@ -18,7 +18,7 @@ from .params import PhysicsConfig
 #: Profile name -> shipped file.
 PROFILES = {"ideal": "emulator.yaml", "realistic": "emulator-realistic.yaml"}
 #: ``--emulator-config`` help of every command that starts an emulator.
-EMULATOR_CONFIG_HELP = ("emulator physics: a profile, 'ideal' (default: the world obeys the controller's "
+EMULATOR_CONFIG_HELP = ("emulator physics: a profile, 'ideal' (the world obeys the controller's "
                         "model) or 'realistic' (tyre slip, gearbox friction, build tolerances, supply sag, "
                         "firmware faults), or a physics .yaml file")
 #: Effects of the realistic profile that can be switched on alone, and the config fields they own.

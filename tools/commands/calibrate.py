@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "calibrate"
@@ -40,16 +41,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: torque off, set by hand); always on with --emulate")
     parser.add_argument("--steps", type=_steps, default=STEPS, metavar="LIST",
                         help="which steps, comma-separated (default steering,directions,radius)")
-    parser.add_argument("--distance", type=float, default=1.0,
+    parser.add_argument("--distance", type=finite_float(0.0, 100.0, lo_open=True), default=1.0,
                         help="radius step: distance to drive straight, m (default 1.0); leave room")
-    parser.add_argument("--speed", type=float, default=0.1, help="radius step: ground speed, m/s (default 0.1)")
+    parser.add_argument("--speed", type=finite_float(0.0, 10.0, lo_open=True), default=0.1, help="radius step: ground speed, m/s (default 0.1)")
     parser.add_argument("--emulated-robot", default=None,
                         help="with --emulate: the robot file the emulator is built from; its steering "
                              "centres, direction signs and wheel radius are the truth that calibration "
                              "must find (default: --config)")
-    parser.add_argument("--time-scale", type=float, default=1.0,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=1.0,
                         help="with --emulate: robot seconds per wall second (default 1)")
-    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+    parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=None,
                         help="slack on every reply deadline (default 2 ms; 50 ms with --emulate)")
 
 

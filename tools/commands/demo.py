@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "demo"
@@ -28,13 +29,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="out/demo", help="output folder (default out/demo)")
     parser.add_argument("--wall-clock", action="store_true",
                         help="run on the wall clock (time-scaled) instead of in lockstep")
-    parser.add_argument("--time-scale", type=float, default=None,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=None,
                         help="robot seconds per wall second (lockstep: pacing, default as fast as "
                              "possible; --wall-clock: default 5, BENCHMARKS.md has the loop timing per "
                              "scale on a 2-core machine)")
     parser.add_argument("--trajectories", default=",".join(TRAJECTORIES),
                         help="comma-separated trajectory names or files (default: the paper's three)")
-    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
+    parser.add_argument("--emulator-config", default="realistic",
+                        help=EMULATOR_CONFIG_HELP + "; default realistic")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -90,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
               flush=True)
         rows.append((name, sim, s, figs, gains_file, log_dir))
     summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
-                             str(args.emulator_config or "ideal"))
+                             str(args.emulator_config))
     print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
     return 0 if all(r[2].get("completed") for r in rows) else 1
 
@@ -103,6 +105,8 @@ def _fmt(v, scale=1e3, digits=1) -> str:
 
 
 def _write_summary(out: Path, rows, pace: str, wall_s: float, choice, physics: str = "ideal") -> Path:
+    from swerve.configs.atomic import write_text
+
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "
              f"closed loop simulated on model (1)-(5) and run at 62.5 Hz against the emulated robot "
@@ -126,6 +130,6 @@ def _write_summary(out: Path, rows, pace: str, wall_s: float, choice, physics: s
                   f"(ROS 2 bag, MCAP: open with Foxglove or `swerve export-csv`).", ""]
         lines += [f"![{f.stem}]({f.relative_to(out)})" for f in figs]
     path = out / "summary.md"
-    path.write_text("\n".join(lines) + "\n")
+    write_text(path, "\n".join(lines) + "\n")
     return path
 

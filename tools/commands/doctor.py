@@ -7,6 +7,7 @@ from __future__ import annotations
 import argparse
 import json
 
+from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_config_option
 
 NAME = "doctor"
@@ -24,8 +25,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="repair what can be repaired: move servos to the file's ID and baud, reboot "
                              "servos with a latched hardware error, write modes/return delay/gains, set "
                              "the latency timer (needs write access to sysfs)")
-    parser.add_argument("--cycles", type=int, default=200, help="timed read/write cycles (default 200)")
-    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+    parser.add_argument("--cycles", type=int_range(1, 1_000_000), default=200, help="timed read/write cycles (default 200)")
+    parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=None,
                         help="slack on every reply deadline (default 2 ms; 50 ms with --emulate)")
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
 

@@ -21,6 +21,7 @@ from swerve.configs.options import parse_ids
 from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.tools.argtypes import baud_rate, finite_float, positive_float
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
@@ -65,24 +66,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--ids", default=None, help="servo IDs, e.g. 1-8 or 1,2,5 (default: config or 1-8)")
     parser.add_argument("--model", default=None, help="servo model, e.g. xh430-w210 (default: config or xh430-w210)")
     parser.add_argument("--link", default=None, help="also create this symlink to the pty")
-    parser.add_argument("--baud", type=int, default=None,
+    parser.add_argument("--baud", type=baud_rate, default=None,
                         help="servos' initial baud rate in bps (default: config or 1000000)")
     parser.add_argument("--wire-timing", action="store_true",
                         help="pace replies at the baud rate as on a real cable")
     parser.add_argument("--faults", default=None,
                         help="fault injection, e.g. drop=0.05,corrupt=0.01,delay=0.002,vanish=3,"
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
-    parser.add_argument("--time-scale", type=float, default=None,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0), default=None,
                         help="simulated seconds per wall second (default 1; not with --lockstep)")
     parser.add_argument("--lockstep", action="store_true",
                         help="simulated time advances only on request through a control socket "
                              "(its path ends the PORT line; see emulator/README.md)")
     parser.add_argument("--control", default=None,
                         help="with --lockstep: path of the control socket (default: a temporary one)")
-    parser.add_argument("--reply-latency-us", type=float, default=None,
+    parser.add_argument("--reply-latency-us", type=finite_float(0.0, 1e6), default=None,
                         help="with --lockstep: each servo's reply latency on top of its Return Delay, "
                              "us (default 50)")
-    parser.add_argument("--clock-hz", type=float, default=None,
+    parser.add_argument("--clock-hz", type=finite_float(1.0, 100_000.0), default=None,
                         help="clock rate, Hz (default: physics.rate_hz of configs/emulator.yaml; "
                              "--frozen: 1000)")
     mode = parser.add_mutually_exclusive_group()
@@ -91,7 +92,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                            "(default: added when the robot's servos are all on the bus)")
     mode.add_argument("--frozen", action="store_true",
                       help="register-only bus: Present* items stay put (protocol tests)")
-    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP)
+    parser.add_argument("--emulator-config", default=None, help=EMULATOR_CONFIG_HELP + "; default ideal")
     parser.add_argument("--status-file", default=None,
                         help="with the robot body: JSON file with the true pose, rewritten 20 times a second")
     parser.add_argument("--noise", default=None,
@@ -150,13 +151,13 @@ def run(args: argparse.Namespace) -> int:
     if args.live and emu.world is None:
         raise ConfigError("--live streams the robot body's true pose: drop --frozen and emulate the "
                           "robot's servos")
-    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    previous = {s: signal.signal(s, _on_signal) for s in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)}
     stack = contextlib.ExitStack()
     try:
         try:
             emu.start()
         except OSError as exc:
-            raise ConfigError(f"cannot open the pty or link: {exc}") from None
+            raise ConfigError(f"cannot open the pty or link: {exc.strerror or exc}") from None
         if args.live:
             from swerve.tools.live import LivePublisher, PosePump, parse_live
 

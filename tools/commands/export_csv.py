@@ -16,13 +16,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swerve.tools.logs.bag import LogDamaged
     from swerve.tools.logs import export_csv, read_log
 
     log = read_log(args.log)
-    if log.recovery_note:
+    if log.recovery_note and not log.damage:
         print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
     base = args.log.with_suffix("") if args.log.suffix == ".mcap" else args.log
     out = args.out or base.with_name(base.name + ".csv")
     export_csv(log, out)
     print(f"{out}: {len(log)} cycles")
+    if log.damage:         # what was intact is written; the damage still fails the command
+        raise LogDamaged(f"{args.log}: {log.recovery_note}")
     return 0

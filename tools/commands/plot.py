@@ -17,12 +17,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swerve.tools.logs.bag import LogDamaged
     from swerve.tools.logs import plot_run, read_log
 
     log = read_log(args.log)
-    if log.recovery_note:
+    if log.recovery_note and not log.damage:
         print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
     sim = read_log(args.sim) if args.sim is not None else None
     for path in plot_run(log, args.out, sim=sim):
         print(path)
+    for damaged in (log, sim):
+        if damaged is not None and damaged.damage:
+            raise LogDamaged(f"{damaged.path}: {damaged.recovery_note}")
     return 0

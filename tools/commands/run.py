@@ -19,6 +19,7 @@ import time
 from pathlib import Path
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "run"
@@ -38,10 +39,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lockstep", action="store_true",
                         help="with --emulate: robot time owned by the emulator (repeatable runs, "
                              "as fast as possible unless --time-scale is given)")
-    parser.add_argument("--time-scale", type=float, default=None,
+    parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=None,
                         help="robot seconds per wall second: only for an emulator (--emulate, or --port "
                              "on a `swerve emulate --time-scale S` pty); default 1 (--lockstep: unpaced)")
-    parser.add_argument("--timeout-margin-ms", type=float, default=None,
+    parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=None,
                         help="slack on every bus reply deadline (default: 2 ms; 50 ms with --emulate)")
     parser.add_argument("--log", default=None,
                         help="run log (ROS 2 bag directory, MCAP); default out/runs/<trajectory>-<time>")
@@ -49,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--fast-read", action="store_true", help="use Fast Sync Read (firmware >= 45)")
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
-    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}")
+    parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}; default ideal")
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="the robot's start state in m and rad (default: the trajectory's)")
     parser.add_argument("--on-servo-fault", choices=("stop", "recover"), default="stop",

@@ -3,6 +3,8 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.tools.argtypes import baud_rate, finite_float
+
 NAME = "scan"
 HELP = "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping)"
 
@@ -21,13 +23,13 @@ def _id_range(text: str) -> range:
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--port", required=True, help="serial port or URL, e.g. /dev/ttyUSB0 or a pty path")
-    parser.add_argument("--baud", type=int, default=1_000_000, help="baud rate (default 1000000)")
+    parser.add_argument("--baud", type=baud_rate, default=1_000_000, help="baud rate (default 1000000)")
     parser.add_argument("--all-bauds", action="store_true",
                         help="try every standard X-series baud rate (57600 first)")
     parser.add_argument("--ids", type=_id_range, default=range(0, 253), metavar="LO-HI",
                         help="ID range to scan (default 0-252)")
     parser.add_argument("--no-broadcast", action="store_true", help="ping each ID only (slower)")
-    parser.add_argument("--timeout-margin-ms", type=float, default=2.0,
+    parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=2.0,
                         help="extra wait per reply in ms (raise for slow adapters or emulators)")
 
 

@@ -1,10 +1,30 @@
 """``swerve sim``: closed-loop simulation of the tracking law on the nonlinear model (1)-(5)."""
 from __future__ import annotations
 
+from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
 NAME = "sim"
 HELP = "simulate LQ trajectory tracking on the kinematic model and report tracking errors"
+
+#: Largest final position error of a run that converged, m (the paper's trajectories end within mm).
+FINAL_ERROR_TOL_M = 0.1
+
+
+def failure(res, tolerance_m: float) -> str | None:
+    """Why a simulated run failed, or ``None``: the reference did not reach its end (the governor
+    held it back until the ``1.5 tf`` limit) or the final position error exceeds ``tolerance_m``."""
+    tau = float(res.t_s[1] - res.t_s[0]) if len(res.t_s) > 1 else 0.0
+    e = res.position_error_m
+    if res.ref_time_s[-1] + tau < res.tf_s - 1e-9:
+        return (f"the reference stalled: after {res.t_s[-1] + tau:.1f} s (the {res.t_s[-1] / res.tf_s:.1f} tf "
+                f"limit) it stands at {res.ref_time_s[-1]:.1f} of {res.tf_s:.1f} s; final position error "
+                f"{e[-1]:.3g} m")
+    if e[-1] > tolerance_m:
+        trend = "grew" if e[-1] > e[0] else "fell"
+        return (f"did not converge: final position error {e[-1]:.3g} m > {tolerance_m:g} m (it {trend} from "
+                f"{e[0]:.3g} m at the start; largest {e.max():.3g} m)")
+    return None
 
 
 def add_arguments(parser) -> None:
@@ -26,6 +46,9 @@ def add_arguments(parser) -> None:
     parser.add_argument("--plot", metavar="DIR", help="write PNG figures (paper Figs. 4-9)")
     add_config_option(parser)
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--tolerance-m", type=finite_float(0.0, lo_open=True), default=FINAL_ERROR_TOL_M,
+                        help="a run whose final position error is larger has failed (exit 1), m "
+                             f"(default {FINAL_ERROR_TOL_M})")
 
 
 def parse_x0(text: str):
@@ -78,9 +101,10 @@ def run(args) -> int:
     m = metrics(res, traj.Q, traj.R, traj.tau_s)
     if not all(np.isfinite(v) for v in m.values()):
         raise ControllerError(f"simulation of {traj.name!r} produced non-finite values")
+    why = failure(res, args.tolerance_m)
     out = dict(trajectory=traj.name, method=gains.method, law=args.law,
                x0=x0.tolist(), synthesis_cost=gains.cost, config=str(choice.path),
-               config_source=choice.source, **m)
+               config_source=choice.source, **m, converged=why is None)
     report = getattr(traj.path, "report", None)
     if report is not None:
         out.update(report.as_dict())
@@ -93,4 +117,7 @@ def run(args) -> int:
     else:
         for k, v in out.items():
             print(f"{k}: {v:.6g}" if isinstance(v, float) else f"{k}: {v}")
+    if why is not None:
+        print(f"swerve sim: failed: {why}", file=sys.stderr)
+        return 1
     return 0

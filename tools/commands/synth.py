@@ -1,6 +1,7 @@
 """``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
 from __future__ import annotations
 
+from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_config_option
 
 NAME = "synth"
@@ -39,10 +40,10 @@ def add_arguments(parser) -> None:
     parser.add_argument("--no-check", action="store_true",
                         help="paper method: write the gains even if they fail the check "
                              "(nonlinear closed loop and closed-loop spectrum)")
-    parser.add_argument("--target-ratio", type=float, default=1.001,
+    parser.add_argument("--target-ratio", type=finite_float(0.0), default=1.001,
                         help="paper method: stop at J <= RATIO * J* (Riccati optimum); "
                              "0 runs until converged or --max-iter (default 1.001)")
-    parser.add_argument("--max-iter", type=int, default=500, help="paper method: CG iterations")
+    parser.add_argument("--max-iter", type=int_range(1, 1_000_000), default=500, help="paper method: CG iterations")
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="robot start state in m and rad (default: the trajectory's); its "
                              "error is part of the paper method's cost and of its check")

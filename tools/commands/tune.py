@@ -11,6 +11,7 @@ import argparse
 import math
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
 from swerve.tools.cli import add_config_option
 
 NAME = "tune"
@@ -21,20 +22,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     where = parser.add_mutually_exclusive_group(required=True)
     where.add_argument("--port", help="serial port of the bus (e.g. /dev/ttyUSB0)")
     where.add_argument("--emulate", action="store_true", help="tune an emulated servo (in-process, on a pty)")
-    parser.add_argument("--baud", type=int, default=None, help="bps (default: robot config link.baud)")
-    parser.add_argument("--id", type=int, default=1, help="servo ID (default 1)")
+    parser.add_argument("--baud", type=baud_rate, default=None, help="bps (default: robot config link.baud)")
+    parser.add_argument("--id", type=servo_id, default=1, help="servo ID (default 1)")
     parser.add_argument("--mode", choices=("drive", "steering"), default=None,
                         help="which loop to tune (default: from the ID's role in the robot config)")
-    parser.add_argument("--overshoot-max", type=float, default=0.02,
+    parser.add_argument("--overshoot-max", type=finite_float(0.0, 1.0), default=0.02,
                         help="velocity step overshoot limit, fraction (default 0.02)")
-    parser.add_argument("--settle-max", type=float, default=math.inf,
+    parser.add_argument("--settle-max", type=finite_float(0.0, lo_open=True, allow_inf=True), default=math.inf,
                         help="2 %% settle-time limit of the tuned step, s (default: none, fastest)")
-    parser.add_argument("--velocity-step", type=float, default=None,
+    parser.add_argument("--velocity-step", type=positive_float, default=None,
                         help="velocity step, rad/s at the output (default 100 units = 2.40 rad/s)")
-    parser.add_argument("--position-step", type=float, default=None,
+    parser.add_argument("--position-step", type=positive_float, default=None,
                         help="position step, rad (default 512 pulses = 0.785 rad)")
-    parser.add_argument("--pwm", type=float, default=0.5, help="largest open-loop PWM duty, 0..1 (default 0.5)")
-    parser.add_argument("--current-max", type=float, default=None,
+    parser.add_argument("--pwm", type=finite_float(0.0, 1.0, lo_open=True), default=0.5, help="largest open-loop PWM duty, 0..1 (default 0.5)")
+    parser.add_argument("--current-max", type=positive_float, default=None,
                         help="abort above this |Present Current|, A (default: the servo's Current Limit)")
     add_config_option(parser)
     parser.add_argument("--prior", default=None,
@@ -49,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "drive shafts as in configs/emulator.yaml body.load_enabled)")
     parser.add_argument("--noise", action="store_true",
                         help="--emulate: sensor noise on (0.5 pulse encoder, 4 mA current, std)")
-    parser.add_argument("--seed", type=int, default=None, help="--emulate: noise seed")
+    parser.add_argument("--seed", type=int_range(0, 2**32 - 1), default=None, help="--emulate: noise seed")
     parser.add_argument("--write-config", action="store_true",
                         help="store the gains in the robot file (drive.gains or steering.gains)")
     parser.add_argument("--out", default="out/tune", help="directory for PNG/JSON/YAML results")

@@ -6,6 +6,7 @@ SIGKILL). Topics, types and the crash-recovery rules are described in ``tools/lo
 """
 from __future__ import annotations
 
+import io
 import json
 import math
 import struct
@@ -215,7 +216,8 @@ class RunLog:
     """A run log read back: one array per :class:`CycleRecord` field, ``(n,)`` or ``(n, k)``.
 
     ``clean`` is False when the writer never closed the bag (crash, SIGKILL); the arrays then
-    hold every cycle that reached the disk.
+    hold every cycle that reached the disk. ``damage`` lists the unreadable stretches of the file
+    (:class:`Damage`, by byte offset); the arrays hold the cycles outside them.
     """
 
     path: Path
@@ -223,6 +225,7 @@ class RunLog:
     fields: dict[str, np.ndarray]
     clean: bool
     layout: list = field(default_factory=list)
+    damage: list = field(default_factory=list)
 
     def __len__(self) -> int:
         return int(self.fields["t_s"].shape[0])
@@ -241,6 +244,10 @@ class RunLog:
     @property
     def recovery_note(self) -> str:
         """One line for the CLI; empty for a cleanly closed log."""
+        if self.damage:
+            first = self.damage[0]
+            more = f" and {len(self.damage) - 1} more place(s)" if len(self.damage) > 1 else ""
+            return f"log {first}{more}; recovered the {len(self)} intact cycles"
         return "" if self.clean else f"log was not closed cleanly; recovered {len(self)} cycles"
 
 
@@ -255,30 +262,124 @@ def _mcap_file(path: Path) -> Path:
     return found[0]
 
 
-def _scan(mcap_path: Path):
-    """Stream every record; return (channels, schemas, messages, footer_seen)."""
-    from mcap.exceptions import McapError
-    from mcap.records import Channel, Footer, Message, Schema
-    from mcap.stream_reader import StreamReader
+#: MCAP opcodes (the spec's record types 0x01-0x10); anything else at a record start is damage.
+_OPCODES = range(0x01, 0x11)
+_MAGIC = b"\x89MCAP0\r\n"
 
-    channels, schemas, messages, footer = {}, {}, [], False
-    with mcap_path.open("rb") as f:
+
+class LogDamaged(ConfigError):
+    """A run log has unreadable stretches; the message names the first one's byte offset."""
+
+
+@dataclass(frozen=True)
+class Damage:
+    """A stretch of a log that could not be read: it starts at byte ``offset`` of the ``.mcap``
+    file and reading went on at byte ``resumed`` (``None``: nothing readable followed)."""
+
+    offset: int
+    reason: str
+    resumed: int | None
+
+    def __str__(self) -> str:
+        tail = "nothing readable after it" if self.resumed is None else f"reading resumed at byte {self.resumed}"
+        return f"damaged at byte {self.offset} ({self.reason}; {tail})"
+
+
+def _record_at(data: bytes, pos: int):
+    """``(records, end)`` of the top-level MCAP record at ``pos``: a chunk yields its inner records.
+
+    Raises ``EOFError`` if the record runs past the end of the file, ``ValueError`` (with the
+    reason) if it is not a well-formed record.
+    """
+    from mcap.exceptions import McapError
+
+    if pos + 9 > len(data):
+        raise EOFError("record header cut short")
+    opcode = data[pos]
+    if opcode not in _OPCODES:
+        raise ValueError(f"no MCAP record starts there (opcode 0x{opcode:02x})")
+    (length,) = struct.unpack_from("<Q", data, pos + 1)
+    end = pos + 9 + length
+    if end > len(data):
+        raise EOFError(f"a record of {length} bytes runs past the end of the file")
+    if opcode == 0x02:
+        return ["footer"], end
+    from mcap.data_stream import ReadDataStream
+    from mcap.records import Channel, Chunk, Message, Schema
+    from mcap.stream_reader import breakup_chunk
+
+    kinds = {0x03: Schema, 0x04: Channel, 0x06: Chunk}
+    try:
+        stream = ReadDataStream(io.BytesIO(data[pos + 9:end]))
+        if opcode == 0x05:
+            return [Message.read(stream, length)], end
+        if opcode not in kinds:
+            return [], end                   # header, indexes, statistics...: not needed here
+        rec = kinds[opcode].read(stream)
+        if stream.count != length:
+            raise ValueError("its fields do not fill its length")
+        if opcode == 0x06:
+            return breakup_chunk(rec, validate_crc=True), end
+        return [rec], end
+    except (McapError, EOFError, struct.error, ValueError, UnicodeDecodeError, KeyError) as exc:
+        raise ValueError(f"malformed record (opcode 0x{opcode:02x}: {type(exc).__name__})") from None
+
+
+def _resync(data: bytes, pos: int) -> int | None:
+    """Start of the first well-formed chunk after ``pos``, or ``None``."""
+    cand = data.find(b"\x06", pos + 1)
+    while cand != -1:
         try:
-            for rec in StreamReader(f).records:
-                if isinstance(rec, Message):
-                    messages.append(rec)
-                elif isinstance(rec, Channel):
-                    channels[rec.id] = rec
-                elif isinstance(rec, Schema):
-                    schemas[rec.id] = rec
-                elif isinstance(rec, Footer):
-                    footer = True
-        except (McapError, EOFError, struct.error, ValueError) as exc:
-            if not channels:  # nothing usable: not an MCAP, or garbage from the start
-                raise ConfigError(f"not a swerve run log: {mcap_path} is not a readable MCAP "
-                                  f"file ({type(exc).__name__})") from None
-            # else: truncated tail of a log that was never closed; keep what was complete
-    return channels, schemas, messages, footer
+            _record_at(data, cand)
+            return cand
+        except (EOFError, ValueError):
+            cand = data.find(b"\x06", cand + 1)
+    return None
+
+
+def _scan(mcap_path: Path):
+    """Walk every top-level record; return ``(channels, schemas, messages, footer_seen, damage)``.
+
+    A record cut off by the end of the file is the unwritten tail of a log that was never
+    closed (a crash): reading stops there without damage. Any other unreadable record is
+    damage: its byte offset is noted and reading resumes at the next well-formed chunk.
+    """
+    from mcap.records import Channel, Message, Schema
+
+    try:
+        data = mcap_path.read_bytes()
+    except OSError as exc:
+        raise ConfigError(f"cannot read run log {mcap_path}: {exc.strerror}") from None
+    if not data.startswith(_MAGIC):
+        raise ConfigError(f"not a swerve run log: {mcap_path} is not an MCAP file (no MCAP magic)")
+    channels, schemas, messages, footer, damage = {}, {}, [], False, []
+    pos = len(_MAGIC)
+    while pos < len(data) and not footer:
+        try:
+            recs, pos_next = _record_at(data, pos)
+        except (EOFError, ValueError) as exc:
+            nxt = _resync(data, pos)
+            if isinstance(exc, EOFError) and nxt is None:
+                break                            # the cut tail of an unclosed log
+            damage.append(Damage(pos, str(exc), nxt))
+            if nxt is None:
+                break
+            pos = nxt
+            continue
+        for rec in recs:
+            if isinstance(rec, Message):
+                messages.append((pos, rec))
+            elif isinstance(rec, Channel):
+                channels[rec.id] = rec
+            elif isinstance(rec, Schema):
+                schemas[rec.id] = rec
+            elif rec == "footer":
+                footer = True
+        pos = pos_next
+    if not channels:
+        where = f" ({damage[0]})" if damage else ""
+        raise ConfigError(f"not a swerve run log: {mcap_path} holds no readable channel{where}")
+    return channels, schemas, messages, footer, damage
 
 
 def read_log(path: str | Path) -> RunLog:
@@ -290,7 +391,7 @@ def read_log(path: str | Path) -> RunLog:
     """
     path = Path(path)
     mcap_path = _mcap_file(path)
-    channels, _, messages, footer = _scan(mcap_path)
+    channels, _, messages, footer, damage = _scan(mcap_path)
     by_topic = {c.topic: c.id for c in channels.values()}
     if "/swerve/cycle" not in by_topic or "/swerve/metadata" not in by_topic:
         raise ConfigError(f"not a swerve run log: {path} has no /swerve/cycle or /swerve/metadata topic")
@@ -298,22 +399,36 @@ def read_log(path: str | Path) -> RunLog:
     meta_id, cycle_id = by_topic["/swerve/metadata"], by_topic["/swerve/cycle"]
     metadata: dict | None = None
     rows, stamps = [], []
-    for m in messages:
-        if m.channel_id == cycle_id:
-            rows.append(ts.deserialize_cdr(m.data, TOPICS["/swerve/cycle"]).data)
-            stamps.append(m.log_time)
-        elif m.channel_id == meta_id and metadata is None:
-            metadata = json.loads(ts.deserialize_cdr(m.data, TOPICS["/swerve/metadata"]).data)
+    for offset, m in messages:
+        try:
+            if m.channel_id == cycle_id:
+                row = np.asarray(ts.deserialize_cdr(m.data, TOPICS["/swerve/cycle"]).data, dtype=np.float64)
+                if rows and row.shape != rows[0].shape:
+                    raise ValueError(f"{row.size} values where the others have {rows[0].size}")
+                rows.append(row)
+                stamps.append(m.log_time)
+            elif m.channel_id == meta_id and metadata is None:
+                metadata = json.loads(ts.deserialize_cdr(m.data, TOPICS["/swerve/metadata"]).data)
+                if not isinstance(metadata, dict):
+                    raise ValueError("the metadata is not a JSON object")
+        except Exception as exc:  # noqa: BLE001 - any decoding failure of a stored message is damage
+            damage.append(Damage(offset, f"undecodable message in the chunk there: {type(exc).__name__}", None))
     if metadata is None or metadata.get("format") != FORMAT:
-        raise ConfigError(f"not a swerve run log: {path} carries no swerve metadata")
+        lost = f" (its metadata is lost: {damage[0]})" if damage else ""
+        raise ConfigError(f"not a swerve run log: {path} carries no swerve metadata{lost}")
     if not rows:
         raise ConfigError(f"empty run log: {path} holds no complete cycle")
-    layout = [(str(n), int(s)) for n, s in metadata["cycle_fields"]]
-    fields_ = unpack(np.vstack(rows), layout)
+    try:
+        layout = [(str(n), int(s)) for n, s in metadata["cycle_fields"]]
+        fields_ = unpack(np.vstack(rows), layout)
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ConfigError(f"{path}: bad run-log metadata: cycle_fields does not describe the "
+                          f"{rows[0].size}-value cycles ({type(exc).__name__}: {exc})") from None
     fields_["stamp_ns"] = np.asarray(stamps, dtype=np.int64)
     bag_dir = mcap_path.parent
     clean = footer and (bag_dir / "metadata.yaml").exists()
-    return RunLog(path=path, metadata=metadata, fields=fields_, clean=clean, layout=layout)
+    return RunLog(path=path, metadata=metadata, fields=fields_, clean=clean and not damage, layout=layout,
+                  damage=sorted(damage, key=lambda d: d.offset))
 
 
 def repair_log(path: str | Path, out: str | Path | None = None) -> Path:
@@ -326,7 +441,7 @@ def repair_log(path: str | Path, out: str | Path | None = None) -> Path:
 
     path = Path(path)
     mcap_path = _mcap_file(path)
-    channels, schemas, messages, _ = _scan(mcap_path)
+    channels, schemas, messages, _, _ = _scan(mcap_path)
     out = Path(out) if out is not None else path.with_name(path.name.removesuffix(".mcap") + "-repaired")
     ts = _typestore()
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as bag:
@@ -335,6 +450,6 @@ def repair_log(path: str | Path, out: str | Path | None = None) -> Path:
             msgtype = schemas[ch.schema_id].name
             conns[cid] = bag.add_connection(ch.topic, msgtype, msgdef=schemas[ch.schema_id].data.decode(),
                                             rihs01=ts.hash_rihs01(msgtype))
-        for m in messages:
+        for _, m in messages:
             bag.write(conns[m.channel_id], m.log_time, m.data)
     return out

@@ -6,6 +6,8 @@ from pathlib import Path
 
 import numpy as np
 
+from swerve.configs.atomic import atomic_write
+
 from .record import UNITS
 
 _POSE = (("x", "m"), ("y", "m"), ("theta", "rad"))
@@ -33,7 +35,7 @@ def export_csv(log, out_path: str | Path) -> Path:
         a = log.fields[name]
         blocks.append(a.reshape(len(log), -1).astype(object if a.dtype.kind == "i" else np.float64))
     table = np.hstack(blocks) if blocks else np.empty((0, 0))
-    with out_path.open("w", newline="") as f:
+    with atomic_write(out_path, "w", newline="") as f:
         w = csv.writer(f)
         w.writerow(header)
         for row in table:

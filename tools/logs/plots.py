@@ -15,6 +15,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
+from swerve.configs.atomic import save_figure  # noqa: E402
+
 FRONT, REAR = [0, 3], [1, 2]
 #: curve name -> (label, style)
 STYLE = {
@@ -55,7 +57,7 @@ def _finish(fig, axes, title, path) -> Path:
             ax.legend(fontsize=8, loc="best")
     fig.suptitle(title)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
     return path
 

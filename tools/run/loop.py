@@ -171,9 +171,12 @@ class TrackingLoop:
         ``now``: the clock's time if just read."""
         now = self.clock.now() if now is None else now
         if self._last_tx is not None and (now - self._last_tx) * self.time_scale > self.watchdog_s:
-            raise LoopAbort(f"the loop stalled for {(now - self._last_tx) * 1e3:.0f} ms wall, longer "
-                            f"than the servos' Bus Watchdog ({self.watchdog_s} s): they have stopped",
-                            "stalled")
+            stall_s = (now - self._last_tx) * self.time_scale       # robot time, as the watchdog counts
+            scale = "" if self.time_scale == 1 else f" ({stall_s / self.time_scale * 1e3:.0f} ms wall at " \
+                                                     f"{self.time_scale:g}x)"
+            raise LoopAbort(f"the loop stalled for {stall_s * 1e3:.0f} ms of robot time{scale}, longer than "
+                            f"the servos' Bus Watchdog ({self.watchdog_s * 1e3:.0f} ms of robot time): "
+                            "they have stopped", "stalled")
         self._last_tx = now
 
     def _pose_truth(self) -> np.ndarray:

@@ -18,6 +18,7 @@ from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.loop import LoopResult
 from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
+from swerve.tools.signals import shielded_exit
 
 log = logging.getLogger(__name__)
 
@@ -188,7 +189,8 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         if clock is not None:
             clock.count_tx(lambda: bus.bytes_written)
-        wheels = stack.enter_context(WheelSet(bus, cfg, fast=req.fast_read))
+        # its exit stops the wheels and turns the torque off: a stop signal waits for it
+        wheels = stack.enter_context(shielded_exit(WheelSet(bus, cfg, fast=req.fast_read)))
         wheels.configure()
         # In the loop every read is the same 10-byte block: a missed reply is the next cycle's
         # job (no retry), and its deadline must fit in a cycle (half the wall period at most).
@@ -276,7 +278,7 @@ def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
     req.log.parent.mkdir(parents=True, exist_ok=True)
-    writer = stack.enter_context(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels]))
+    writer = stack.enter_context(shielded_exit(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])))
 
     def on_cycle(fields: dict) -> None:
         k = fields["cycle"]

@@ -6,13 +6,12 @@ file is replaced, so a failure leaves the file untouched.
 """
 from __future__ import annotations
 
-import os
 import re
-import tempfile
 from pathlib import Path
 
 import yaml
 
+from swerve.configs.atomic import write_text
 from swerve.configs.loader import parse_yaml_text
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import parse_robot_config
@@ -69,14 +68,6 @@ def write_gains(path: str | Path, group: str, gains: dict[str, int]) -> None:
 
 
 def write_text_atomic(path: Path, text: str) -> None:
-    """Replace the file at ``path`` by ``text``: a temporary file in the same folder (same mode)
-    renamed over it with :func:`os.replace`, so a reader sees the old or the new file, never half."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-        os.chmod(tmp, path.stat().st_mode & 0o777)
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    """Replace the file at ``path`` by ``text`` atomically, keeping its mode (see
+    :func:`swerve.configs.atomic.atomic_write`): a reader sees the old or the new file, never half."""
+    write_text(path, text, mkdir=False)

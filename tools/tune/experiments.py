@@ -25,6 +25,7 @@ import numpy as np
 from swerve.driver.control_table import OperatingMode, Reg
 from swerve.driver.errors import DxlError, SwerveError
 from swerve.emulator.physics.params import MotorParams
+from swerve.tools.signals import safe_stop
 from swerve.tools.tune.identify import PwmRecord
 
 STATE_FIRST, STATE_LAST = Reg.REALTIME_TICK, Reg.PRESENT_INPUT_VOLTAGE
@@ -379,16 +380,17 @@ def servo_session(bus, id_: int):
         yield state
         failed = False
     finally:
-        try:
-            bus.write(id_, Reg.TORQUE_ENABLE, 0)
-            bus.write(id_, Reg.BUS_WATCHDOG, 0)
-            bus.write(id_, Reg.BUS_WATCHDOG, max(watchdog, 0))
-            if bus.read(id_, Reg.OPERATING_MODE) != saved[str(Reg.OPERATING_MODE)]:
-                bus.write(id_, Reg.OPERATING_MODE, saved[str(Reg.OPERATING_MODE)])
-            gains = state["new_gains"] if state["new_gains"] and not failed else \
-                {str(r): saved[str(r)] for r in GAIN_REGS}
-            for name, raw in gains.items():
-                bus.write(id_, Reg(name), int(raw))
-        except DxlError as exc:
-            if not failed:            # never mask the error that is already propagating
-                raise SafetyError(f"could not put servo ID {id_} back (torque off, mode, gains): {exc}") from exc
+        with safe_stop():       # a stop signal waits until the servo is safe
+            try:
+                bus.write(id_, Reg.TORQUE_ENABLE, 0)
+                bus.write(id_, Reg.BUS_WATCHDOG, 0)
+                bus.write(id_, Reg.BUS_WATCHDOG, max(watchdog, 0))
+                if bus.read(id_, Reg.OPERATING_MODE) != saved[str(Reg.OPERATING_MODE)]:
+                    bus.write(id_, Reg.OPERATING_MODE, saved[str(Reg.OPERATING_MODE)])
+                gains = state["new_gains"] if state["new_gains"] and not failed else \
+                    {str(r): saved[str(r)] for r in GAIN_REGS}
+                for name, raw in gains.items():
+                    bus.write(id_, Reg(name), int(raw))
+            except DxlError as exc:
+                if not failed:            # never mask the error that is already propagating
+                    raise SafetyError(f"could not put servo ID {id_} back (torque off, mode, gains): {exc}") from exc

@@ -19,6 +19,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
+from swerve.configs.atomic import save_figure, write_text  # noqa: E402
+
 from swerve.tools.tune.identify import simulate_open_loop  # noqa: E402
 from swerve.tools.tune.pipeline import TuneResult  # noqa: E402
 
@@ -69,8 +71,8 @@ def write_report(res: TuneResult, out_dir: str | Path) -> list[Path]:
     data = summary(res)
     paths = [out / f"tune_{res.id}.json", out / f"tune_{res.id}.yaml",
              out / f"pwm_{res.id}.png", out / f"step_{res.id}.png"]
-    paths[0].write_text(json.dumps(data, indent=2) + "\n")
-    paths[1].write_text(yaml.safe_dump(data, sort_keys=False))
+    write_text(paths[0], json.dumps(data, indent=2) + "\n")
+    write_text(paths[1], yaml.safe_dump(data, sort_keys=False))
     _plot_pwm(res, paths[2])
     _plot_steps(res, paths[3])
     return paths
@@ -102,7 +104,7 @@ def _plot_pwm(res: TuneResult, path: Path) -> None:
     ax[0].set_title(f"ID {res.id}: open-loop PWM steps; residual RMS "
                     f"{ident.residual_rms['position_pulse']:.2f} pulse, {ident.residual_rms['current_a'] * 1e3:.1f} mA")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
@@ -123,5 +125,5 @@ def _plot_steps(res: TuneResult, path: Path) -> None:
         a.legend(fontsize=7)
     ax[0].set_ylabel(f"{'Present Velocity' if res.group == 'drive' else 'Present Position'}, {unit}")
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -1,0 +1,103 @@
+"""Write a file so that it is either the old one or the whole new one, never a partial one.
+
+Every output swerve writes (gain schedules, CSV, plots, config edits, the emulator's status
+file, summaries) goes through :func:`atomic_write`: the bytes go to a temporary file created by
+:func:`tempfile.mkstemp` in the target's own folder (an unpredictable name, opened with
+``O_EXCL``, so no symlink is followed), are flushed to disk, and the file is renamed over the
+target with :func:`os.replace` (atomic on POSIX within one file system). A crash, a full disk or
+an exception inside the ``with`` block leaves the old file untouched and removes the temporary.
+
+It lives below every layer so that the controller, the emulator and the tools can all use it.
+"""
+from __future__ import annotations
+
+import contextlib
+import os
+import tempfile
+from collections.abc import Iterator
+from pathlib import Path
+from typing import IO
+
+from swerve.configs.errors import SwerveError
+
+
+class OutputError(SwerveError, OSError):
+    """An output file could not be written; the message names the file and the OS reason."""
+
+
+def _umask_mode() -> int:
+    """Permission bits a plain ``open(path, "w")`` would give a new file (0o666 minus the umask)."""
+    mask = os.umask(0)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+@contextlib.contextmanager
+def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | None = None,
+                 newline: str | None = None, fsync: bool = True, mkdir: bool = True) -> Iterator[IO]:
+    """Open a temporary file beside ``path`` for writing; on a clean exit rename it onto ``path``.
+
+    ``mode``: ``"w"`` (text, UTF-8 unless ``encoding``) or ``"wb"``. ``fsync``: flush the data
+    to disk before the rename (off for files rewritten many times a second). ``mkdir``: create
+    missing parent folders. The new file keeps the permission bits of the file it replaces
+    (a new file gets the umask's). Raises :class:`OutputError` (one line: file and reason) when
+    the folder or the file cannot be written; any exception leaves ``path`` as it was.
+    """
+    if mode not in ("w", "wb"):
+        raise ValueError(f"atomic_write mode must be 'w' or 'wb', got {mode!r}")
+    target = Path(path)
+    try:
+        if mkdir:
+            for folder in (target.parent, *target.parent.parents):
+                if folder.exists() and not folder.is_dir():
+                    raise NotADirectoryError(20, f"{folder} is not a directory")
+            target.parent.mkdir(parents=True, exist_ok=True)
+        if target.is_dir():
+            raise IsADirectoryError(21, "Is a directory")
+        fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
+    except OSError as exc:
+        raise OutputError(f"cannot write {target}: {exc.strerror or exc}") from None
+    try:
+        kw = {} if mode == "wb" else {"encoding": encoding or "utf-8", "newline": newline}
+        with os.fdopen(fd, mode, **kw) as fh:
+            yield fh
+            fh.flush()
+            if fsync:
+                os.fsync(fh.fileno())
+        try:
+            perms = target.stat().st_mode & 0o7777
+        except FileNotFoundError:
+            perms = _umask_mode()
+        os.chmod(tmp, perms)
+        os.replace(tmp, target)
+    except BaseException as exc:
+        with contextlib.suppress(OSError):
+            os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            raise OutputError(f"cannot write {target}: {exc.strerror or exc}") from None
+        raise
+
+
+def write_text(path: str | os.PathLike, text: str, **kw) -> Path:
+    """Write ``text`` to ``path`` atomically (see :func:`atomic_write`); returns the path."""
+    with atomic_write(path, "w", **kw) as fh:
+        fh.write(text)
+    return Path(path)
+
+
+def write_bytes(path: str | os.PathLike, data: bytes, **kw) -> Path:
+    """Write ``data`` to ``path`` atomically (see :func:`atomic_write`); returns the path."""
+    with atomic_write(path, "wb", **kw) as fh:
+        fh.write(data)
+    return Path(path)
+
+
+def save_figure(fig, path: str | os.PathLike, **savefig_kw) -> Path:
+    """``fig.savefig`` to ``path`` atomically, the format taken from the suffix (``.png``, ...)."""
+    p = Path(path)
+    with atomic_write(p, "wb") as fh:
+        fig.savefig(fh, format=p.suffix.lstrip(".") or "png", **savefig_kw)
+    return p
+
+
+__all__ = ["OutputError", "atomic_write", "save_figure", "write_bytes", "write_text"]
