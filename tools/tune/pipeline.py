@@ -161,7 +161,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
                 break
             exp.progress = progress("experiments (again: 95 % interval too wide)") or _ignore
         before_rec = _closed_loop(exp, group, original, spec, center_rad)
-        plant = Plant(ident.params, gear, supply, firmware)
+        plant = Plant(ident.params, gear, supply, firmware, coulomb_nm=ident.coulomb_nm)
         progress("design")
         try:
             design = design_velocity(plant, spec) if group == "drive" else design_position(plant, spec)
