@@ -6,6 +6,7 @@ Usage::
 
     python bench/bench_emulator_physics.py [--scales 1,1.5,2,3] [--sim-seconds 10] [--rate HZ]
     python bench/bench_emulator_physics.py --serve --time-scale S [--rate HZ]   # emulator process
+    python bench/bench_emulator_physics.py --bank 8,16,32 --rate 1000 [--cost-seconds 10]  # physics alone
 
 1. **Cost.** ``robot_emulator(time_scale=0)``; all eight loops busy (4 drives at 0.1 m/s, 4
    steering servos sweeping ±0.3 rad, set through the bus with WheelSet), one read and one write
@@ -17,6 +18,8 @@ Usage::
    ``--sim-seconds`` of simulated time. A cycle misses its deadline if it ends after the next
    cycle was due. Also reported: the simulated time the physics clock delivered per wall second
    and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
+``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
+free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot).
 3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
 Prints a markdown section for BENCHMARKS.md.
 """
@@ -85,6 +88,44 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
         sim = n * CYCLE_S
         return {"rate_hz": emu.rate_hz, "cpu_per_sim_s": cpu / sim, "rtf": sim / cpu, "wall_rtf": sim / wall,
                 "tick_us": 1e6 * cpu / (sim * emu.rate_hz)}
+
+
+def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str = "ideal") -> dict[str, float]:
+    """Cost of one 16 ms lockstep cycle for ``n_servos`` free-shaft servos (no body), as
+    ``swerve emulate --ids 1-N`` has them: even IDs in Velocity mode at 100 units, odd IDs in
+    Position mode stepping ±512 pulse every 0.5 s; per cycle the goals written as a Sync Write's
+    entries, then (timed) ``emu.advance(16 ms)`` and every servo's Present Current .. Present
+    Position read as a Sync Read's entries (no pty, no packets). CPU (``process_time``) per
+    cycle, per physics tick and per servo-tick."""
+    from swerve.emulator.physics.profiles import resolve_emulator_config
+    from swerve.emulator.robot_emulator import build_emulator
+
+    physics = load_config(resolve_emulator_config(profile))
+    emu = build_emulator(None, physics, ids=range(1, n_servos + 1), time_scale=0, rate_hz=rate_hz)
+    for s in emu.servos:
+        m = s.memory
+        m.set(Reg.OPERATING_MODE, u.MODE_VELOCITY if s.id % 2 == 0 else u.MODE_POSITION)
+        m.set(Reg.TORQUE_ENABLE, 1)
+    table = emu.servos[0].table
+    gv, gp = table[Reg.GOAL_VELOCITY].address, table[Reg.GOAL_POSITION].address
+    first = table[Reg.PRESENT_CURRENT].address                  # present current .. present position
+    length = table[Reg.PRESENT_POSITION].address + 4 - first
+    n = round(seconds / CYCLE_S)
+    cpu = 0.0
+    for k in range(n + 10):
+        goal = 2048 + (512 if (k * CYCLE_S) % 1.0 < 0.5 else -512)
+        for s in emu.servos:                              # a Sync Write's entries
+            s.bus_write(gv, (100).to_bytes(4, "little", signed=True))
+            s.bus_write(gp, goal.to_bytes(4, "little", signed=True))
+        c0 = time.process_time()
+        emu.advance(CYCLE_S)
+        for s in emu.servos:                              # a Sync Read's entries
+            s.read_status(first, length)
+        if k >= 10:
+            cpu += time.process_time() - c0
+    ticks = n * round(CYCLE_S * emu.rate_hz)
+    return {"servos": n_servos, "rate_hz": emu.rate_hz, "cycle_ms": 1e3 * cpu / n, "tick_us": 1e6 * cpu / ticks,
+            "servo_tick_us": 1e6 * cpu / ticks / n_servos, "rtf": n * CYCLE_S / cpu}
 
 
 # --- 2. served emulator + client cycle -------------------------------------------------------------
@@ -232,12 +273,27 @@ def main(argv=None) -> int:
     ap.add_argument("--sim-seconds", type=float, default=10.0)
     ap.add_argument("--cost-seconds", type=float, default=10.0)
     ap.add_argument("--skip-steps", action="store_true")
+    ap.add_argument("--bank", default=None, metavar="N,N,...",
+                    help="only the cost of a 16 ms cycle for N free-shaft servos (e.g. 8,16,32), then exit")
     args = ap.parse_args(argv)
     if args.serve:
         return serve(args.time_scale, args.rate, args.status_file)
 
     print(f"date {time.strftime('%Y-%m-%d')}, nproc {os.cpu_count()}, CPU {cpu_model()!r}, "
           f"Python {platform.python_version()}, load {os.getloadavg()}")
+    if args.bank:
+        print(f"\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor |")
+        print("|---|---|---|---|---|")
+        for n in (int(x) for x in args.bank.split(",")):
+            b = cost_bank(n, args.cost_seconds, args.rate)
+            print(f"| {n} | {b['cycle_ms']:.3f} | {b['tick_us']:.1f} | {b['servo_tick_us']:.2f} | {b['rtf']:.1f} |",
+                  flush=True)
+        c = cost_in_process(args.cost_seconds, args.rate)
+        print(f"\nthe robot (8 servos + body, a run's bus traffic), {c['rate_hz']:.0f} Hz: "
+              f"{1e3 * c['cpu_per_sim_s'] * CYCLE_S:.3f} ms CPU per 16 ms cycle, {c['tick_us']:.1f} us per tick, "
+              f"real-time factor {c['rtf']:.1f}")
+        print(f"load after: {os.getloadavg()}")
+        return 0
     c = cost_in_process(args.cost_seconds, args.rate)
     print(f"\ncost inside the emulator (emu.advance with a run's traffic, {c['rate_hz']:.0f} Hz): "
           f"{c['cpu_per_sim_s']:.3f} CPU s per physics s, {c['tick_us']:.0f} us per tick (8 servos + body), "

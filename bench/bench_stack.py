@@ -6,10 +6,12 @@ slots, the controller process's CPU share (setup included), the emulator's achie
 errors. Run: ``.venv/bin/python bench/bench_stack.py [--scales 1,2,5] [--trajectory line] [--log]``;
 prints a Markdown table to paste into BENCHMARKS.md.
 
-``--lockstep``: one run in lockstep (robot time owned by the emulator, as fast as the host
+``--lockstep``: runs in lockstep (robot time owned by the emulator, as fast as the host
 allows) instead: the real-time factor of the full stack (robot s per wall s over the loop), of
 the emulator's physics alone (robot s per CPU s of physics steps), the bus time per cycle and
-the loop's host CPU per cycle.
+the loop's host CPU per cycle; ``--repeat N`` runs it N times (the machine is shared: the
+spread and the load average before and after each run say how much the neighbours cost),
+``--emulator-config`` picks the physics profile (default ``ideal``).
 """
 from __future__ import annotations
 
@@ -30,27 +32,33 @@ def main() -> None:
     ap.add_argument("--scales", default="1,2,3,4,5,6,8,10")
     ap.add_argument("--trajectory", default="line")
     ap.add_argument("--log", action="store_true", help="write the run log (as swerve demo and the tests do)")
-    ap.add_argument("--lockstep", action="store_true", help="one run in lockstep: real-time factors")
+    ap.add_argument("--lockstep", action="store_true", help="runs in lockstep: real-time factors")
+    ap.add_argument("--repeat", type=int, default=1, help="lockstep: number of runs (default 1)")
+    ap.add_argument("--emulator-config", default="ideal", help="lockstep: physics profile or file (default ideal)")
     args = ap.parse_args()
     print(f"date {time.strftime('%Y-%m-%d %H:%M')}, nproc {os.cpu_count()}, CPU {cpu_model()}, "
           f"Python {platform.python_version()}, load {os.getloadavg()[0]:.1f} at start, "
           f"trajectory {args.trajectory}, log {'on' if args.log else 'off'}")
     tmp = tempfile.TemporaryDirectory()
     if args.lockstep:
-        log = Path(tmp.name) / "run" if args.log else None
-        res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, lockstep=True, time_scale=None,
-                                      log=log))
-        s = res.summary.to_dict()
-        print("| robot s | wall s | full-stack real-time factor | physics-only real-time factor "
+        print(f"physics profile {args.emulator_config}")
+        print("| run | robot s | wall s | full-stack real-time factor | physics-only real-time factor "
               "| loop period p50 / max ms (robot) | overruns | host CPU per cycle p50 / p99 ms "
-              "| host-CPU overruns | rms / final error mm | completed |")
-        print("|---|---|---|---|---|---|---|---|---|---|")
-        print(f"| {s['cycles'] * s['loop_period_target_ms'] / 1e3:.1f} | {s['wall_time_s']:.1f} | "
-              f"{s['real_time_factor']:.1f} | {s.get('emulator_physics_real_time_factor', float('nan')):.1f} | "
-              f"{s['loop_period_p50_ms']:.2f} / {s['loop_period_max_ms']:.2f} | {s['overruns']} | "
-              f"{s['host_cpu_p50_ms']:.2f} / {s['host_cpu_p99_ms']:.2f} | {s['host_cpu_overruns']} | "
-              f"{1e3 * s['rms_position_error_m']:.1f} / {1e3 * s['final_position_error_m']:.1f} | "
-              f"{'yes' if s.get('completed') else 'no: ' + str(s.get('abort_cause'))} |", flush=True)
+              "| host-CPU overruns | rms / final error mm | completed | load 1 min before / after |")
+        print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        for k in range(args.repeat):
+            log = Path(tmp.name) / f"run_{k}" if args.log else None
+            load0 = os.getloadavg()[0]
+            res = run_tracking(RunRequest(trajectory=args.trajectory, emulate=True, lockstep=True, time_scale=None,
+                                          log=log, emulator_config=args.emulator_config))
+            s = res.summary.to_dict()
+            print(f"| {k + 1} | {s['cycles'] * s['loop_period_target_ms'] / 1e3:.1f} | {s['wall_time_s']:.1f} | "
+                  f"{s['real_time_factor']:.1f} | {s.get('emulator_physics_real_time_factor', float('nan')):.1f} | "
+                  f"{s['loop_period_p50_ms']:.2f} / {s['loop_period_max_ms']:.2f} | {s['overruns']} | "
+                  f"{s['host_cpu_p50_ms']:.2f} / {s['host_cpu_p99_ms']:.2f} | {s['host_cpu_overruns']} | "
+                  f"{1e3 * s['rms_position_error_m']:.1f} / {1e3 * s['final_position_error_m']:.1f} | "
+                  f"{'yes' if s.get('completed') else 'no: ' + str(s.get('abort_cause'))} | "
+                  f"{load0:.1f} / {os.getloadavg()[0]:.1f} |", flush=True)
         return
     print("| time scale | period target ms | p50 / p99 / max ms | overruns | missed slots | controller CPU % "
           "| emulator achieved scale | lost sim s | rms / final error mm | completed |")

@@ -83,7 +83,8 @@ class _ServoDynamics:
         self._items: dict[str, int] = {}
 
     def inputs(self) -> dict[str, int]:
-        """The input items (raw, signed where signed), decoded afresh only if their bytes changed."""
+        """The input items (raw, signed where signed), decoded afresh only if their bytes changed
+        (then a new dict: an unchanged one is the same object)."""
         raw = self._memory.stored_bytes(self._end)
         if raw != self._raw:
             self._raw = raw
@@ -92,7 +93,8 @@ class _ServoDynamics:
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """One physics step under the servo's current input items."""
-        self.model.advance(dt_s, self.inputs())
+        items = self._items
+        self.model.advance(dt_s, self.inputs(), same_inputs=self._items is items)
         if self.model.pending_hardware_error:       # the physics tripped a protection: latch it
             self._servo.raise_hardware_error(self.model.take_hardware_error())
 

@@ -22,9 +22,8 @@ pytestmark = pytest.mark.slow
 ROOT = Path(__file__).resolve().parents[1]
 #: Folder names that must not be installed as top-level packages.
 STRAY = ("driver", "emulator", "controller", "tools", "configs")
-#: A 12 s straight line (the paper's line, shortened, wheels already along it), run at 1x: the
-#: emulator keeps real time even on a machine busy with other work, and the loop's limit of
-#: 1.5 tf leaves 6 s for a robot that is slow to start.
+#: A 12 s straight line (the paper's line, shortened, wheels already along it), run in lockstep
+#: so that the verdict does not depend on how busy the machine is.
 SHORT_LINE = """\
 name: short-line
 tf_s: 12
@@ -113,10 +112,9 @@ def test_emulate_and_scan_find_eight_servos(installed, empty_dir):
 
 
 def test_short_emulated_run_from_an_empty_folder(installed, empty_dir):
-    """``swerve config init`` then ``swerve run --emulate`` on that file (``$SWERVE_CONFIG``).
+    """``swerve config init`` then ``swerve run --emulate --lockstep`` on that file (``$SWERVE_CONFIG``).
 
-    The copy's Bus Watchdog and failed-read limit are raised, as in the stack tests, so that a
-    machine busy with other work does not stop the run."""
+    The copy's Bus Watchdog and failed-read limit are raised, as in the stack tests."""
     import yaml
 
     bin_dir, _, env = installed
@@ -127,7 +125,7 @@ def test_short_emulated_run_from_an_empty_folder(installed, empty_dir):
     robot.write_text(yaml.safe_dump(doc))
     (empty_dir / "short-line.yaml").write_text(SHORT_LINE)
     out = _run([bin_dir / "swerve", "run", "--emulate", "--trajectory", "short-line.yaml",
-                "--time-scale", "1", "--log", "runlog", "--json"], cwd=empty_dir,
+                "--lockstep", "--log", "runlog", "--json"], cwd=empty_dir,
                env={**env, "SWERVE_CONFIG": "cfg/robot.yaml"}, timeout=300)
     assert out.stderr.splitlines()[0] == "config: cfg/robot.yaml ($SWERVE_CONFIG)"
     s = json.loads(out.stdout)
@@ -135,3 +133,17 @@ def test_short_emulated_run_from_an_empty_folder(installed, empty_dir):
     assert s["config"] == "cfg/robot.yaml" and s["config_source"] == "$SWERVE_CONFIG"
     assert s["cycles"] + s["missed_slots"] >= 750 and s["final_position_error_m"] < 0.05
     assert (empty_dir / "runlog" / "metadata.yaml").is_file()
+
+
+#: The README's example for the pytest plugin, as a user would paste it into their repository.
+PLUGIN_EXAMPLE = (ROOT / "tests" / "test_testing_plugin.py").read_text()
+
+
+def test_the_pytest_plugin_works_from_the_installed_wheel(installed, empty_dir):
+    """A user's own repository: pytest installed beside the wheel, the README's example pasted in."""
+    bin_dir, _, env = installed
+    _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "pytest"], env=env, timeout=600)
+    (empty_dir / "test_drive.py").write_text(PLUGIN_EXAMPLE)
+    out = _run([bin_dir / "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_drive.py"],
+               cwd=empty_dir, env=env, timeout=600)
+    assert "3 passed" in out.stdout, out.stdout

@@ -95,18 +95,29 @@ class Jogger:
 
 class Session:
     """The bus and the robot file being calibrated. ``time_scale``: robot seconds per wall
-    second (an emulator's; 1 on the robot). Leaving it stops the wheels and turns the torque off."""
+    second (an emulator's; 1 on the robot). ``clock``: a lockstep emulator's
+    :class:`~swerve.tools.run.lockstep.LockstepClock` (robot time; ``time_scale`` is then unused),
+    or None for the wall clock. Leaving it stops the wheels and turns the torque off."""
 
     def __init__(self, bus: Bus, cfg: RobotConfig, *, time_scale: float = 1.0,
-                 log: Callable[[str], None] = print):
+                 log: Callable[[str], None] = print, clock=None):
         self.bus = bus
         self.cfg = cfg
-        self.time_scale = float(time_scale)
+        self.time_scale = 1.0 if clock is not None else float(time_scale)
+        self.clock = clock
         self.log = log
         self.wheels = WheelSet(bus, cfg)
 
+    def now(self) -> float:
+        """Robot time, s (on the wall clock: monotonic seconds times the time scale)."""
+        return self.clock.now() if self.clock is not None else time.monotonic() * self.time_scale
+
     def sleep(self, robot_s: float) -> None:
-        time.sleep(robot_s / self.time_scale)
+        """Let ``robot_s`` seconds of robot time pass."""
+        if self.clock is not None:
+            self.clock.sleep_until(self.clock.now() + robot_s)
+        else:
+            time.sleep(robot_s / self.time_scale)
 
     def use(self, cfg: RobotConfig) -> None:
         """Continue with ``cfg`` (e.g. the steering zero just found)."""
@@ -220,7 +231,7 @@ def wheel_radius(s: Session, op: Operator, *, distance_m: float = 1.0,
     op.drive_starts()
     w_radps = speed_mps / cfg.wheel_radius_m
     s.log(f"driving straight {distance_m:.3f} m at {speed_mps:.2f} m/s (by the wheel encoders)")
-    deadline = time.monotonic() + 3.0 * distance_m / speed_mps / s.time_scale + 5.0
+    deadline = s.now() + 3.0 * distance_m / speed_mps + 5.0 * s.time_scale     # robot s
     try:
         while True:
             s.wheels.write_goals([w_radps] * 4, [0.0] * 4)
@@ -228,10 +239,10 @@ def wheel_radius(s: Session, op: Operator, *, distance_m: float = 1.0,
             done = cfg.wheel_radius_m * sum(a - b for a, b in zip(st.drive_rad, start)) / 4
             if done >= distance_m:
                 break
-            if time.monotonic() > deadline:
+            if s.now() > deadline:
                 raise SwerveError(f"the robot did not cover {distance_m} m by its encoders in time "
                                   f"(got {done:.3f} m): is a wheel blocked?")
-            time.sleep(period_s / s.time_scale)
+            s.sleep(period_s)
     finally:
         s.wheels.stop()
     s.sleep(1.0)

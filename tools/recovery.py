@@ -40,7 +40,8 @@ REBOOT_TIMEOUT_S = 3.0
 
 @dataclass(frozen=True)
 class RecoveryEvent:
-    """One step: ``t_s`` (monotonic s), servo ``ids``, ``step`` name and a ``detail`` sentence."""
+    """One step: ``t_s`` (the policy's clock, s: monotonic, or robot time in lockstep), servo
+    ``ids``, ``step`` name and a ``detail`` sentence."""
 
     t_s: float
     ids: tuple[int, ...]
@@ -76,8 +77,10 @@ class RecoverFromFault:
     """Reboot and reconfigure a faulted servo, then let the loop resume (see module doc).
 
     ``bus_margin_s``/``bus_retries``: reply slack and retries while recovering (the loop keeps
-    both small for its own reads; configuration is not time-critical). ``clock``: monotonic
-    seconds (injectable for tests); ``sleep``: how to wait, s.
+    both small for its own reads; configuration is not time-critical). ``clock``: seconds
+    (monotonic by default; a lockstep run passes robot time, see :func:`policy`); ``sleep``: how
+    to wait, s, on that clock. Every wait (standstill, reboot) and the rate limit's window are
+    measured on it.
     """
 
     name = "recover"
@@ -188,12 +191,18 @@ class RecoverFromFault:
         return ServoFaults(self.name, self.recoveries, tuple(e.line() for e in self.events))
 
 
-def policy(name: str, timeout_margin_s: float = 0.0):
+def policy(name: str, timeout_margin_s: float = 0.0, clock=None):
     """The policy for ``--on-servo-fault NAME`` (``stop`` or ``recover``); ``timeout_margin_s``:
-    the run's reply slack before the loop narrows it, used while recovering."""
+    the run's reply slack before the loop narrows it, used while recovering. ``clock``: the
+    loop's :class:`~swerve.tools.run.ticker.Clock` when it is not the wall clock (lockstep): the
+    recovery then waits on it, so robot time, and the emulator's physics, advance while it waits
+    (``None``: monotonic wall time)."""
     if name == "stop":
         return StopOnFault()
     if name == "recover":
-        return RecoverFromFault(bus_margin_s=timeout_margin_s)
+        if clock is None:
+            return RecoverFromFault(bus_margin_s=timeout_margin_s)
+        return RecoverFromFault(bus_margin_s=timeout_margin_s, clock=clock.now,
+                                sleep=lambda dt_s: clock.sleep_until(clock.now() + dt_s))
     from swerve.driver.errors import ConfigError
     raise ConfigError(f"--on-servo-fault {name!r}: expected stop or recover")

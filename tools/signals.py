@@ -64,7 +64,8 @@ def signals_as_interrupt() -> Iterator[None]:
     """Within the block, SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` once (see module doc).
 
     A no-op outside the main thread (signal handlers can only be set there). The previous
-    handlers are restored on exit.
+    handlers are restored on exit, unless a stop signal arrived: then the process is on its way
+    out and later signals are ignored, so a second one cannot replace the exit status.
     """
     global _state
     if threading.current_thread() is not threading.main_thread():
@@ -78,8 +79,9 @@ def signals_as_interrupt() -> Iterator[None]:
             previous[s] = signal.signal(s, _handler)
         yield
     finally:
+        stopping = _state.first is not None
         for s, h in previous.items():
-            signal.signal(s, h)
+            signal.signal(s, signal.SIG_IGN if stopping else h)
         _state = outer
 
 

@@ -32,7 +32,7 @@ def _discrete(cutoff_radps: float, norm: str, dt_s: float) -> tuple:
     a = np.array([[0.0, 1.0], [-a0, -a1]])
     b = np.array([[0.0], [a0]])
     ad, bd, *_ = signal.cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), dt_s, method="zoh")
-    return tuple(map(tuple, ad)), (bd[0, 0], bd[1, 0])
+    return tuple(tuple(map(float, r)) for r in ad), (float(bd[0, 0]), float(bd[1, 0]))   # Python floats: fast
 
 
 class BesselFilter:

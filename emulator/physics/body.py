@@ -18,6 +18,7 @@ The pose integrates the twist exactly for a twist held constant over the step.
 from __future__ import annotations
 
 import math
+import operator
 
 import numpy as np
 
@@ -57,25 +58,48 @@ class RobotBody:
         self.wheel_xy_m = np.asarray(wheel_xy_m, float)
         self._m = contact_matrix(self.wheel_xy_m)
         self._pinv = np.linalg.pinv(self._m)       # (3, 2n): least-squares solution operator
+        self._pinv_rows = self._pinv.tolist()      # the same, as Python floats for the per-step fit
+        self._m_rows = self._m.tolist()
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
         self.twist = np.zeros(3)
-        self.residual_mps = np.zeros(len(self.wheel_xy_m))
+        self._fit: tuple[list, tuple] | None = None     # (stacked wheel velocities, twist) of the last step
+        self._residual_mps = np.zeros(len(self.wheel_xy_m))
+
+    @property
+    def residual_mps(self) -> np.ndarray:
+        """Each wheel's contact-velocity misfit (slip speed) at the last fit, m/s, shape (n,);
+        computed when asked (the steps only keep what it needs)."""
+        if self._fit is not None:
+            w, twist = self._fit
+            r = [sum(a * t for a, t in zip(row, twist)) - wi for row, wi in zip(self._m_rows, w)]
+            self._residual_mps = np.hypot(r[0::2], r[1::2])
+            self._fit = None
+        return self._residual_mps
 
     def fit_twist(self, speeds_mps, steer_rad) -> np.ndarray:
         """Least-squares body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame), shape (3,).
 
-        Also stores ``residual_mps`` (n,): each wheel's contact-velocity misfit (slip speed).
+        Also sets ``residual_mps`` (n,): each wheel's contact-velocity misfit (slip speed).
         """
         w = wheel_velocities(speeds_mps, steer_rad)
         twist = self._pinv @ w
         r = (self._m @ twist - w).reshape(-1, 2)
-        self.residual_mps = np.hypot(r[:, 0], r[:, 1])
+        self._residual_mps = np.hypot(r[:, 0], r[:, 1])
+        self._fit = None
         return twist
 
     def step(self, dt_s: float, speeds_mps, steer_rad) -> tuple[float, float, float]:
-        """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``."""
-        self.twist = self.fit_twist(speeds_mps, steer_rad)
-        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, self.twist, dt_s)
+        """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``.
+
+        Scalar arithmetic in Python floats (for four wheels NumPy's per-call overhead costs more
+        than the sums); the same fit as :meth:`fit_twist` to round-off."""
+        w = []
+        for v, d in zip(speeds_mps, steer_rad):
+            w += (v * math.cos(d), v * math.sin(d))
+        vx, vy, om = [sum(map(operator.mul, row, w)) for row in self._pinv_rows]
+        self._fit = (w, (vx, vy, om))
+        self.twist = np.array((vx, vy, om))
+        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, om), dt_s)
         return self.x_m, self.y_m, self.theta_rad
 
     @property

@@ -54,7 +54,8 @@ def _discrete(p: MotorParams, inertia_kg_m2: float, dt_s: float, coasting: bool)
     if coasting:                       # drop the current: states [omega, theta], input [tau]
         a, b = a[1:, 1:], b[1:, 1:]
     ad, bd = zoh(a, b, dt_s)
-    return tuple(map(tuple, ad)), tuple(map(tuple, bd))
+    # Python floats: the per-step products then cost a fraction of NumPy scalar arithmetic (same IEEE results).
+    return tuple(tuple(map(float, r)) for r in ad), tuple(tuple(map(float, r)) for r in bd)
 
 
 class GearedMotor:

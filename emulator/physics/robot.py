@@ -82,24 +82,30 @@ class RobotPhysics:
         xy = [(w.x_m, w.y_m) for w in geometry.wheels]
         self.body: RobotBody | ContactBody = (ContactBody(xy, cfg.body.total_mass_kg, cfg.contact)
                                               if cfg.contact.enabled else RobotBody(xy))
-        self._wheel_steer_rad: np.ndarray | None = None    # wheel angles behind the backlash
+        self._wheel_steer_rad: list[float] | None = None    # wheel angles behind the backlash
+        self._wheel_servos = [(w, self.servos[w.drive_id], self.servos[w.steer_id], r, off) for w, r, off in
+                              zip(geometry.wheels, self.wheel_radius_m.tolist(), self.steer_zero_offset_rad.tolist())]
         self.bus_voltage_v = cfg.supply_voltage_v
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Ground speeds (m/s, signed, forward positive) and steering angles (rad), shape (4,) each."""
-        g = self.geometry
-        speeds = np.array([w.drive_direction * self.servos[w.drive_id].velocity_radps
-                           for w in g.wheels]) * self.wheel_radius_m
-        horn = np.array([w.steer_direction * (self.servos[w.steer_id].true_position_pulse - w.center_pulse)
-                         * u.RAD_PER_PULSE for w in g.wheels]) - self.steer_zero_offset_rad
+        speeds, steer = self._wheel_state()
+        return np.array(speeds), np.array(steer)
+
+    def _wheel_state(self) -> tuple[list[float], list[float]]:
+        """:meth:`wheel_state` as lists of Python floats (per physics step: no NumPy overhead)."""
+        speeds, horn = [], []
+        for w, drive, steer, r, off in self._wheel_servos:
+            speeds.append(w.drive_direction * drive.velocity_radps * r)
+            horn.append(w.steer_direction * (steer.true_position_pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
         if half <= 0.0:
             return speeds, horn
         if self._wheel_steer_rad is None:
-            self._wheel_steer_rad = horn.copy()
+            self._wheel_steer_rad = list(horn)
         # the wheel stays where it is until the horn takes up the free play on either side
-        self._wheel_steer_rad = np.clip(self._wheel_steer_rad, horn - half, horn + half)
-        return speeds, self._wheel_steer_rad.copy()
+        self._wheel_steer_rad = [min(max(s, h - half), h + half) for s, h in zip(self._wheel_steer_rad, horn)]
+        return speeds, list(self._wheel_steer_rad)
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
@@ -112,7 +118,7 @@ class RobotPhysics:
         e.g. by the emulator's servo loop); return the pose. With tyre contact the reactions
         become the drive shafts' loads, and with a supply resistance the bus voltage sags, both
         seen by the servos from their next step."""
-        pose = self.body.step(dt_s, *self.wheel_state())
+        pose = self.body.step(dt_s, *self._wheel_state())
         if isinstance(self.body, ContactBody):
             for w, r, f in zip(self.geometry.wheels, self.wheel_radius_m, self.body.force_long_n):
                 s = self.servos[w.drive_id]

@@ -80,6 +80,8 @@ class ServoModel:
         self._homing = 0
         self._goal_pulse = 0.0          # goal after limits / watchdog hold, pulse
         self._gains: dict[tuple, object] = {}   # raw gain items -> converted gains
+        self._plan: _InputPlan | None = None     # what the firmware derives from the input items
+        self._plan_table: Mapping[str, int] | None = None
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -198,30 +200,42 @@ class ServoModel:
         self.advance(dt_s, table)
         return self.outputs()
 
-    def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
+    def advance(self, dt_s: float, table: Mapping[str, int], *, same_inputs: bool = False) -> None:
         """Advance ``dt_s`` seconds under the raw items ``table`` (see :meth:`step`); no outputs.
 
         The emulator calls this every physics tick and :meth:`outputs` only when the bus reads,
-        so the present items cost nothing between reads.
+        so the present items cost nothing between reads. ``same_inputs=True`` promises that
+        ``table`` is the mapping of the last call, unchanged: what the firmware derives from the
+        items (limits, gains, profile bounds) is then reused instead of derived again.
         """
-        sign = self._sign = -1 if table["drive_mode"] & 1 else 1
-        self._homing = homing = table["homing_offset"]
-        mode = table["operating_mode"]
-        torque = table["torque_enable"] != 0
-        raw = self._encoder_pulse(sign)
+        plan = self._plan
+        if not same_inputs or plan is None or table is not self._plan_table:
+            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+            self._plan_table = table
+        sign = self._sign = plan.sign
+        self._homing = homing = plan.homing
+        mode = plan.mode
+        torque = plan.torque
+        motor = self.motor
+        # encoder (inline :meth:`_encoder_pulse`: the same arithmetic)
+        x = sign * (motor.angle_rad / motor.gear_ratio / u.RAD_PER_PULSE + self.encoder_offset_pulse)
+        if self.sensors.position_noise_std_pulse:
+            x += self.rng.normal(0.0, self.sensors.position_noise_std_pulse)
+        raw = math.floor(x)
+        vf = self.velocity_filter
         if not self._started:
-            self.velocity_filter.reset(raw)
+            vf.reset(raw)
             self._started = True
-        key = (mode, torque, table["drive_mode"])
+        key = plan.key
         switched = key != self._prev_key
         if switched and torque and mode == u.MODE_POSITION:
             self._rewrap(raw)           # Present Position re-wrapped to one turn (+ Homing Offset)
         present = raw - self._wrap_pulse + homing
-        self.velocity_filter.step(dt_s, float(raw))
+        vf.step(dt_s, float(raw))
         if self._measure_filtered:
-            v_meas = self.velocity_filter.dy / PULSE_PER_S_PER_VEL_UNIT
+            v_meas = vf.dy / PULSE_PER_S_PER_VEL_UNIT
         else:                           # ideal estimator: the true speed (README: placement choice)
-            v_meas = sign * self.motor.output_speed_radps / u.RADPS_PER_VEL_UNIT
+            v_meas = sign * motor.output_speed_radps / u.RADPS_PER_VEL_UNIT
         if switched:
             self.loop.reset()
             self._hold_position = None
@@ -231,18 +245,18 @@ class ServoModel:
             else:
                 self.profile.reset(0.0, v_meas if torque else 0.0)
                 self.reference_filter.reset(v_meas if torque else 0.0)
-        voltage = self._control(dt_s, table, mode, present, v_meas, sign, switched) if torque else None
+        voltage = self._control(dt_s, plan, mode, present, v_meas, sign, switched) if torque else None
         if voltage is None:
             self.loop.reset()
             self.duty = 0.0
             self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
-        self.motor.step(dt_s, voltage)
+        motor.step(dt_s, voltage)
         self._heat(dt_s)
         if self.protection is not None:
             self.pending_hardware_error |= self.protection.update(
-                dt_s, self.motor.current_a, self.temperature_c, self.supply_voltage_v, table)
+                dt_s, motor.current_a, self.temperature_c, self.supply_voltage_v, table)
         self._prev_key = key
-        self._prev_goal_position = table["goal_position"]
+        self._prev_goal_position = plan.goal_position
         self._last = (table, mode, torque, present, v_meas, sign)
 
     def outputs(self) -> dict[str, int]:
@@ -254,34 +268,28 @@ class ServoModel:
                     "present_temperature": round(self.temperature_c)}
         return self._outputs(*self._last)
 
-    def _control(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
+    def _control(self, dt_s: float, plan: "_InputPlan", mode: int, present: int,
                  v_meas: float, sign: int, switched: bool) -> float | None:
         """Run the firmware for ``mode``; return the armature voltage (physical frame), V."""
-        pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
-        i_lim_units = float(t["current_limit"])
-        tripped = t["bus_watchdog"] == u.WATCHDOG_TRIPPED
+        pwm_lim = plan.pwm_lim
         p = self.motor.params
         w_m = sign * self.motor.speed_radps        # motor speed in the servo frame
         i_ref = None
         if mode == u.MODE_PWM:
-            counts = 0.0 if tripped else max(-pwm_lim, min(pwm_lim, float(t["goal_pwm"])))
+            counts = plan.pwm_counts
         elif mode == u.MODE_CURRENT:
-            i_ref = 0.0 if tripped else max(-i_lim_units, min(i_lim_units, float(t["goal_current"])))
+            i_ref = plan.current_ref
         elif mode == u.MODE_VELOCITY:
-            vlim = float(t["velocity_limit"])
-            goal = 0.0 if tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
-            pa = t["profile_acceleration"]
-            a_max = math.inf if pa == 0 or tripped else pa * VEL_UNIT_PER_S_PER_ACC_UNIT
-            self.profile.step_velocity(dt_s, goal, a_max)
+            self.profile.step_velocity(dt_s, plan.velocity_goal, plan.velocity_a_max)
             ref = self.profile.velocity
             if self.fw.bessel_placement == "reference":
                 ref = self.reference_filter.step(dt_s, ref)
-            g = self._cached_gains(("v", t["velocity_p_gain"], t["velocity_i_gain"]), VelocityGains.from_table)
+            g = plan.velocity_gains
             counts = self.loop.update(dt_s, ref - v_meas, g.kp, g.ki, 0.0, pwm_lim)
         elif mode in u.POSITION_MODES:
-            counts = self._position_loop(dt_s, t, mode, present, v_meas, pwm_lim, tripped, switched)
+            counts = self._position_loop(dt_s, plan, mode, present, v_meas, pwm_lim, plan.tripped, switched)
             if mode == u.MODE_CURRENT_POSITION:
-                goal_i = float(min(abs(t["goal_current"]), t["current_limit"]))
+                goal_i = plan.position_current_limit
                 i_ref, counts = max(-goal_i, min(goal_i, counts)), None
         else:
             return None
@@ -292,36 +300,30 @@ class ServoModel:
             counts = max(-pwm_lim, min(pwm_lim, v / self.supply_voltage_v * u.PWM_FULL_SCALE))
         v = counts / u.PWM_FULL_SCALE * self.supply_voltage_v
         # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
-        margin = p.resistance_ohm * i_lim_units * u.AMP_PER_CURRENT_UNIT
+        margin = plan.current_margin_v
         emf = p.back_emf_v_s_per_rad * w_m
         v = max(emf - margin, min(emf + margin, v))
         v = max(-self.supply_voltage_v, min(self.supply_voltage_v, v))
         self.duty = v / self.supply_voltage_v
         return sign * v
 
-    def _position_loop(self, dt_s: float, t: Mapping[str, int], mode: int, present: int,
+    def _position_loop(self, dt_s: float, plan: "_InputPlan", mode: int, present: int,
                        v_meas: float, pwm_lim: float, tripped: bool, switched: bool) -> float:
-        goal = float(t["goal_position"])
-        if mode == u.MODE_POSITION:
-            goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+        goal = plan.position_goal
         self._goal_pulse = goal
-        new_goal = switched or t["goal_position"] != self._prev_goal_position
+        new_goal = switched or plan.goal_position != self._prev_goal_position
         if tripped:
             if self._hold_position is None:
                 self._hold_position, new_goal = float(present), True
             goal = self._goal_pulse = self._hold_position
-        vlim = float(t["velocity_limit"])
-        pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
-        v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
-        a_max = math.inf if pa == 0 or tripped else pa * PULSE_PER_S2_PER_ACC_UNIT
+        v_max, a_max = plan.position_v_max, plan.position_a_max
         if new_goal:                    # a new profile starts whenever the goal changes
             self.profile.start_position(goal, v_max, a_max)
         self.profile.step_position(dt_s, goal, v_max, a_max)
         ref = self.profile.position
         if self.fw.bessel_placement == "reference":
             ref = self.reference_filter.step(dt_s, ref)
-        g = self._cached_gains(("p", t["position_p_gain"], t["position_i_gain"], t["position_d_gain"],
-                                t["feedforward_1st_gain"], t["feedforward_2nd_gain"]), PositionGains.from_table)
+        g = plan.position_gains
         tick = self.fw.gain_time_base_s
         v_traj = self.profile.velocity * tick                  # pulse per tick
         a_traj = self.profile.acceleration * tick * tick       # pulse per tick²
@@ -383,6 +385,55 @@ class ServoModel:
             "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
             "moving_status": status,
         }
+
+
+class _InputPlan:
+    """What the firmware derives from one set of raw input items (limits, gains, profile bounds);
+    derived once per change of the items, not per tick. Same arithmetic as deriving it per tick."""
+
+    __slots__ = ("sign", "homing", "mode", "torque", "key", "goal_position", "tripped", "pwm_lim",
+                 "current_margin_v", "pwm_counts", "current_ref", "velocity_goal", "velocity_a_max",
+                 "velocity_gains", "position_goal", "position_v_max", "position_a_max", "position_gains",
+                 "position_current_limit")
+
+    def __init__(self, t: Mapping[str, int], resistance_ohm: float, gains):
+        self.sign = -1 if t["drive_mode"] & 1 else 1
+        self.homing = t["homing_offset"]
+        self.mode = mode = t["operating_mode"]
+        self.torque = t["torque_enable"] != 0
+        self.key = (mode, self.torque, t["drive_mode"])
+        self.goal_position = t["goal_position"]
+        self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
+        i_lim_units = float(t["current_limit"])
+        self.tripped = tripped = t["bus_watchdog"] == u.WATCHDOG_TRIPPED
+        self.current_margin_v = resistance_ohm * i_lim_units * u.AMP_PER_CURRENT_UNIT
+        self.pwm_counts = self.current_ref = self.velocity_goal = self.velocity_a_max = None
+        self.velocity_gains = self.position_goal = self.position_v_max = self.position_a_max = None
+        self.position_gains = self.position_current_limit = None
+        if mode == u.MODE_PWM:
+            self.pwm_counts = 0.0 if tripped else max(-pwm_lim, min(pwm_lim, float(t["goal_pwm"])))
+        elif mode == u.MODE_CURRENT:
+            self.current_ref = 0.0 if tripped else max(-i_lim_units, min(i_lim_units, float(t["goal_current"])))
+        elif mode == u.MODE_VELOCITY:
+            vlim = float(t["velocity_limit"])
+            self.velocity_goal = 0.0 if tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
+            pa = t["profile_acceleration"]
+            self.velocity_a_max = math.inf if pa == 0 or tripped else pa * VEL_UNIT_PER_S_PER_ACC_UNIT
+            self.velocity_gains = gains(("v", t["velocity_p_gain"], t["velocity_i_gain"]), VelocityGains.from_table)
+        elif mode in u.POSITION_MODES:
+            goal = float(t["goal_position"])
+            if mode == u.MODE_POSITION:
+                goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+            self.position_goal = goal
+            vlim = float(t["velocity_limit"])
+            pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
+            self.position_v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
+            self.position_a_max = math.inf if pa == 0 or tripped else pa * PULSE_PER_S2_PER_ACC_UNIT
+            self.position_gains = gains(("p", t["position_p_gain"], t["position_i_gain"], t["position_d_gain"],
+                                         t["feedforward_1st_gain"], t["feedforward_2nd_gain"]),
+                                        PositionGains.from_table)
+            if mode == u.MODE_CURRENT_POSITION:
+                self.position_current_limit = float(min(abs(t["goal_current"]), t["current_limit"]))
 
 
 def _profile_bits(profile_type: int) -> int:

@@ -178,8 +178,10 @@ def test_robot_config_and_bad_arguments():
         Faults.parse("drop=2")
     f = Faults.parse("drop=0.5,corrupt=0.1,delay=0.001,vanish=3+4,hwerror=2:overload+input_voltage,seed=3")
     assert (f.drop_rate, f.corrupt_rate, f.delay_s, f.vanished) == (0.5, 0.1, 0.001, {3, 4})
-    with build_emulator(ids=[2], faults=f, time_scale=0) as emu:
+    with build_emulator(ids=[2, 3, 4], faults=f, time_scale=0) as emu:
         assert emu.servo(2).read(Reg.HARDWARE_ERROR_STATUS) == 0x21
+    with pytest.raises(ConfigError, match="not on the emulated bus"):
+        build_emulator(ids=[2], faults=f, time_scale=0)
 
 
 def test_baud_gating_follows_client_speed():

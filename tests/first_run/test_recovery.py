@@ -73,3 +73,30 @@ def test_other_causes_and_the_stop_policy_do_not_recover(wheels):
     assert isinstance(recovery.policy("stop"), recovery.StopOnFault)
     with pytest.raises(ConfigError):
         recovery.policy("retry")
+
+
+class _StepClock:
+    """A clock that moves only when slept on, as robot time does in lockstep."""
+
+    def __init__(self):
+        self.t_s = 100.0
+        self.slept: list[float] = []
+
+    def now(self) -> float:
+        return self.t_s
+
+    def sleep_until(self, t: float) -> None:
+        self.slept.append(t - self.t_s)
+        self.t_s = max(self.t_s, t)
+
+
+def test_recovery_waits_on_the_runs_clock(wheels):
+    clock = _StepClock()
+    pol = recovery.policy("recover", clock=clock)
+    wheels.emu.faults.raise_hardware_error(3, "overload")
+    with pytest.raises(ServoError):
+        wheels.read_state()
+    assert pol.recover(_fault(), wheels, lambda: None)
+    assert all(e.t_s >= 100.0 for e in pol.events)        # stamped on the run's clock
+    pol.sleep(0.25)
+    assert clock.slept[-1] == pytest.approx(0.25) and clock.now() >= 100.25

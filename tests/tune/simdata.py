@@ -14,13 +14,14 @@ NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
 
 
 def pwm_record(params: MotorParams, gear: float, plan, *, sensors=NOISE, seed=0, dt_s=5e-4,
-               mean_sample_s=1.5e-3, supply_v=12.0) -> PwmRecord:
+               mean_sample_s=1.5e-3, supply_v=12.0, friction=None) -> PwmRecord:
     """Simulate ``plan`` = [(duration_s, goal_pwm), ...] from rest and sample it irregularly.
 
     Each bus read lands on a physics tick; gaps between reads are ``mean_sample_s`` +- 50 %.
+    ``friction``: the gearbox friction (:class:`GearFrictionParams`) of the servo, default none.
     """
     rng = np.random.default_rng(seed)
-    model = ServoModel(params, gear, supply_v, sensors=sensors, rng=rng)
+    model = ServoModel(params, gear, supply_v, sensors=sensors, rng=rng, friction=friction)
     rest = table(operating_mode=u.MODE_PWM, goal_pwm=0)
     for _ in range(20):
         model.step(dt_s, rest)

@@ -160,3 +160,20 @@ def test_robot_emulator_path_sees_the_reflected_wheel_load(tmp_path, capsys):
                                               / cfg.gear_ratio(rc.model) ** 2)
     assert res["identification"]["parameters"]["inertia_kg_m2"]["value"] == pytest.approx(loaded, rel=0.1)
     assert res["meets_spec"]
+
+
+def test_realistic_gearbox_friction_is_identified_as_coulomb(tmp_path, capsys):
+    """``--emulator-config realistic``: Coulomb + Stribeck friction on the output shaft. The fit
+    puts it into Tc (between the Coulomb and the static torque), R, Ke and J stay at Table 1."""
+    code, out = _tune(tmp_path, "--id", "5", "--emulator-config", "realistic")
+    assert code == 0, capsys.readouterr().err
+    res = json.loads((out / "tune_5.json").read_text())
+    cfg = load_config(Path("configs/emulator-realistic.yaml"))
+    truth, fr = cfg.steering_motor, cfg.steering_friction
+    est = res["identification"]["parameters"]
+    for name in FITTED[:3]:
+        assert est[name]["value"] == pytest.approx(getattr(truth, name), rel=0.05), name
+    assert 0.65 < est["friction_nm_s_per_rad"]["value"] / truth.friction_nm_s_per_rad < 1.0
+    assert fr.coulomb_nm < est["coulomb_nm"]["value"] < fr.static_nm + 0.003
+    assert res["identification"]["residual_rms"]["position_pulse"] < 0.8
+    assert res["meets_spec"]

@@ -8,7 +8,7 @@ from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import MotorParams, load_config
 from swerve.tools.tune.identify import FITTED, identify, simulate_open_loop
 
-from .simdata import PLAN, pwm_record
+from .simdata import NOISE, PLAN, pwm_record
 
 GEAR = 212.6
 PRIOR = MotorParams(resistance_ohm=8.0, inductance_h=3e-3, back_emf_v_s_per_rad=0.012,
@@ -72,3 +72,61 @@ def test_a_mistimed_write_is_relocated_from_the_current_jump(table1, error_s):
     for name in FITTED:
         assert ident.estimates[name].value == pytest.approx(getattr(truth, name), rel=0.05), name
     assert ident.switch_t_s[0][2] == pytest.approx(rec.switch_t_s[2], abs=2e-3)
+
+
+# ---- gearbox friction (the realistic profile) --------------------------------------------------
+#: The pipeline's open-loop plan at 50 % duty: +-442 and +-265 PWM counts with braking between.
+PLAN4 = [(0.05, 0), (0.2, 442), (0.08, 0), (0.2, -442), (0.08, 0), (0.2, 265), (0.08, 0), (0.2, -265), (0.1, 0)]
+
+
+@pytest.fixture(scope="module")
+def realistic():
+    return load_config("configs/emulator-realistic.yaml")
+
+
+def _coulomb_only(friction):
+    return replace(friction, static_nm=friction.coulomb_nm)          # no Stribeck rise at rest
+
+
+def test_exact_solution_with_coulomb_friction_matches_the_emulator_motor(realistic):
+    from swerve.emulator.physics.params import SensorParams
+    p, fr = realistic.drive_motor, _coulomb_only(realistic.drive_friction)
+    rec = pwm_record(p, GEAR, PLAN, sensors=SensorParams(), dt_s=5e-5, friction=fr)
+    sim = simulate_open_loop(p, GEAR, rec.t_s, rec.switch_t_s, rec.voltage_v, fr.coulomb_nm)
+    settled = np.min(np.abs(rec.t_s[:, None] - rec.switch_t_s[None, :]), axis=1) > 2e-3
+    assert np.max(np.abs(sim["current_a"] - rec.current_a)[settled]) < 2 * u.AMP_PER_CURRENT_UNIT
+    assert np.max(np.abs(sim["angle_rad"] - rec.position_rad)) < 2 * u.RAD_PER_PULSE
+    brake = (rec.t_s > 0.28) & (rec.t_s < 0.3)                     # late in the first brake: stopped
+    assert np.all(sim["speed_radps"][brake] == 0.0)
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("variant", ["drive", "steering"])
+def test_coulomb_friction_is_identified_without_bias(realistic, variant, seed):
+    truth, fr = getattr(realistic, f"{variant}_motor"), _coulomb_only(getattr(realistic, f"{variant}_friction"))
+    rec = pwm_record(truth, GEAR, PLAN4, seed=seed, friction=fr)
+    viscous = identify([rec], GEAR, PRIOR, **LSB, coulomb=False)
+    assert viscous.params.friction_nm_s_per_rad > 1.5 * truth.friction_nm_s_per_rad   # the bias it removes
+    ident = identify([rec], GEAR, PRIOR, **LSB)
+    for name in ("resistance_ohm", "back_emf_v_s_per_rad", "inertia_kg_m2"):
+        assert ident.estimates[name].value == pytest.approx(getattr(truth, name), rel=0.03), name
+    assert ident.params.friction_nm_s_per_rad == pytest.approx(truth.friction_nm_s_per_rad, rel=0.10)
+    assert ident.coulomb_nm == pytest.approx(fr.coulomb_nm, rel=0.10)
+    assert ident.residual_rms["position_pulse"] < 0.7 < viscous.residual_rms["position_pulse"]
+
+
+@pytest.mark.parametrize("variant", ["drive", "steering"])
+def test_realistic_gearbox_friction_bias_is_bounded(realistic, variant):
+    """Coulomb + Stribeck + viscous on the output (the realistic profile): the fitted ``Tc`` lies
+    between the Coulomb and the static torque and ``b`` absorbs the Stribeck slope (low by < 30 %)."""
+    truth, fr = getattr(realistic, f"{variant}_motor"), getattr(realistic, f"{variant}_friction")
+    rec = pwm_record(truth, GEAR, PLAN4, seed=1, friction=fr)
+    viscous = identify([rec], GEAR, PRIOR, **LSB, coulomb=False)
+    assert viscous.params.friction_nm_s_per_rad > 1.5 * truth.friction_nm_s_per_rad
+    ident = identify([rec], GEAR, PRIOR, **LSB)
+    for name in ("resistance_ohm", "back_emf_v_s_per_rad", "inertia_kg_m2"):
+        assert ident.estimates[name].value == pytest.approx(getattr(truth, name), rel=0.03), name
+    assert 0.70 < ident.params.friction_nm_s_per_rad / truth.friction_nm_s_per_rad < 1.0
+    assert fr.coulomb_nm < ident.coulomb_nm < fr.static_nm + 0.002
+    assert ident.residual_rms["position_pulse"] < 0.7
+    assert ident.residual_rms["current_a"] < 1.2 * NOISE.current_noise_std_a

@@ -50,6 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "must find (default: --config)")
     parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=1.0,
                         help="with --emulate: robot seconds per wall second (default 1)")
+    parser.add_argument("--lockstep", action="store_true",
+                        help="with --emulate: the emulator owns robot time (repeatable results, as fast "
+                             "as the host allows; --time-scale is then unused)")
     parser.add_argument("--timeout-margin-ms", type=finite_float(0.0, 10_000.0), default=None,
                         help="slack on every reply deadline (default 2 ms; 50 ms with --emulate)")
 
@@ -66,6 +69,8 @@ def run(args: argparse.Namespace) -> int:
 
     if not args.time_scale > 0 or (args.time_scale != 1.0 and not args.emulate):
         raise ConfigError("--time-scale must be positive and needs --emulate")
+    if args.lockstep and not args.emulate:
+        raise ConfigError("--lockstep needs --emulate: a real bus runs on the wall clock")
     if args.emulated_robot and not args.emulate:
         raise ConfigError("--emulated-robot needs --emulate")
     choice = locate_robot_file(args.config)
@@ -78,20 +83,29 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (50.0 if args.emulate else 2.0)
+    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
+
+    margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (
+        LOCKSTEP_TIMEOUT_MARGIN_S * 1e3 if args.lockstep else 50.0 if args.emulate else 2.0)
     values: dict = {}
     with contextlib.ExitStack() as stack:
+        clock = None
         if args.emulate:
             from swerve.emulator.robot_emulator import robot_emulator
 
             emu = stack.enter_context(robot_emulator(args.emulated_robot or cfg_path, body=True,
-                                                     time_scale=args.time_scale, rate_hz=1000.0))
+                                                     time_scale=args.time_scale, rate_hz=1000.0,
+                                                     lockstep=args.lockstep))
             port = emu.port
+            if args.lockstep:       # connected before anything is written to the pty
+                clock = stack.enter_context(LockstepClock(emu.control.path))
         else:
             port = args.port or cfg.link.port
         bus = stack.enter_context(Bus(port, cfg.link.baud, default_model=cfg.model, retries=1,
                                       timeout_margin_s=margin_ms * 1e-3))
-        session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log))
+        if clock is not None:
+            clock.count_tx(lambda: bus.bytes_written)
+        session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log, clock=clock))
         scale = cfg.table["present_position"].scale
         if args.emulate and args.yes:
             from swerve.emulator.robot_emulator import status

@@ -117,11 +117,13 @@ class RunResult:
         return self.loop.aborted
 
 
-def run_tracking(req: RunRequest, on_config=None) -> RunResult:
+def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     """Run one trajectory; returns a :class:`RunResult` (``aborted`` set on a stop).
 
     ``on_config``: called with the :class:`swerve.configs.ConfigChoice` once the robot file
-    is known (``swerve run`` prints it first).
+    is known (``swerve run`` prints it first). ``on_cycle``: called after each cycle's goals
+    were written with the cycle's fields (as the log gets them) and the run's lockstep clock
+    (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
     from swerve.driver.bus import Bus
     from swerve.driver.wheelset import WheelSet
@@ -185,7 +187,7 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
         margin = req.timeout_margin_s if req.timeout_margin_s is not None else (
             LOCKSTEP_TIMEOUT_MARGIN_S if req.lockstep else EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
         margin = {} if margin is None else {"timeout_margin_s": margin}
-        fault_policy = policy(req.on_servo_fault, **margin)
+        fault_policy = policy(req.on_servo_fault, clock=clock, **margin)
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         if clock is not None:
             clock.count_tx(lambda: bus.bytes_written)
@@ -207,6 +209,8 @@ def run_tracking(req: RunRequest, on_config=None) -> RunResult:
             live = stack.enter_context(LivePublisher(*parse_live(req.live), wheels=[w.name for w in cfg.wheels]))
             log.warning("live view on %s", live.url)
             callbacks.append(live.on_cycle)
+        if on_cycle is not None:
+            callbacks.append(lambda fields: on_cycle(fields, clock))
         loop = TrackingLoop(wheels, law, geom, time_scale=loop_scale,
                             max_failed_reads=cfg.max_consecutive_timeouts,
                             watchdog_s=cfg.bus_watchdog_s, true_pose=true_pose, on_cycle=_chain(callbacks),

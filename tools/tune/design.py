@@ -20,7 +20,7 @@ from scipy.optimize import brentq
 
 from swerve.driver.errors import SwerveError
 from swerve.emulator.physics import units as u
-from swerve.emulator.physics.params import FirmwareParams, MotorParams
+from swerve.emulator.physics.params import FirmwareParams, GearFrictionParams, MotorParams
 from swerve.emulator.physics.servo_model import ServoModel
 from swerve.emulator.physics.steptest import StepMetrics, simulate, step_metrics, table, velocity_step
 
@@ -105,10 +105,14 @@ class Plant:
     supply_voltage_v: float = 12.0
     firmware: FirmwareParams = FirmwareParams()
     dt_s: float = 1e-3
+    coulomb_nm: float = 0.0
+    """Identified Coulomb friction at the output, N m (static taken equal; 0 = viscous only)."""
 
     def model(self) -> ServoModel:
         """A fresh noiseless servo model."""
-        return ServoModel(self.params, self.gear_ratio, self.supply_voltage_v, self.firmware)
+        friction = (GearFrictionParams(coulomb_nm=self.coulomb_nm, static_nm=self.coulomb_nm)
+                    if self.coulomb_nm > 0.0 else None)
+        return ServoModel(self.params, self.gear_ratio, self.supply_voltage_v, self.firmware, friction=friction)
 
 
 def predict_velocity(plant: Plant, gains: dict[str, int], step_radps: float,

@@ -26,7 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.optimize import least_squares
+from scipy.optimize import brentq, least_squares
 
 from swerve.emulator.physics.motor import state_space
 from swerve.emulator.physics.params import MotorParams
@@ -37,7 +37,9 @@ FIXED_REASONS = {
     "torque_nm_per_a": "only Km/J and b/J are observable without a known load torque; "
                        "J and b are reported relative to this Km",
 }
-UNITS = {"resistance_ohm": "ohm", "back_emf_v_s_per_rad": "V s/rad", "inertia_kg_m2": "kg m^2",
+#: Output-side Coulomb friction, fitted in units of this torque (N m) so its step is O(1).
+COULOMB_SCALE_NM = 0.01
+UNITS = {"coulomb_nm": "N m", "resistance_ohm": "ohm", "back_emf_v_s_per_rad": "V s/rad", "inertia_kg_m2": "kg m^2",
          "friction_nm_s_per_rad": "N m s/rad", "inductance_h": "H", "torque_nm_per_a": "N m/A"}
 Z95 = 1.959963984540054
 #: Floor of the switch-time prior, s: wide enough for a write that took effect later than the
@@ -122,8 +124,9 @@ class Identification:
         RMS fit residual: ``position_pulse`` (LSB) and ``current_a`` (A).
     noise_std : dict[str, float]
         Sample standard deviation at rest (``position_pulse``, ``current_a``) used as weights.
-    correlation : ndarray, shape (4, 4)
-        Correlation of the fitted log-parameters, in :data:`FITTED` order.
+    correlation : ndarray, shape (k, k)
+        Correlation of the fitted parameters (log scale for the motor constants), in
+        :data:`FITTED` order, then ``coulomb_nm`` if it was fitted (k = 5).
     n_samples : int
         Samples used (both channels count once per bus read).
     switch_t_s : list[ndarray]
@@ -142,11 +145,20 @@ class Identification:
     n_samples: int
     extra: dict = field(default_factory=dict)
     switch_t_s: list = field(default_factory=list, repr=False)
+    coulomb_nm: float = 0.0
+    """Fitted Coulomb friction at the output shaft, N m (0 if not fitted)."""
 
 
 def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
-                       switch_t_s: np.ndarray, voltage_v: np.ndarray) -> dict[str, np.ndarray]:
+                       switch_t_s: np.ndarray, voltage_v: np.ndarray,
+                       coulomb_nm: float = 0.0) -> dict[str, np.ndarray]:
     """Exact response of the geared motor, from rest, to a piecewise-constant voltage.
+
+    With ``coulomb_nm > 0`` a Coulomb torque ``sign(w) Tc`` at the output opposes the motion:
+    the shaft stops where its speed reaches zero and stays stuck until the motor torque exceeds
+    ``Tc`` (static = Coulomb; the Stribeck rise below ~1.5 rad/s is not modelled). While stuck only
+    the current moves (``L di/dt = v - R i``). Between events the ODE is linear with a constant
+    input, so every phase is solved in closed form; the zero crossing is found with ``brentq``.
 
     Parameters
     ----------
@@ -155,9 +167,12 @@ def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
     gear_ratio : float
         Motor turns per output turn.
     t_s : ndarray, shape (n,)
-        Increasing sample times, s.
+        Sample times, s (any order).
     switch_t_s, voltage_v : ndarray, shape (m,)
         The voltage is 0 before ``switch_t_s[0]`` and ``voltage_v[k]`` from ``switch_t_s[k]``.
+    coulomb_nm : float
+        Coulomb friction torque at the output shaft, N m (a negative value aids the motion; it
+        keeps the fit's parameter space continuous through 0).
 
     Returns
     -------
@@ -167,34 +182,84 @@ def simulate_open_loop(params: MotorParams, gear_ratio: float, t_s: np.ndarray,
     """
     t_s = np.asarray(t_s, float)
     a3, b3 = state_space(params, params.inertia_kg_m2)
-    a, b = a3[:2, :2], b3[:2, 0]
-    lam, vec = np.linalg.eig(a)
-    vinv = np.linalg.inv(vec)
-    a_inv_b = np.linalg.solve(a, b)
+    motor = _Linear(a3[:2, :2], b3[:2, 0], b3[:2, 1])
+    r, l, km = params.resistance_ohm, params.inductance_h, params.torque_nm_per_a
+    tc = coulomb_nm / gear_ratio                      # motor side, N m
     bounds = np.concatenate([[-np.inf], np.asarray(switch_t_s, float), [np.inf]])
     volts = np.concatenate([[0.0], np.asarray(voltage_v, float)])
-    z = np.zeros(2)                                   # [i, w] at the segment start
+    z = np.zeros(2)                                   # [i, w] at the phase start
     theta = 0.0
     out = np.zeros((3, t_s.size))
+    first, last = (float(t_s.min()), float(t_s.max())) if t_s.size else (0.0, 0.0)
     for k in range(volts.size):
-        t0 = bounds[k] if np.isfinite(bounds[k]) else 0.0
-        z_ss = -a_inv_b * volts[k]
-        c = vinv @ (z - z_ss)                          # modal coordinates of the transient
-
-        def solution(tau):
-            e = np.exp(np.outer(tau, lam))             # (n, 2)
-            zt = (z_ss[None, :] + (e * c[None, :]) @ vec.T).real
-            th = theta + z_ss[1] * tau + (((e - 1.0) / lam[None, :] * c[None, :]) @ vec[1, :]).real
-            return zt, th
-
-        sel = (t_s >= bounds[k]) & (t_s < bounds[k + 1])
-        zt, th = solution(t_s[sel] - t0)
-        out[0, sel], out[1, sel], out[2, sel] = th, zt[:, 1], zt[:, 0]
-        if np.isfinite(bounds[k + 1]):
-            zt, th = solution(np.array([bounds[k + 1] - t0]))
-            z, theta = zt[0], float(th[0])
+        t0 = bounds[k] if np.isfinite(bounds[k]) else min(0.0, first)
+        t_end = bounds[k + 1] if np.isfinite(bounds[k + 1]) else max(last, t0) + 1.0
+        v = volts[k]
+        while True:
+            stuck = z[1] == 0.0 and tc > 0.0
+            if stuck:                                 # w = 0: only the current evolves
+                i_ss = v / r
+                start = np.inf
+                if np.sign(v) * km * z[0] >= tc:      # already driving hard enough
+                    start = 0.0
+                elif abs(km * i_ss) > tc:             # breaks loose when |Km i| reaches Tc
+                    start = -l / r * np.log((np.sign(v) * tc / km - i_ss) / (z[0] - i_ss))
+                t_next = min(t0 + start, t_end)
+                sel = (t_s >= t0) & (t_s < t_next)
+                tau = t_s[sel] - t0
+                out[0, sel], out[1, sel] = theta, 0.0
+                out[2, sel] = i_ss + (z[0] - i_ss) * np.exp(-r / l * tau)
+                z = np.array([i_ss + (z[0] - i_ss) * np.exp(-r / l * (t_next - t0)), 0.0])
+                if t_next >= t_end:
+                    break
+                t0, direction = t_next, np.sign(v)
+            else:
+                direction = np.sign(z[1]) if z[1] != 0.0 else np.sign(v)
+            sol = motor.from_state(z, theta, v, direction * tc)
+            t_next = t_end
+            if tc > 0.0 and direction != 0.0 and direction * sol.speed(t_end - t0) < 0.0:
+                t_next = t0 + brentq(sol.speed, 0.0, t_end - t0, xtol=1e-9)
+            sel = (t_s >= t0) & (t_s < t_next)
+            zt, th = sol(t_s[sel] - t0)
+            out[0, sel], out[1, sel], out[2, sel] = th, zt[:, 1], zt[:, 0]
+            zt, th = sol(np.array([t_next - t0]))
+            z, theta = zt[0].copy(), float(th[0])
+            if t_next >= t_end:
+                break
+            z[1], t0 = 0.0, t_next                    # the speed reached zero: stuck from here
     return {"angle_rad": out[0] / gear_ratio, "speed_radps": out[1] / gear_ratio,
             "current_a": out[2]}
+
+
+class _Linear:
+    """Closed-form solution of ``dz/dt = A z + bv v + bt tau`` (z = [i, w]) and of the angle."""
+
+    def __init__(self, a: np.ndarray, bv: np.ndarray, bt: np.ndarray):
+        self.lam, self.vec = np.linalg.eig(a)
+        self.vinv = np.linalg.inv(self.vec)
+        self.a_inv_bv, self.a_inv_bt = np.linalg.solve(a, bv), np.linalg.solve(a, bt)
+
+    def from_state(self, z0: np.ndarray, theta0: float, v: float, tau: float) -> "_Phase":
+        z_ss = -self.a_inv_bv * v - self.a_inv_bt * tau
+        return _Phase(self, z_ss, self.vinv @ (z0 - z_ss), theta0)
+
+
+class _Phase:
+    """One constant-input phase: ``(z (n, 2), theta (n,))`` at times ``tau`` after its start."""
+
+    def __init__(self, lin: _Linear, z_ss: np.ndarray, c: np.ndarray, theta0: float):
+        self.lin, self.z_ss, self.c, self.theta0 = lin, z_ss, c, theta0
+
+    def __call__(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        lam, vec, c = self.lin.lam, self.lin.vec, self.c
+        e = np.exp(np.outer(tau, lam))                 # (n, 2)
+        zt = (self.z_ss[None, :] + (e * c[None, :]) @ vec.T).real
+        th = self.theta0 + self.z_ss[1] * tau + (((e - 1.0) / lam[None, :] * c[None, :]) @ vec[1, :]).real
+        return zt, th
+
+    def speed(self, tau: float) -> float:
+        """Motor speed ``tau`` s after the phase start, rad/s."""
+        return float((self.z_ss[1] + (np.exp(self.lin.lam * tau) * self.c) @ self.lin.vec[1, :]).real)
 
 
 def _rest_samples(rec: PwmRecord, lsb: float, signal: np.ndarray) -> np.ndarray:
@@ -244,9 +309,14 @@ def locate_switches(rec: PwmRecord, noise_a: float) -> PwmRecord:
 
 
 def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
-             position_lsb_rad: float, current_lsb_a: float) -> Identification:
-    """Fit ``R, Ke, J, b`` (plus per-switch time shifts, a position/current time skew and
-    per-record angle offsets as nuisance parameters) with Levenberg–Marquardt.
+             position_lsb_rad: float, current_lsb_a: float, coulomb: bool = True) -> Identification:
+    """Fit ``R, Ke, J, b`` and the output's Coulomb friction ``Tc`` (plus per-switch time shifts, a
+    position/current time skew and per-record angle offsets as nuisance parameters) with
+    Levenberg–Marquardt.
+
+    ``Tc`` shows as the current the motor needs to keep turning at any speed, ``Tc / (N Km)``,
+    and as the shaft stopping in finite time when braked; the ±duty steps at two amplitudes
+    separate it from the viscous ``b`` (whose torque grows with speed).
 
     Parameters
     ----------
@@ -258,6 +328,8 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
         Start values; ``inductance_h`` and ``torque_nm_per_a`` are kept fixed at these.
     position_lsb_rad, current_lsb_a : float
         Encoder and current quantisation steps (output rad per pulse; A per LSB).
+    coulomb : bool
+        Fit the Coulomb friction; ``False`` keeps it at 0 (viscous friction only).
 
     Returns
     -------
@@ -278,22 +350,25 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
     sig_i = np.sqrt(1.0 / 12.0 + np.var(cur_rest))          # current LSBs
     records = [locate_switches(r, sig_i * current_lsb_a) for r in records]
     n_sw = [r.switch_t_s.size for r in records]
-    x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0], np.zeros(sum(n_sw)),
+    n_head = 6 if coulomb else 5                    # log R, Ke, J, b; skew; [Tc / scale]
+    x0 = np.concatenate([np.log([getattr(prior, n) for n in FITTED]), [0.0], [0.0] * (n_head - 5),
+                         np.zeros(sum(n_sw)),
                          [np.mean(r.position_rad[r.t_s < r.switch_t_s[0]]) / position_lsb_rad + 0.5
                           for r in records]])
-    n_fit = 5 + sum(n_sw)
+    n_fit = n_head + sum(n_sw)
 
     def unpack(x):
-        shifts = np.split(x[5:n_fit], np.cumsum(n_sw)[:-1])
-        return replace(prior, **dict(zip(FITTED, np.exp(x[:4])))), x[4], shifts, x[n_fit:]
+        shifts = np.split(x[n_head:n_fit], np.cumsum(n_sw)[:-1])
+        tc = x[5] * COULOMB_SCALE_NM if coulomb else 0.0
+        return replace(prior, **dict(zip(FITTED, np.exp(x[:4])))), x[4], tc, shifts, x[n_fit:]
 
     def residuals(x):
-        p, skew, shifts, offsets = unpack(x)
+        p, skew, tc, shifts, offsets = unpack(x)
         res = []
         for rec, shift, off in zip(records, shifts, offsets):
             n = rec.t_s.size
             sim = simulate_open_loop(p, gear_ratio, np.concatenate([rec.t_s - skew, rec.t_s]),
-                                     rec.switch_t_s + shift, rec.voltage_v)
+                                     rec.switch_t_s + shift, rec.voltage_v, tc)
             res.append((sim["angle_rad"][:n] / position_lsb_rad + off - 0.5
                         - rec.position_rad / position_lsb_rad) / sig_p)
             res.append((sim["current_a"][n:] - rec.current_a) / current_lsb_a / sig_i)
@@ -301,7 +376,7 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
         return np.concatenate(res)
 
     sol = least_squares(residuals, x0, method="lm", x_scale="jac")
-    p, skew, shifts, _ = unpack(sol.x)
+    p, skew, tc, shifts, _ = unpack(sol.x)
     delay = float(np.mean(np.concatenate(shifts)))
     m, k = sol.fun.size - sum(n_sw), sol.x.size - sum(n_sw)    # the switch priors are not data
     r_pos = np.concatenate([sol.fun[a:a + n] for a, n in _channel_slices(records, 0)]) * sig_p
@@ -318,7 +393,12 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
                              else "")
     for name, why in FIXED_REASONS.items():
         est[name] = Estimate(getattr(p, name), float("nan"), float("nan"), UNITS[name], False, why)
-    sub = cov[:4, :4]
+    if coulomb:
+        sd = std[5] * COULOMB_SCALE_NM
+        est["coulomb_nm"] = Estimate(tc, tc - Z95 * sd, tc + Z95 * sd, UNITS["coulomb_nm"], True,
+                                     "output shaft; static friction taken equal")
+    keep = list(range(4)) + ([5] if coulomb else [])
+    sub = cov[np.ix_(keep, keep)]
     d = np.sqrt(np.clip(np.diag(sub), 1e-300, None))
     corr = sub / np.outer(d, d)
     return Identification(
@@ -329,7 +409,7 @@ def identify(records: list[PwmRecord], gear_ratio: float, prior: MotorParams, *,
         noise_std={"position_pulse": float(np.std(pos_rest)), "current_a": float(np.std(cur_rest)) * current_lsb_a},
         correlation=corr, n_samples=int(sum(r.t_s.size for r in records)),
         extra={"nfev": int(sol.nfev), "status": int(sol.status), "reduced_chi2": float(s2)},
-        switch_t_s=[r.switch_t_s + sh for r, sh in zip(records, shifts)])
+        switch_t_s=[r.switch_t_s + sh for r, sh in zip(records, shifts)], coulomb_nm=float(tc))
 
 
 def _channel_slices(records: list[PwmRecord], channel: int) -> list[tuple[int, int]]:

@@ -16,7 +16,7 @@ from swerve.emulator.physics.steptest import StepMetrics, step_metrics
 from swerve.tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
 from swerve.tools.tune.design import predict_position, predict_velocity
 from swerve.tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
-from swerve.tools.tune.identify import Identification, PwmRecord, identify
+from swerve.tools.tune.identify import FITTED, Identification, PwmRecord, identify
 
 BRAKE_S = 0.08                 # PWM 0 (motor short-circuited) between the driven steps
 STEP_S_MAX = 0.2
@@ -161,7 +161,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
                 break
             exp.progress = progress("experiments (again: 95 % interval too wide)") or _ignore
         before_rec = _closed_loop(exp, group, original, spec, center_rad)
-        plant = Plant(ident.params, gear, supply, firmware)
+        plant = Plant(ident.params, gear, supply, firmware, coulomb_nm=ident.coulomb_nm)
         progress("design")
         try:
             design = design_velocity(plant, spec) if group == "drive" else design_position(plant, spec)
@@ -197,7 +197,7 @@ def _check_steps(group: str, spec: Spec, limits: Limits, center_rad: float | Non
 
 def worst_ci(ident: Identification) -> float:
     """Largest relative 95 % half-width among the identified parameters."""
-    return max(e.rel_halfwidth for e in ident.estimates.values() if e.identified)
+    return max(ident.estimates[name].rel_halfwidth for name in FITTED)
 
 
 def _closed_loop(exp: Experimenter, group: str, gains: dict[str, int], spec: Spec,

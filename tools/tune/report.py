@@ -84,9 +84,9 @@ def _plot_pwm(res: TuneResult, path: Path) -> None:
     end = 0.0
     for k, (rec, sw) in enumerate(zip(res.pwm, ident.switch_t_s)):   # runs back to back on one axis
         t = np.linspace(rec.t_s[0], rec.t_s[-1], 2000)
-        sim = simulate_open_loop(ident.params, res.gear_ratio, t, sw, rec.voltage_v)
+        sim = simulate_open_loop(ident.params, res.gear_ratio, t, sw, rec.voltage_v, ident.coulomb_nm)
         fit_at = simulate_open_loop(ident.params, res.gear_ratio, rec.t_s - ident.position_skew_s, sw,
-                                    rec.voltage_v)
+                                    rec.voltage_v, ident.coulomb_nm)
         offset = float(np.mean(rec.position_rad - fit_at["angle_rad"]))
         label = {} if k else {"m": "measured", "f": "model fit"}
         ax[0].plot(end + rec.t_s, rec.position_rad, ".", ms=2, color="C0", label=label.get("m"))
