@@ -165,6 +165,15 @@ def render(rows, seconds: float) -> str:
     ]
     for label, client, rate, fails in rows:
         lines.append(f"| {label} | {client} | {rate:.0f} | {fails} |")
+    by_line: dict[str, dict[str, float]] = {}
+    for label, client, rate, _ in rows:
+        by_line.setdefault(label, {})[client] = rate
+    lines.append("")
+    for label, rates in by_line.items():
+        if len(rates) == 2:
+            sdk, ours = rates["dynamixel-sdk 4.1"], rates["driver.bus.Bus"]
+            lines.append(f"- {label}: driver / SDK = **{ours / sdk:.2f}**"
+                         + (f"; driver at {ours / limit:.0%} of the wire limit" if label.startswith("--wire") else ""))
     lines += [
         "",
         f"Wire-time limit at 1 Mbps: {nbytes} bytes per round trip (22 instruction + 8 x 15 status) "

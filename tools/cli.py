@@ -47,6 +47,14 @@ def add_config_option(parser: argparse.ArgumentParser) -> None:
                              "else the shipped robot.yaml)")
 
 
+def add_bus_options(parser: argparse.ArgumentParser, emulate_help: str) -> None:
+    """``--port PORT | --emulate`` and ``--config FILE``: where the servos are, and the robot file."""
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
+    where.add_argument("--emulate", action="store_true", help=emulate_help)
+    add_config_option(parser)
+
+
 def _load(name: str):
     """Import ``tools.commands.<name>``; ``None`` only if that module itself does not exist.
 

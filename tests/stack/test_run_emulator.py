@@ -6,8 +6,8 @@ process. All but the process-level tests run in lockstep (the ``emulated_robot``
 and the run is the same on an idle or a loaded machine, so the error bounds are tight absolute
 bounds on the emulated robot's errors (servo lag, encoder quantisation, odometry), measured at
 a few mm. One tracking test stays on the wall clock (time-scaled, ``SWERVE_TEST_TIME_SCALE``,
-default 5) with the wall-clock allowance of 2x the ideal simulation + 3 cm, and skips (saying so)
-when the host cannot run the emulator at that scale; the killed-controller
+default 2, where a whole run met every deadline on this 2-core machine) with the wall-clock allowance of 2x the ideal simulation + 3 cm, and skips (saying so)
+when the host cannot run the emulator or the controller at that scale; the killed-controller
 and Ctrl-C tests stay there too, because what they test (a dead or interrupted controller
 process) pauses a lockstep robot instead. Under a time scale the run stretches the Bus Watchdog
 and the failed-read limit to their wall-clock length (``swerve.tools.run.orchestrate.
@@ -30,7 +30,7 @@ from swerve.driver.robot_config import load_robot_config
 from swerve.tools.run.orchestrate import RunRequest, run_tracking, wall_clock_guards
 
 #: Time scale of the wall-clock tests (see BENCHMARKS.md for the limit).
-SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "5"))
+SCALE = float(os.environ.get("SWERVE_TEST_TIME_SCALE", "2"))
 #: Wall clock: tracking allowance above the ideal simulation, m (servo lag, quantisation, latency).
 ALLOWANCE_M = 0.03
 #: Wall clock: odometry vs true pose over a whole run, m.
@@ -110,6 +110,11 @@ def test_tracks_the_line_on_the_wall_clock(tmp_path, config):
         pytest.skip(f"the host could not run the emulator at {SCALE}x (achieved {achieved:.2f}x, lost "
                     f"{lost_s:.2f} s of robot time): a wall-clock run then measures the host, not the code "
                     f"(the lockstep tests do)")
+    late = s["overruns"] + s["missed_slots"]
+    if late > 0.02 * s["cycles"]:
+        pytest.skip(f"the host could not run the controller at {SCALE}x ({s['overruns']} overruns, "
+                    f"{s['missed_slots']} missed slots in {s['cycles']} cycles): a wall-clock run then "
+                    f"measures the host, not the code (the lockstep tests do)")
     assert res.aborted is None, s.get("abort_message")
     assert s["completed"] and s["error_source"] == "true_pose" and s["clock"] == "wall"
     for key in ("final_position_error_m", "rms_position_error_m", "max_position_error_m"):

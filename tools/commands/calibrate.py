@@ -8,7 +8,7 @@ from __future__ import annotations
 import argparse
 
 from swerve.tools.argtypes import finite_float
-from swerve.tools.cli import add_config_option
+from swerve.tools.cli import add_bus_options
 
 NAME = "calibrate"
 HELP = "measure steering zero, wheel direction signs and wheel radius; print or --write them"
@@ -25,11 +25,7 @@ def _steps(text: str) -> tuple[str, ...]:
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
-    where.add_argument("--emulate", action="store_true",
-                       help="calibrate the emulated robot (started here); see --emulated-robot")
-    add_config_option(parser)
+    add_bus_options(parser, "calibrate the emulated robot (started here); see --emulated-robot")
     parser.add_argument("--write", action="store_true",
                         help="edit the robot file in place (comments kept; validated; atomic replace)")
     parser.add_argument("--yes", action="store_true",

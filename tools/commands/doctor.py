@@ -8,7 +8,7 @@ import argparse
 import json
 
 from swerve.tools.argtypes import finite_float, int_range
-from swerve.tools.cli import add_config_option
+from swerve.tools.cli import add_bus_options
 
 NAME = "doctor"
 HELP = ("check the bus against the robot file: latency timer, IDs and baud, model and firmware, "
@@ -16,11 +16,7 @@ HELP = ("check the bus against the robot file: latency timer, IDs and baud, mode
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    where = parser.add_mutually_exclusive_group()
-    where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
-    where.add_argument("--emulate", action="store_true",
-                       help="check an emulated bus of the robot file's servos (started here)")
-    add_config_option(parser)
+    add_bus_options(parser, "check an emulated bus of the robot file's servos (started here)")
     parser.add_argument("--fix", action="store_true",
                         help="repair what can be repaired: move servos to the file's ID and baud, reboot "
                              "servos with a latched hardware error, write modes/return delay/gains, set "
