@@ -208,7 +208,8 @@ def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, 
             what = ("the start state" if k == 0
                     else f"the start perturbed by {CHECK_PERTURBATIONS[k - 1]}")
             raise GainCheckError("tracking", res.t_s[i], f"from {what} the position error "
-                                 f"is {e[i]:.3g} m > {bound:.3g} m on the nonlinear model")
+                                 f"reaches {e[over].max():.4g} m, above the bound {bound:.4g} m, "
+                                 "on the nonlinear model")
         worst = max(worst, float(e[late].max()))
     return dict(max_spectral_radius=float(rho.max()), min_eigenvalue_real=float(low.min()),
                 riccati_min_eigenvalue_real=float(low_r.min()),
