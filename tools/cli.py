@@ -179,15 +179,24 @@ def _quiet_boundary(verbose: bool, prefix: str):
         logger.propagate = old_propagate
 
 
-def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``swerve`` console script; returns the exit status (see module doc)."""
+def entry() -> int:
+    """The ``swerve`` console script: :func:`main` in a process that exits right after it."""
+    return main(process_exit=True)
+
+
+def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
+    """Run one ``swerve`` command; returns the exit status (see module doc).
+
+    ``process_exit``: the caller exits right after (the console script), so stop signals that
+    arrive after the command's boundary are ignored rather than restored to Python's defaults.
+    """
     from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
 
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser().parse_args(argv)
     verbose = bool(args._verbose or getattr(args, "verbose", False))
     prefix = f"swerve {args.command}"
-    with signals_as_interrupt(), _quiet_boundary(verbose, prefix):
+    with signals_as_interrupt(process_exit), _quiet_boundary(verbose, prefix):
         try:
             return int(args._run(args) or 0)
         except SwerveError as exc:
@@ -229,4 +238,4 @@ def main(argv: list[str] | None = None) -> int:
 
 
 if __name__ == "__main__":  # pragma: no cover
-    sys.exit(main())
+    sys.exit(entry())

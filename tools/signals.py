@@ -60,12 +60,13 @@ def _handler(signum, _frame) -> None:
 
 
 @contextlib.contextmanager
-def signals_as_interrupt() -> Iterator[None]:
+def signals_as_interrupt(process_exit: bool = False) -> Iterator[None]:
     """Within the block, SIGINT/SIGTERM/SIGHUP raise :class:`Interrupted` once (see module doc).
 
     A no-op outside the main thread (signal handlers can only be set there). The previous
-    handlers are restored on exit, unless a stop signal arrived: then the process is on its way
-    out and later signals are ignored, so a second one cannot replace the exit status.
+    handlers are restored on exit; with ``process_exit`` (the console script, which exits right
+    after the block) a stop signal that arrived leaves them ignored instead, so a second signal
+    cannot replace the exit status on the way out.
     """
     global _state
     if threading.current_thread() is not threading.main_thread():
@@ -79,7 +80,7 @@ def signals_as_interrupt() -> Iterator[None]:
             previous[s] = signal.signal(s, _handler)
         yield
     finally:
-        stopping = _state.first is not None
+        stopping = process_exit and _state.first is not None
         for s, h in previous.items():
             signal.signal(s, signal.SIG_IGN if stopping else h)
         _state = outer
