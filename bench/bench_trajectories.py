@@ -198,8 +198,8 @@ def tracking_table() -> str:
 
     geom, limits = load_robot()
     rows = ["| case | fit: curvature dev. 1/m / arc overshoot / position dev. m | Riccati rms / "
-            "max m | Riccati sat. | CG rms / max m | CG sat. | CG J/J*, s | CG check | "
-            "emulator |", "|---|---|---|---|---|---|---|---|---|"]
+            "max m | Riccati sat. | CG rms / max m | CG sat. | CG J/J*, s | CG check |",
+            "|---|---|---|---|---|---|---|---|"]
     for label, name, start in TRACK_CASES:
         traj = load_trajectory(TRAJ_DIR / name if name.endswith(".csv") else name, geom)
         x0 = traj.start_state(geom) if start is None else np.asarray(start, float)
@@ -224,7 +224,7 @@ def tracking_table() -> str:
                     f"{mr['max_position_error_m']:.1e} | {100 * mr['saturated_fraction']:.1f} % "
                     f"| {mp['rms_position_error_m']:.1e} / {mp['max_position_error_m']:.1e} | "
                     f"{100 * mp['saturated_fraction']:.1f} % | "
-                    f"{g_p.cost / g_p.meta['J_star']:.4f}, {t_cg:.1f} | {verdict} | (to fill) |")
+                    f"{g_p.cost / g_p.meta['J_star']:.4f}, {t_cg:.1f} | {verdict} |")
         print(rows[-1], flush=True)
     return "\n".join(rows)
 
