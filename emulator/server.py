@@ -33,7 +33,7 @@ from swerve.driver.parser import PacketParser
 from swerve.emulator.clock import ClockStats, FrozenClock, HandOverLock, PhysicsClock
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
-from swerve.emulator.pty_link import PtyLink
+from swerve.emulator.pty_link import PtyLink, precise_timers
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
@@ -54,9 +54,10 @@ DEFAULT_MODEL = "xh430-w210"
 DEFAULT_BAUD = 1_000_000
 BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
-#: A reply that is not the last of an exchange may go out this early instead of sleeping
-#: for it (timer slack would otherwise add up over 8 replies); the last one is never early.
-EARLY_WRITE_S = 300e-6
+#: Replies of one exchange due within this window go out together, at the due time of the
+#: latest of them (later than the cable for the earlier ones, never earlier); the reply that
+#: ends the exchange goes out alone at its own due time unless it is already due.
+GROUP_WRITE_S = 1e-3
 #: GIL hand-over interval while the emulator runs, s. CPython's default (5 ms) lets the busy bus
 #: thread delay a client in the same process (tests) by up to 5 ms per hand-over.
 SWITCH_INTERVAL_S = 2e-4
@@ -427,8 +428,10 @@ class Emulator:
             return
         self.stats.packets_received += 1
         try:
+            byte_t = self._byte_time_s()
+            request_s = len(pkt.encode()) * byte_t
             steps = self.clock.stats.steps
-            self.clock.on_request(self, len(pkt.encode()) * self._byte_time_s())
+            self.clock.on_request(self, request_s)
             if self.observers and self.clock.stats.steps != steps:
                 self._notify()
             with self._lock:
@@ -438,10 +441,10 @@ class Emulator:
                     self.stats.malformed_packets += 1
                     log.debug("ignored %s: %s", pkt.name, exc)
                     return
-            end_t = rx_t
-            if self.wire_timing:
-                end_t = max(rx_t, first_byte_t + len(pkt.encode()) * self._byte_time_s())
-            self._transmit(replies, end_t)
+            # replies are timed from the instant the request ended on the wire, not from the
+            # end of the dispatch above: the emulator's own work is not charged on top
+            end_t = max(rx_t, first_byte_t + request_s) if self.wire_timing else rx_t
+            self._transmit(replies, end_t, byte_t)
             if touched:
                 with self._lock:
                     for s in touched:
@@ -559,27 +562,41 @@ class Emulator:
         return [s for s in listening if s.id == id_ or (s.secondary_id <= MAX_ID and s.secondary_id == id_)]
 
     # --- transmit (outside the lock) ------------------------------------------------------------
-    def _transmit(self, replies: list[_Reply], start_t: float) -> None:
+    def _transmit(self, replies: list[_Reply], start_t: float, byte_t: float | None = None) -> None:
+        """Send ``replies`` as the bus would after an instruction that ended at ``start_t``.
+
+        Each reply is due its delay (Return Delay Time, broadcast slot, injected delay) after the
+        previous one, plus its bytes with wire timing; the due times are fixed from ``start_t``
+        before anything is sent. No reply is written before it is due; replies due within
+        :data:`GROUP_WRITE_S` of each other share one write, and the one that ends the exchange
+        is written on its own at its due time (so the client sees the exchange end on time).
+        """
         if not replies:
             return
-        byte_t = self._byte_time_s()
+        if byte_t is None:
+            byte_t = self._byte_time_s()
         if self._transmit_charged(replies, byte_t):
             return
-        t = start_t
-        last = replies[-1]
-        pending = bytearray()
+        wire_byte_t = byte_t if self.wire_timing else 0.0
+        extra_s = self.faults.delay_s
+        due, t = [], start_t
+        frames = []
         for r, frame in self._surviving(replies):
-            due = t + r.delay_s + self.faults.delay_s
-            if self.wire_timing:
-                due += len(frame) * byte_t     # the last byte reaches the host then
-            ahead = due - time.monotonic()
-            if ahead > 0 and (r is last or ahead > EARLY_WRITE_S):
-                self._write(pending)           # what is due goes out before the wait
-                pending.clear()
-                self._sleep_until(due)      # never early for the reply that ends the exchange
-            pending += frame                  # replies due together go out in one write
-            t = max(due, time.monotonic()) if not self.wire_timing else due
-        self._write(pending)
+            t += r.delay_s + extra_s + len(frame) * wire_byte_t   # the last byte reaches the host then
+            due.append(t)
+            frames.append(frame)
+        n = len(frames)
+        i = 0
+        while i < n:
+            now = time.monotonic()
+            j = i
+            while j + 1 < n and (due[j + 1] <= now
+                                 or (j + 1 < n - 1 and due[j + 1] - due[i] <= GROUP_WRITE_S)):
+                j += 1
+            if due[j] > now:
+                self._sleep_until(due[j])
+            self._write(b"".join(frames[i:j + 1]))
+            i = j + 1
 
     def _surviving(self, replies: list[_Reply]):
         """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
@@ -623,11 +640,13 @@ class Emulator:
             self.stats.tx_overflow_bytes += len(data) - sent
 
     def _sleep_until(self, deadline: float) -> None:
-        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
+        """Block until ``deadline`` (monotonic s), never before it; long waits end early when the
+        bus closes. The calling thread gets fine timer slack first (:func:`precise_timers`)."""
+        precise_timers()
         remaining = deadline - time.monotonic()
         if remaining > 2e-3:
             self._stop.wait(remaining)
-        elif remaining > 0:
+        while (remaining := deadline - time.monotonic()) > 0 and not self._stop.is_set():
             time.sleep(remaining)
 
     # --- clock ----------------------------------------------------------------------------------
