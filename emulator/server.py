@@ -441,14 +441,14 @@ class Emulator:
                     self.stats.malformed_packets += 1
                     log.debug("ignored %s: %s", pkt.name, exc)
                     return
+                # ID / baud changes take effect for the next instruction; the replies are
+                # already encoded, so nothing is left to do once the last one is out
+                for s in touched:
+                    s.apply_pending()
             # replies are timed from the instant the request ended on the wire, not from the
             # end of the dispatch above: the emulator's own work is not charged on top
             end_t = max(rx_t, first_byte_t + request_s) if self.wire_timing else rx_t
             self._transmit(replies, end_t, byte_t)
-            if touched:
-                with self._lock:
-                    for s in touched:
-                        s.apply_pending()      # ID / baud changes take effect after the reply
         except Exception:  # noqa: BLE001 - one bad packet must never stop the bus
             self.stats.dispatch_errors += 1
             log.debug("error handling %r", pkt, exc_info=True)
@@ -597,6 +597,9 @@ class Emulator:
                 self._sleep_until(due[j])
             self._write(b"".join(frames[i:j + 1]))
             i = j + 1
+        # the pty hands written bytes to the reader through a kernel worker; on a busy core it
+        # waits until this thread blocks, so give it the core now (one syscall, no spinning)
+        os.sched_yield()
 
     def _surviving(self, replies: list[_Reply]):
         """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
