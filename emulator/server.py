@@ -442,9 +442,11 @@ class Emulator:
                     log.debug("ignored %s: %s", pkt.name, exc)
                     return
                 # ID / baud changes take effect for the next instruction; the replies are
-                # already encoded, so nothing is left to do once the last one is out
-                for s in touched:
-                    s.apply_pending()
+                # already encoded, so nothing is left to do once the last one is out (reads
+                # change neither)
+                if pkt.instruction not in SYNC_READS and pkt.instruction not in BULK_READS:
+                    for s in touched:
+                        s.apply_pending()
             # replies are timed from the instant the request ended on the wire, not from the
             # end of the dispatch above: the emulator's own work is not charged on top
             end_t = max(rx_t, first_byte_t + request_s) if self.wire_timing else rx_t
@@ -605,6 +607,11 @@ class Emulator:
         """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
         corrupted), drawing faults in reply order (a fast-read frame draws once); counts them."""
         faults = self.faults
+        if faults.drop_rate <= 0 and faults.corrupt_rate <= 0:     # nothing to draw
+            self.stats.replies_sent += len(replies)
+            for r in replies:
+                yield r, r.frame
+            return
         fast_dropped = fast_drawn = False
         for r in replies:
             if r.fast:
@@ -626,9 +633,14 @@ class Emulator:
     def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
         """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
         once and return True. Fault draws happen in the same order as with wall pacing."""
-        faults = self.faults
-        wire_s = sum(r.delay_s + faults.delay_s + len(r.frame) * byte_t for r in replies)
-        answering = sum(1 for r in replies if not r.fast) + (1 if any(r.fast for r in replies) else 0)
+        extra_s, wire_s, answering, fast = self.faults.delay_s, 0, 0, 0
+        for r in replies:
+            wire_s += r.delay_s + extra_s + len(r.frame) * byte_t
+            if r.fast:
+                fast = 1
+            else:
+                answering += 1
+        answering += fast                 # a combined fast-read frame answers once
         steps = self.clock.stats.steps
         if not self.clock.on_replies(self, wire_s, answering):
             return False
