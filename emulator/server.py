@@ -442,8 +442,8 @@ class Emulator:
                     log.debug("ignored %s: %s", pkt.name, exc)
                     return
                 # ID / baud changes take effect for the next instruction; the replies are
-                # already encoded, so nothing is left to do once the last one is out (reads
-                # change neither)
+                # already encoded, so nothing is left to do once the last one is out (Sync and
+                # Bulk Reads change neither)
                 if pkt.instruction not in SYNC_READS and pkt.instruction not in BULK_READS:
                     for s in touched:
                         s.apply_pending()
@@ -588,6 +588,8 @@ class Emulator:
             due.append(t)
             frames.append(frame)
         n = len(frames)
+        if not n:
+            return
         i = 0
         while i < n:
             now = time.monotonic()
