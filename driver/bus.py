@@ -232,8 +232,9 @@ class Bus:
                     got[p.id] = p
                 else:
                     self.stray_replies += 1
-        transport.parser.expect_fast(None)
-        missing = [i for i in expect if i not in got]
+        if fast_lengths is not None:
+            transport.parser.expect_fast(None)
+        missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
         if (missing and until_all) or corrupt:
             self._unsettled = True
         if missing and until_all:
