@@ -93,10 +93,31 @@ class _ServoDynamics:
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """One physics step under the servo's current input items."""
+        self.advance_many(dt_s, 1)
+        bits = self.take_hardware_error()
+        if bits:                                    # the physics tripped a protection: latch it
+            self._servo.raise_hardware_error(bits)
+
+    def advance_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple] | None = None) -> int:
+        """Up to ``n`` physics steps under the current input items (:meth:`ServoModel.run`); stops
+        after a step that raised a Hardware Error bit (:meth:`take_hardware_error`, for the
+        caller to latch). ``traces[model]``: the ``(speeds, positions)`` lists the model
+        appends to per step, if present. Returns the steps run."""
         items = self._items
-        self.model.advance(dt_s, self.inputs(), same_inputs=self._items is items)
-        if self.model.pending_hardware_error:       # the physics tripped a protection: latch it
-            self._servo.raise_hardware_error(self.model.take_hardware_error())
+        speeds, positions = traces.get(self.model, (None, None)) if traces else (None, None)
+        return self.model.run(dt_s, self.inputs(), n, same_inputs=self._items is items,
+                              speeds=speeds, positions=positions)
+
+    def take_hardware_error(self) -> int:
+        """Hardware Error bits the physics raised since the last call (then cleared)."""
+        return self.model.take_hardware_error() if self.model.pending_hardware_error else 0
+
+    @property
+    def batchable(self) -> bool:
+        """True if steps may run several at a time, servo after servo: no sensor noise, whose
+        draws from the shared generator would then come in another order."""
+        s = self.model.sensors
+        return not (s.position_noise_std_pulse or s.current_noise_std_a or s.voltage_noise_std_v)
 
     def outputs(self) -> dict[str, int]:
         """Present items as of the last step (at rest before the first)."""
@@ -122,6 +143,15 @@ class RobotWorld:
 
     def step(self, dt_s: float) -> None:
         self.physics.step_body(dt_s)
+
+    def traces(self) -> dict[ServoModel, tuple] | None:
+        """Empty per-step trace lists for a run of several steps, servo after servo
+        (:meth:`RobotPhysics.traces`), or ``None`` if the body must step between the servos."""
+        return self.physics.traces()
+
+    def step_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> None:
+        """``n`` body steps from the servos' recorded ``traces`` (:meth:`RobotPhysics.step_body_many`)."""
+        self.physics.step_body_many(dt_s, n, traces)
 
 
 def status(emu: Emulator) -> dict:

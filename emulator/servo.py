@@ -312,14 +312,60 @@ class VirtualServo:
 
         Present items are written only when read next (:meth:`ServoMemory.publish`).
         """
+        self.advance_many(dt_s, 1)
+
+    def advance_many(self, dt_s: float, n: int, traces=None) -> None:
+        """``n`` steps of :meth:`advance` with the same result, several at a time where nothing
+        can change the input items in between: a dynamics with ``advance_many(dt_s, k, traces)
+        -> steps run`` runs the steps up to the next Bus Watchdog trip or physics-raised
+        Hardware Error in one call (``traces``: passed through, see
+        :meth:`~swerve.emulator.robot_emulator._ServoDynamics.advance_many`); any other
+        dynamics is stepped one :meth:`Dynamics.advance` at a time.
+        """
         m = self.memory
+        dyn = self.dynamics
+        many = getattr(dyn, "advance_many", None)
+        done = 0
+        while done < n:
+            self._advance_timers(dt_s)                  # the first step of this run, as one tick
+            if many is None:
+                if dyn is not None:
+                    dyn.advance(dt_s, self._view)
+                m.stale = True
+                done += 1
+                continue
+            ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1), traces)
+            for _ in range(ran - 1):                    # the timers of the steps after the first
+                self._advance_timers(dt_s)
+            if done + ran > 1:                          # an earlier step of this call left the items stale
+                m.stale = True
+            done += ran
+            bits = dyn.take_hardware_error()
+            if bits:                                    # the physics tripped a protection: latch it
+                self.raise_hardware_error(bits)
+            m.stale = True
+
+    def _advance_timers(self, dt_s: float) -> None:
+        """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""
         self._tick_ms = (self._tick_ms + dt_s * 1e3) % REALTIME_TICK_WRAP
         self._since_traffic_s += dt_s
-        if self._since_traffic_s > WATCHDOG_UNIT_S and not m.watchdog_tripped:
+        if self._since_traffic_s > WATCHDOG_UNIT_S and not self.memory.watchdog_tripped:
             self._check_watchdog()      # the shortest watchdog time is one unit: cheap gate first
-        if self.dynamics is not None:
-            self.dynamics.advance(dt_s, self._view)
-        m.stale = True
+
+    def _quiet_steps(self, dt_s: float, most: int) -> int:
+        """How many of the next ``most`` steps pass without the Bus Watchdog tripping."""
+        m = self.memory
+        if most <= 0 or m.watchdog_tripped:
+            return max(most, 0)
+        wd = m.get(Reg.BUS_WATCHDOG)
+        if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
+            return most
+        since, limit = self._since_traffic_s, wd * WATCHDOG_UNIT_S
+        for k in range(most):           # the same float sums as the steps will make
+            since += dt_s
+            if since > WATCHDOG_UNIT_S and since > limit:
+                return k
+        return most
 
     def _check_watchdog(self) -> None:
         m = self.memory

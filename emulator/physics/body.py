@@ -61,7 +61,7 @@ class RobotBody:
         self._pinv_rows = self._pinv.tolist()      # the same, as Python floats for the per-step fit
         self._m_rows = self._m.tolist()
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
-        self.twist = np.zeros(3)
+        self._twist = (0.0, 0.0, 0.0)
         self._fit: tuple[list, tuple] | None = None     # (stacked wheel velocities, twist) of the last step
         self._residual_mps = np.zeros(len(self.wheel_xy_m))
 
@@ -97,10 +97,15 @@ class RobotBody:
         for v, d in zip(speeds_mps, steer_rad):
             w += (v * math.cos(d), v * math.sin(d))
         vx, vy, om = [sum(map(operator.mul, row, w)) for row in self._pinv_rows]
-        self._fit = (w, (vx, vy, om))
-        self.twist = np.array((vx, vy, om))
-        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, om), dt_s)
-        return self.x_m, self.y_m, self.theta_rad
+        self._twist = twist = (vx, vy, om)
+        self._fit = (w, twist)
+        self.x_m, self.y_m, self.theta_rad = pose = _se2_step(self.x_m, self.y_m, self.theta_rad, vx, vy, om, dt_s)
+        return pose
+
+    @property
+    def twist(self) -> np.ndarray:
+        """Body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame) of the last step, shape (3,)."""
+        return np.array(self._twist)
 
     @property
     def pose(self) -> tuple[float, float, float]:
@@ -113,6 +118,12 @@ def se2_step(pose: tuple[float, float, float], twist, dt_s: float) -> tuple[floa
     constant (exact SE(2) motion)."""
     x, y, theta = pose
     vx, vy, w = (float(v) for v in twist)
+    return _se2_step(x, y, theta, vx, vy, w, dt_s)
+
+
+def _se2_step(x: float, y: float, theta: float, vx: float, vy: float, w: float,
+              dt_s: float) -> tuple[float, float, float]:
+    """:func:`se2_step` on plain floats."""
     h = w * dt_s
     if abs(h) > 1e-9:
         s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w

@@ -94,10 +94,16 @@ class RobotPhysics:
 
     def _wheel_state(self) -> tuple[list[float], list[float]]:
         """:meth:`wheel_state` as lists of Python floats (per physics step: no NumPy overhead)."""
+        return self._wheels_from([drive.velocity_radps for _, drive, _, _, _ in self._wheel_servos],
+                                 [steer.true_position_pulse for _, _, steer, _, _ in self._wheel_servos])
+
+    def _wheels_from(self, drive_radps: list[float], steer_pulse: list[float]) -> tuple[list[float], list[float]]:
+        """Ground speeds and wheel angles from each wheel's drive :attr:`ServoModel.velocity_radps`
+        and steering :attr:`ServoModel.true_position_pulse` (backlash state advanced)."""
         speeds, horn = [], []
-        for w, drive, steer, r, off in self._wheel_servos:
-            speeds.append(w.drive_direction * drive.velocity_radps * r)
-            horn.append(w.steer_direction * (steer.true_position_pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
+        for (w, _, _, r, off), v, pulse in zip(self._wheel_servos, drive_radps, steer_pulse):
+            speeds.append(w.drive_direction * v * r)
+            horn.append(w.steer_direction * (pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
         if half <= 0.0:
             return speeds, horn
@@ -106,6 +112,33 @@ class RobotPhysics:
         # the wheel stays where it is until the horn takes up the free play on either side
         self._wheel_steer_rad = [min(max(s, h - half), h + half) for s, h in zip(self._wheel_steer_rad, horn)]
         return speeds, list(self._wheel_steer_rad)
+
+    def traces(self) -> dict[ServoModel, tuple[list | None, list | None]] | None:
+        """Empty trace lists ``{model: (speeds, positions)}`` for :meth:`ServoModel.run` (drive
+        servos record speeds, steering servos positions) when the servos may run several steps
+        each before the body follows: with the kinematic body and a stiff supply nothing flows
+        back from the body into the servos. ``None`` otherwise (tyre forces, supply sag)."""
+        if isinstance(self.body, ContactBody) or self.cfg.supply.enabled:
+            return None
+        out: dict[ServoModel, tuple[list | None, list | None]] = {}
+        for _, drive, steer, _, _ in self._wheel_servos:
+            out[drive] = ([], None)
+            out[steer] = (None, [])
+        return out
+
+    def step_body_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> tuple[float, float, float]:
+        """``n`` body steps of ``dt_s`` after the servos ran them, from their ``traces``
+        (:meth:`traces`, filled by :meth:`ServoModel.run`); the same as :meth:`step_body` after
+        each servo step. Returns the pose."""
+        drive = [traces[d][0] for _, d, _, _, _ in self._wheel_servos]
+        steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
+        if any(len(t) != n for t in drive + steer):
+            raise ValueError(f"every wheel servo must have recorded {n} steps")
+        body = self.body
+        pose = body.pose
+        for k in range(n):
+            pose = body.step(dt_s, *self._wheels_from([t[k] for t in drive], [t[k] for t in steer]))
+        return pose
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
