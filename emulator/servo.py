@@ -9,6 +9,7 @@ plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
 from __future__ import annotations
 
 import logging
+import struct
 from typing import Mapping, Protocol
 
 from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
@@ -70,6 +71,9 @@ class VirtualServo:
         self.memory = ServoMemory(table, limit_error=limit_error)
         self.memory.publisher = self._publish
         self.memory.published = frozenset((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
+        # all published items in one write when the table holds them back to back
+        self._pack_published = (self.memory.packer((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
+                                if all(n in table for n in DYNAMICS_OUTPUTS) else None)
         self._view = self.memory.view()
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
@@ -335,8 +339,12 @@ class VirtualServo:
                 done += 1
                 continue
             ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1), traces)
-            for _ in range(ran - 1):                    # the timers of the steps after the first
-                self._advance_timers(dt_s)
+            if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
+                tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
+                for _ in range(ran - 1):
+                    tick_ms = (tick_ms + d_ms) % REALTIME_TICK_WRAP
+                    since += dt_s
+                self._tick_ms, self._since_traffic_s = tick_ms, since
             if done + ran > 1:                          # an earlier step of this call left the items stale
                 m.stale = True
             done += ran
@@ -382,9 +390,15 @@ class VirtualServo:
     def _publish(self) -> None:
         """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
         m = self.memory
+        outputs = self.dynamics.outputs() if self.dynamics is not None else {}
+        if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
+            try:
+                self._pack_published([int(self._tick_ms), *[int(outputs[n]) for n in DYNAMICS_OUTPUTS]])
+                return
+            except (KeyError, struct.error):
+                pass                    # item by item below: the same values, or the same error
         m.set(Reg.REALTIME_TICK, int(self._tick_ms))
         if self.dynamics is not None:
-            outputs = self.dynamics.outputs()
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))
