@@ -94,24 +94,32 @@ class RobotPhysics:
 
     def _wheel_state(self) -> tuple[list[float], list[float]]:
         """:meth:`wheel_state` as lists of Python floats (per physics step: no NumPy overhead)."""
-        return self._wheels_from([drive.velocity_radps for _, drive, _, _, _ in self._wheel_servos],
-                                 [steer.true_position_pulse for _, _, steer, _, _ in self._wheel_servos])
+        speeds, steer = self._wheel_rows([[drive.velocity_radps] for _, drive, _, _, _ in self._wheel_servos],
+                                         [[steer.true_position_pulse] for _, _, steer, _, _ in self._wheel_servos])
+        return [v for v, in speeds], [d for d, in steer]
 
-    def _wheels_from(self, drive_radps: list[float], steer_pulse: list[float]) -> tuple[list[float], list[float]]:
-        """Ground speeds and wheel angles from each wheel's drive :attr:`ServoModel.velocity_radps`
-        and steering :attr:`ServoModel.true_position_pulse` (backlash state advanced)."""
-        speeds, horn = [], []
-        for (w, _, _, r, off), v, pulse in zip(self._wheel_servos, drive_radps, steer_pulse):
-            speeds.append(w.drive_direction * v * r)
-            horn.append(w.steer_direction * (pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
+    def _wheel_rows(self, drive_radps: list[list[float]], steer_pulse: list[list[float]]
+                    ) -> tuple[list[list[float]], list[list[float]]]:
+        """Per wheel, the ground speeds (m/s) and wheel angles (rad) of consecutive steps from the
+        drive servo's :attr:`ServoModel.velocity_radps` and the steering servo's
+        :attr:`ServoModel.true_position_pulse` at those steps (the backlash state advances)."""
+        speeds, steer = [], []
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
-        if half <= 0.0:
-            return speeds, horn
-        if self._wheel_steer_rad is None:
-            self._wheel_steer_rad = list(horn)
-        # the wheel stays where it is until the horn takes up the free play on either side
-        self._wheel_steer_rad = [min(max(s, h - half), h + half) for s, h in zip(self._wheel_steer_rad, horn)]
-        return speeds, list(self._wheel_steer_rad)
+        state, wheels = self._wheel_steer_rad, []
+        for k, ((w, _, _, r, off), vs, pulses) in enumerate(zip(self._wheel_servos, drive_radps, steer_pulse)):
+            direction, sd, center = w.drive_direction, w.steer_direction, w.center_pulse
+            speeds.append([direction * v * r for v in vs])
+            horn = [sd * (p - center) * u.RAD_PER_PULSE - off for p in pulses]
+            if half > 0.0 and horn:
+                wheel = state[k] if state is not None else horn[0]
+                # the wheel stays where it is until the horn takes up the free play on either side
+                for j, h in enumerate(horn):
+                    horn[j] = wheel = min(max(wheel, h - half), h + half)
+                wheels.append(wheel)
+            steer.append(horn)
+        if wheels:
+            self._wheel_steer_rad = wheels
+        return speeds, steer
 
     def traces(self) -> dict[ServoModel, tuple[list | None, list | None]] | None:
         """Empty trace lists ``{model: (speeds, positions)}`` for :meth:`ServoModel.run` (drive
@@ -134,10 +142,11 @@ class RobotPhysics:
         steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
         if any(len(t) != n for t in drive + steer):
             raise ValueError(f"every wheel servo must have recorded {n} steps")
+        speeds, angles = self._wheel_rows(drive, steer)
         body = self.body
         pose = body.pose
-        for k in range(n):
-            pose = body.step(dt_s, *self._wheels_from([t[k] for t in drive], [t[k] for t in steer]))
+        for vs, ds in zip(zip(*speeds), zip(*angles)):
+            pose = body.step(dt_s, vs, ds)
         return pose
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
