@@ -34,7 +34,7 @@ WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_P
 RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
 POSITION_MODE = OperatingMode.POSITION
 #: struct codes by item size and signedness.
-_STRUCT_CODES = {1: {False: "B", True: "b"}, 2: {False: "H", True: "h"}, 4: {False: "I", True: "i"}}
+STRUCT_CODES = {1: {False: "B", True: "b"}, 2: {False: "H", True: "h"}, 4: {False: "I", True: "i"}}
 TIME_BASED_PROFILE_BIT = 0x04
 
 
@@ -154,10 +154,10 @@ class ServoMemory:
         ``struct.pack_into``, if the items lie back to back; ``None`` if not. A value that does not
         fit raises :class:`struct.error` (items before it in address order may be written)."""
         regs = sorted((self.table[n] for n in names), key=lambda r: r.address)
-        if any(r.size not in _STRUCT_CODES for r in regs) or any(
+        if any(r.size not in STRUCT_CODES for r in regs) or any(
                 b.address != a.address + a.size for a, b in zip(regs, regs[1:])):
             return None
-        fmt = struct.Struct("<" + "".join(_STRUCT_CODES[r.size][r.signed] for r in regs))
+        fmt = struct.Struct("<" + "".join(STRUCT_CODES[r.size][r.signed] for r in regs))
         order = [list(names).index(r.name) for r in regs]
         start, buf = regs[0].address, self._bytes
 

@@ -28,6 +28,7 @@ import json
 import logging
 import math
 import os
+import struct
 import time
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -41,6 +42,7 @@ from swerve.driver.robot_config import RobotConfig
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
+from swerve.emulator.memory import STRUCT_CODES
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
 from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
@@ -76,9 +78,14 @@ class _ServoDynamics:
         self.model = model
         self._servo = servo
         self._memory = servo.memory
-        regs = [servo.table[n] for n in _INPUTS]
+        regs = sorted((servo.table[n] for n in _INPUTS), key=lambda r: r.address)
         self._end = max(r.address + r.size for r in regs)
-        self._layout = [(r.name, r.address, r.address + r.size, r.signed) for r in regs]
+        fmt, at = "<", 0                # the items in address order, gaps skipped
+        for r in regs:
+            fmt += "x" * (r.address - at) + STRUCT_CODES[r.size][r.signed]
+            at = r.address + r.size
+        self._names = [r.name for r in regs]
+        self._unpack = struct.Struct(fmt).unpack_from
         self._raw = b""
         self._items: dict[str, int] = {}
 
@@ -88,7 +95,7 @@ class _ServoDynamics:
         raw = self._memory.stored_bytes(self._end)
         if raw != self._raw:
             self._raw = raw
-            self._items = {n: int.from_bytes(raw[a:b], "little", signed=s) for n, a, b, s in self._layout}
+            self._items = dict(zip(self._names, self._unpack(raw)))
         return self._items
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:

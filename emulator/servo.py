@@ -369,6 +369,8 @@ class VirtualServo:
         if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
             return most
         since, limit = self._since_traffic_s, wd * WATCHDOG_UNIT_S
+        if since + (most + 1) * dt_s < limit * (1.0 - 1e-9):
+            return most                 # far from the limit (the margin covers the sums' round-off)
         for k in range(most):           # the same float sums as the steps will make
             since += dt_s
             if since > WATCHDOG_UNIT_S and since > limit:

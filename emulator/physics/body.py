@@ -18,7 +18,8 @@ The pose integrates the twist exactly for a twist held constant over the step.
 from __future__ import annotations
 
 import math
-import operator
+from math import cos, sin
+from operator import mul
 
 import numpy as np
 
@@ -95,9 +96,9 @@ class RobotBody:
         than the sums); the same fit as :meth:`fit_twist` to round-off."""
         w = []
         for v, d in zip(speeds_mps, steer_rad):
-            w += (v * math.cos(d), v * math.sin(d))
-        vx, vy, om = [sum(map(operator.mul, row, w)) for row in self._pinv_rows]
-        self._twist = twist = (vx, vy, om)
+            w += (v * cos(d), v * sin(d))
+        r0, r1, r2 = self._pinv_rows
+        self._twist = twist = (vx, vy, om) = (sum(map(mul, r0, w)), sum(map(mul, r1, w)), sum(map(mul, r2, w)))
         self._fit = (w, twist)
         self.x_m, self.y_m, self.theta_rad = pose = _se2_step(self.x_m, self.y_m, self.theta_rad, vx, vy, om, dt_s)
         return pose
