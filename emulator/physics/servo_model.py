@@ -281,15 +281,16 @@ class ServoModel:
         temp = self.temperature_c
         duty = self.duty
         wrap = self._wrap_pulse
-        prev_key, prev_goal = self._prev_key, self._prev_goal_position
+        # only the first tick can see a new mode or goal (the items do not change during the run)
+        switched = key != self._prev_key
+        new_goal = switched or plan.goal_position != self._prev_goal_position
+        tripped, position_goal = plan.tripped, plan.position_goal
         hold, goal_pulse = self._hold_position, self._goal_pulse
         present = v_meas = 0
         rad_per_pulse, radps_per_vel_unit, pwm_full_scale = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT, u.PWM_FULL_SCALE
         floor = math.floor
         started = self._started
-        ran = 0
-        while ran < n:
-            ran += 1
+        for ran in range(1, n + 1):
             # encoder (:meth:`_encoder_pulse`: the same arithmetic)
             x = sign * (th / gear / rad_per_pulse + enc_off)
             if noise:
@@ -299,7 +300,6 @@ class ServoModel:
                 vf.reset(raw)
                 fy, fdy = vf.y, vf.dy
                 self._started = started = True
-            switched = key != prev_key
             if switched and rewrap_on_switch:
                 self._rewrap(raw)       # Present Position re-wrapped to one turn (+ Homing Offset)
                 wrap = self._wrap_pulse
@@ -328,9 +328,8 @@ class ServoModel:
                     ref = rf.step(dt_s, pvel) if reference_filter else pvel
                     counts, integral = pi_step(integral, ticks, ka, ref - v_meas, kp, ki, 0.0, pwm_lim)
                 elif position_mode:
-                    goal = goal_pulse = plan.position_goal
-                    new_goal = switched or plan.goal_position != prev_goal
-                    if plan.tripped:
+                    goal = goal_pulse = position_goal
+                    if tripped:
                         if hold is None:
                             hold, new_goal = float(present), True
                         goal = goal_pulse = hold
@@ -386,7 +385,7 @@ class ServoModel:
             # winding temperature: first order towards ambient + R_th * I² R
             steady = ambient + r_th * (i_a_ ** 2 * r_arm)
             temp = steady + (temp - steady) * decay
-            prev_key, prev_goal = key, plan.goal_position
+            switched = new_goal = False
             if speeds is not None:
                 speeds.append(sign * (w / gear))
             if positions is not None:
@@ -402,7 +401,7 @@ class ServoModel:
         self.loop.integral = integral
         self.temperature_c = temp
         self.duty = duty
-        self._prev_key, self._prev_goal_position = prev_key, prev_goal
+        self._prev_key, self._prev_goal_position = key, plan.goal_position
         self._hold_position, self._goal_pulse = hold, goal_pulse
         self._last = (table, mode, torque, present, v_meas, sign)
         return ran
