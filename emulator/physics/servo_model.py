@@ -232,10 +232,8 @@ class ServoModel:
         sign = self._sign = plan.sign
         self._homing = homing = plan.homing
         mode, torque, key = plan.mode, plan.torque, plan.key
-        position_mode = mode in u.POSITION_MODES
-        velocity_mode = mode == u.MODE_VELOCITY
-        firmware_mode = torque and (velocity_mode or position_mode or mode == u.MODE_PWM or mode == u.MODE_CURRENT)
-        rewrap_on_switch = torque and mode == u.MODE_POSITION
+        position_mode, velocity_mode, pwm_mode = plan.position_mode, plan.velocity_mode, plan.pwm_mode
+        firmware_mode, rewrap_on_switch = plan.firmware_mode, plan.rewrap_on_switch
         motor = self.motor
         p = motor.params
         gear = motor.gear_ratio
@@ -272,7 +270,7 @@ class ServoModel:
             g = plan.position_gains
             kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
             p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
-            current_position = mode == u.MODE_CURRENT_POSITION
+            current_position = plan.current_position_mode
         i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
         fy, fdy = vf.y, vf.dy
         prof = self.profile
@@ -347,7 +345,7 @@ class ServoModel:
                     if current_position:
                         goal_i = plan.position_current_limit
                         i_ref = max(-goal_i, min(goal_i, counts))
-                elif mode == u.MODE_PWM:
+                elif pwm_mode:
                     counts = plan.pwm_counts
                 else:
                     i_ref = plan.current_ref
@@ -470,7 +468,8 @@ class _InputPlan:
     __slots__ = ("sign", "homing", "mode", "torque", "key", "goal_position", "tripped", "pwm_lim",
                  "current_margin_v", "pwm_counts", "current_ref", "velocity_goal", "velocity_a_max",
                  "velocity_gains", "position_goal", "position_v_max", "position_a_max", "position_gains",
-                 "position_current_limit")
+                 "position_current_limit", "position_mode", "velocity_mode", "pwm_mode", "current_position_mode",
+                 "firmware_mode", "rewrap_on_switch")
 
     def __init__(self, t: Mapping[str, int], resistance_ohm: float, gains):
         self.sign = -1 if t["drive_mode"] & 1 else 1
@@ -478,6 +477,14 @@ class _InputPlan:
         self.mode = mode = t["operating_mode"]
         self.torque = t["torque_enable"] != 0
         self.key = (mode, self.torque, t["drive_mode"])
+        self.position_mode = mode in u.POSITION_MODES
+        self.velocity_mode = mode == u.MODE_VELOCITY
+        self.pwm_mode = mode == u.MODE_PWM
+        self.current_position_mode = mode == u.MODE_CURRENT_POSITION
+        # torque on in a mode the firmware runs loops for; Position mode re-wraps when it starts
+        self.firmware_mode = self.torque and (self.position_mode or self.velocity_mode or self.pwm_mode
+                                              or mode == u.MODE_CURRENT)
+        self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
         self.goal_position = t["goal_position"]
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])
