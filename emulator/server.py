@@ -428,7 +428,8 @@ class Emulator:
         self.stats.packets_received += 1
         try:
             steps = self.clock.stats.steps
-            self.clock.on_request(self, len(pkt.encode()) * self._byte_time_s())
+            wire_s = len(pkt.encode()) * self._byte_time_s()     # the instruction's bytes on the wire
+            self.clock.on_request(self, wire_s)
             if self.observers and self.clock.stats.steps != steps:
                 self._notify()
             with self._lock:
@@ -440,7 +441,7 @@ class Emulator:
                     return
             end_t = rx_t
             if self.wire_timing:
-                end_t = max(rx_t, first_byte_t + len(pkt.encode()) * self._byte_time_s())
+                end_t = max(rx_t, first_byte_t + wire_s)
             self._transmit(replies, end_t)
             if touched:
                 with self._lock:
