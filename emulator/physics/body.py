@@ -94,14 +94,25 @@ class RobotBody:
 
         Scalar arithmetic in Python floats (for four wheels NumPy's per-call overhead costs more
         than the sums); the same fit as :meth:`fit_twist` to round-off."""
-        w = []
-        for v, d in zip(speeds_mps, steer_rad):
-            w += (v * cos(d), v * sin(d))
+        return self.step_many(dt_s, [[v] for v in speeds_mps], [[d] for d in steer_rad])
+
+    def step_many(self, dt_s: float, speeds_mps: list[list[float]], steer_rad: list[list[float]]
+                  ) -> tuple[float, float, float]:
+        """:meth:`step` for consecutive steps: ``speeds_mps[i][k]`` and ``steer_rad[i][k]`` are
+        wheel ``i``'s at step ``k`` (one list per wheel, all of one length)."""
         r0, r1, r2 = self._pinv_rows
-        self._twist = twist = (vx, vy, om) = (sum(map(mul, r0, w)), sum(map(mul, r1, w)), sum(map(mul, r2, w)))
-        self._fit = (w, twist)
-        self.x_m, self.y_m, self.theta_rad = pose = _se2_step(self.x_m, self.y_m, self.theta_rad, vx, vy, om, dt_s)
-        return pose
+        x, y, theta = self.x_m, self.y_m, self.theta_rad
+        w = twist = None
+        for vs, ds in zip(zip(*speeds_mps), zip(*steer_rad)):
+            w = []
+            for v, d in zip(vs, ds):
+                w += (v * cos(d), v * sin(d))
+            twist = (vx, vy, om) = (sum(map(mul, r0, w)), sum(map(mul, r1, w)), sum(map(mul, r2, w)))
+            x, y, theta = _se2_step(x, y, theta, vx, vy, om, dt_s)
+        if twist is not None:
+            self._twist, self._fit = twist, (w, twist)
+            self.x_m, self.y_m, self.theta_rad = x, y, theta
+        return x, y, theta
 
     @property
     def twist(self) -> np.ndarray:

@@ -142,12 +142,7 @@ class RobotPhysics:
         steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
         if any(len(t) != n for t in drive + steer):
             raise ValueError(f"every wheel servo must have recorded {n} steps")
-        speeds, angles = self._wheel_rows(drive, steer)
-        body = self.body
-        pose = body.pose
-        for vs, ds in zip(zip(*speeds), zip(*angles)):
-            pose = body.step(dt_s, vs, ds)
-        return pose
+        return self.body.step_many(dt_s, *self._wheel_rows(drive, steer))
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
