@@ -204,6 +204,7 @@ class Emulator:
         except KeyError as exc:
             raise ConfigError(f"fault for a servo that is not on the bus: {exc.args[0]}") from None
         self._pty: PtyLink | None = None
+        self._packet_baud = 0       # the line speed while an instruction is handled (0: read it)
         self._parser = PacketParser()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
@@ -298,7 +299,10 @@ class Emulator:
             self.servo(id_).raise_hardware_error(bits)
 
     def line_baud(self) -> int:
-        """The line speed the client set on the pty (``baud`` when it reads 0 or unknown)."""
+        """The line speed the client set on the pty (``baud`` when it reads 0 or unknown); while
+        one instruction is handled, the speed read when it arrived."""
+        if self._packet_baud:
+            return self._packet_baud
         speed = self._pty.speed_bps() if self._pty is not None else 0
         return speed if speed in BAUD_RATES else self.baud
 
@@ -426,6 +430,7 @@ class Emulator:
             self.stats.status_packets_ignored += 1
             return
         self.stats.packets_received += 1
+        self._packet_baud = self.line_baud()    # one termios read per instruction
         try:
             steps = self.clock.stats.steps
             wire_s = len(pkt.encode()) * self._byte_time_s()     # the instruction's bytes on the wire
@@ -450,6 +455,8 @@ class Emulator:
         except Exception:  # noqa: BLE001 - one bad packet must never stop the bus
             self.stats.dispatch_errors += 1
             log.debug("error handling %r", pkt, exc_info=True)
+        finally:
+            self._packet_baud = 0
 
     def _byte_time_s(self) -> float:
         return BITS_PER_BYTE / self.line_baud()

@@ -75,6 +75,8 @@ class VirtualServo:
         self._pack_published = (self.memory.packer((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
                                 if all(n in table for n in DYNAMICS_OUTPUTS) else None)
         self._view = self.memory.view()
+        self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
+        self._identity_raw = b""
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
         self.dynamics = dynamics
@@ -88,6 +90,10 @@ class VirtualServo:
     # --- identity used by the bus (changes take effect after the status reply) -------------------
     def apply_pending(self) -> None:
         """Make ID, Secondary ID and Baud Rate changes effective (after the reply went out)."""
+        raw = self.memory.stored_bytes(self._identity_end)
+        if raw == self._identity_raw:
+            return                      # none of the three items changed since the last call
+        self._identity_raw = raw
         self.id = self.memory.get(Reg.ID)
         self.secondary_id = self.memory.get(Reg.SECONDARY_ID)
         self.baud_bps = BAUD_RATES[self.memory.get(Reg.BAUD_RATE)]

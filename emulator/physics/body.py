@@ -94,16 +94,15 @@ class RobotBody:
 
         Scalar arithmetic in Python floats (for four wheels NumPy's per-call overhead costs more
         than the sums); the same fit as :meth:`fit_twist` to round-off."""
-        return self.step_many(dt_s, [[v] for v in speeds_mps], [[d] for d in steer_rad])
+        return self.step_many(dt_s, ((speeds_mps, steer_rad),))
 
-    def step_many(self, dt_s: float, speeds_mps: list[list[float]], steer_rad: list[list[float]]
-                  ) -> tuple[float, float, float]:
-        """:meth:`step` for consecutive steps: ``speeds_mps[i][k]`` and ``steer_rad[i][k]`` are
-        wheel ``i``'s at step ``k`` (one list per wheel, all of one length)."""
+    def step_many(self, dt_s: float, steps) -> tuple[float, float, float]:
+        """:meth:`step` for consecutive steps: ``steps`` yields ``(speeds_mps, steer_rad)`` per
+        step, each a sequence over the wheels."""
         r0, r1, r2 = self._pinv_rows
         x, y, theta = self.x_m, self.y_m, self.theta_rad
         w = twist = None
-        for vs, ds in zip(zip(*speeds_mps), zip(*steer_rad)):
+        for vs, ds in steps:
             w = []
             for v, d in zip(vs, ds):
                 w += (v * cos(d), v * sin(d))

@@ -108,8 +108,12 @@ class RobotPhysics:
         state, wheels = self._wheel_steer_rad, []
         for k, ((w, _, _, r, off), vs, pulses) in enumerate(zip(self._wheel_servos, drive_radps, steer_pulse)):
             direction, sd, center = w.drive_direction, w.steer_direction, w.center_pulse
-            speeds.append([direction * v * r for v in vs])
-            horn = [sd * (p - center) * u.RAD_PER_PULSE - off for p in pulses]
+            sp, horn = [], []           # loops, not comprehensions: cheaper for one step
+            for v in vs:
+                sp.append(direction * v * r)
+            for p in pulses:
+                horn.append(sd * (p - center) * u.RAD_PER_PULSE - off)
+            speeds.append(sp)
             if half > 0.0 and horn:
                 wheel = state[k] if state is not None else horn[0]
                 # the wheel stays where it is until the horn takes up the free play on either side
@@ -142,7 +146,8 @@ class RobotPhysics:
         steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
         if any(len(t) != n for t in drive + steer):
             raise ValueError(f"every wheel servo must have recorded {n} steps")
-        return self.body.step_many(dt_s, *self._wheel_rows(drive, steer))
+        speeds, angles = self._wheel_rows(drive, steer)
+        return self.body.step_many(dt_s, zip(zip(*speeds), zip(*angles)))
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""

@@ -68,7 +68,7 @@ class ServoModel:
         self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.temperature_c = thermal.ambient_c
-        self._heat_dt, self._heat_decay = 0.0, 1.0     # exp(-dt / time constant) for the last dt
+        self._setup: tuple | None = None            # run()'s derived constants (_derive)
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -229,48 +229,25 @@ class ServoModel:
         if not same_inputs or plan is None or table is not self._plan_table:
             plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
             self._plan_table = table
-        sign = self._sign = plan.sign
-        self._homing = homing = plan.homing
-        mode, torque, key = plan.mode, plan.torque, plan.key
-        position_mode, velocity_mode, pwm_mode = plan.position_mode, plan.velocity_mode, plan.pwm_mode
-        firmware_mode, rewrap_on_switch = plan.firmware_mode, plan.rewrap_on_switch
         motor = self.motor
+        setup = self._setup
+        if setup is None or setup[0] is not plan or setup[1] != dt_s or setup[2] != motor.load_inertia_kg_m2:
+            setup = self._setup = self._derive(plan, dt_s)
+        (_, _, _, sign, homing, mode, torque, key, position_mode, velocity_mode, pwm_mode, firmware_mode,
+         rewrap_on_switch, current_position, tripped, position_goal, gear, reference_filter, measure_filtered,
+         pwm_lim, margin, ke, r_arm, tick, ticks, ka, fa00, fa01, fa10, fa11, fb0, fb1,
+         a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max) = setup
+        self._sign, self._homing = sign, homing
         p = motor.params
-        gear = motor.gear_ratio
         enc_off = self.encoder_offset_pulse
         noise = self.sensors.position_noise_std_pulse
         fw = self.fw
-        reference_filter = fw.bessel_placement == "reference"
-        measure_filtered = self._measure_filtered
         supply = self.supply_voltage_v
-        pwm_lim = plan.pwm_lim
-        margin = plan.current_margin_v
-        ke = p.back_emf_v_s_per_rad
-        tick = fw.gain_time_base_s
-        ticks = dt_s / self.loop.tick_s
-        ka = self.loop.ka
         vf, rf = self.velocity_filter, self.reference_filter
-        if dt_s != vf._dt_s:
-            vf.prepare(dt_s)
-        ((fa00, fa01), (fa10, fa11)), (fb0, fb1) = vf._coef
         linear = motor.friction is None and not motor.blocked
         tau = motor.load_torque_nm / gear
-        (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
-         ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
-        ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
-        th_ = self.thermal
-        if dt_s != self._heat_dt:
-            self._heat_dt, self._heat_decay = dt_s, math.exp(-dt_s / th_.time_constant_s)
-        decay, ambient, r_th, r_arm = self._heat_decay, th_.ambient_c, th_.thermal_resistance_k_per_w, p.resistance_ohm
         protection = self.protection
-        if velocity_mode:
-            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
-            kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
-        elif position_mode:
-            g = plan.position_gains
-            kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
-            p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
-            current_position = plan.current_position_mode
         i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
         fy, fdy = vf.y, vf.dy
         prof = self.profile
@@ -282,7 +259,6 @@ class ServoModel:
         # only the first tick can see a new mode or goal (the items do not change during the run)
         switched = key != self._prev_key
         new_goal = switched or plan.goal_position != self._prev_goal_position
-        tripped, position_goal = plan.tripped, plan.position_goal
         hold, goal_pulse = self._hold_position, self._goal_pulse
         present = v_meas = 0
         rad_per_pulse, radps_per_vel_unit, pwm_full_scale = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT, u.PWM_FULL_SCALE
@@ -403,6 +379,37 @@ class ServoModel:
         self._hold_position, self._goal_pulse = hold, goal_pulse
         self._last = (table, mode, torque, present, v_meas, sign)
         return ran
+
+    def _derive(self, plan: "_InputPlan", dt_s: float) -> tuple:
+        """What :meth:`run` needs besides the state, for input items ``plan`` and steps of
+        ``dt_s`` at the present load inertia, as one flat tuple (in :meth:`run`'s unpacking order):
+        plan, step and inertia (the key), then mode flags, limits, gains, and the discrete
+        filter, motor (driven, coasting) and thermal coefficients."""
+        motor, fw, th = self.motor, self.fw, self.thermal
+        p = motor.params
+        vf = self.velocity_filter
+        if dt_s != vf._dt_s:
+            vf.prepare(dt_s)
+        ((fa00, fa01), (fa10, fa11)), (fb0, fb1) = vf._coef
+        (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
+         ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
+        ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
+        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = None
+        if plan.velocity_mode:
+            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
+            kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
+        elif plan.position_mode:
+            g = plan.position_gains
+            kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
+            p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
+        return (plan, dt_s, motor.load_inertia_kg_m2, plan.sign, plan.homing, plan.mode, plan.torque, plan.key,
+                plan.position_mode, plan.velocity_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
+                plan.current_position_mode, plan.tripped, plan.position_goal, motor.gear_ratio,
+                fw.bessel_placement == "reference", self._measure_filtered, plan.pwm_lim, plan.current_margin_v,
+                p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s, self.loop.ka,
+                fa00, fa01, fa10, fa11, fb0, fb1, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21,
+                c00, c01, c10, c11, cb0, cb1, math.exp(-dt_s / th.time_constant_s), th.ambient_c,
+                th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max)
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
