@@ -30,7 +30,7 @@ from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber
                             parse_sync_read, parse_sync_write)
 from swerve.driver.parser import PacketParser
 
-from swerve.emulator.clock import ClockStats, FrozenClock, HandOverLock, PhysicsClock
+from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
 from swerve.emulator.pty_link import PtyLink
@@ -53,6 +53,8 @@ DEFAULT_IDS = tuple(range(1, 9))
 DEFAULT_MODEL = "xh430-w210"
 DEFAULT_BAUD = 1_000_000
 BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
+#: Most physics steps :meth:`Emulator.step_many` runs under one hold of the lock (~2 ms of CPU).
+MAX_STEPS_PER_HOLD = 100
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
 #: A reply that is not the last of an exchange may go out this early instead of sleeping
 #: for it (timer slack would otherwise add up over 8 replies); the last one is never early.
@@ -681,10 +683,16 @@ class Emulator:
                 observer(self)
 
     def step_many(self, dt_s: float, n: int) -> None:
-        """``n`` clock steps of ``dt_s`` simulated s under one hold of the lock; the same result
-        as ``n`` calls of :meth:`step` (nothing from the bus can come in between)."""
-        with self._lock:
-            self._ticks(dt_s, n)
+        """``n`` clock steps of ``dt_s`` simulated s; the same result as ``n`` calls of
+        :meth:`step` (nothing from the bus can come in between). The lock is held for at most
+        :data:`MAX_STEPS_PER_HOLD` steps at a time, and handed over when another thread waits."""
+        while n > 0:
+            k = min(n, MAX_STEPS_PER_HOLD)
+            with self._lock:
+                self._ticks(dt_s, k)
+            n -= k
+            if n and self.lock_wanted():
+                time.sleep(HAND_OVER_S)
 
     def _tick(self, dt_s: float) -> None:
         for s in self.servos:

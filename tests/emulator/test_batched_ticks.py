@@ -181,3 +181,17 @@ def test_unbatchable_worlds_step_tick_by_tick(monkeypatch, profile):
     a, b, batched_runs = _runs(monkeypatch, _by_advance, profile=profile, body=True, noise=noise)
     assert batched_runs == 0
     assert a == b
+
+
+def test_lockstep_jump_equals_single_ticks():
+    """A jump of 0.35 s: several holds of the lock (MAX_STEPS_PER_HOLD) and a watchdog trip."""
+    clock = LockstepClock(RATE_HZ)
+    batched, stepped = _emulator("ideal", True), _emulator("ideal", True)
+    for emu, modes in (batched, stepped):
+        _commands(emu, modes, 3)
+    clock.advance_to(batched[0], 0.35)
+    for _ in range(350):
+        stepped[0].step(1.0 / RATE_HZ)
+    snap = _snapshot(batched[0])
+    assert snap == _snapshot(stepped[0])
+    assert {r[0]: r for r in snap[3:]}[WATCHDOG_ID][4] == -1       # the watchdog tripped during the jump
