@@ -344,7 +344,7 @@ class VirtualServo:
                 m.stale = True
                 done += 1
                 continue
-            ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1), traces)
+            ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
             if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
                 tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
                 for _ in range(ran - 1):

@@ -162,9 +162,8 @@ class RobotPhysics:
         seen by the servos from their next step."""
         pose = self.body.step(dt_s, *self._wheel_state())
         if isinstance(self.body, ContactBody):
-            for w, r, f in zip(self.geometry.wheels, self.wheel_radius_m, self.body.force_long_n):
-                s = self.servos[w.drive_id]
-                s.external_load(w.drive_direction * s.frame_sign * r * float(f))
+            for (w, s, _, r, _), f in zip(self._wheel_servos, self.body.force_long_list_n):
+                s.external_load(w.drive_direction * s.frame_sign * r * f)
         sup = self.cfg.supply
         if sup.enabled:
             current = sum(s.supply_current_a for s in self.servos.values()) + sup.idle_current_a * len(self.servos)
