@@ -99,9 +99,12 @@ def test_a_background_sleep_lets_the_client_work_and_reports_when_it_was_asked(b
 
 def test_any_request_collects_a_pending_sleep_first(bus_in_lockstep):
     emu, bus, clock = bus_in_lockstep
+    bus.ping(1)
+    t0 = clock.now()
     clock.start_sleep(0.005)
-    assert clock.counters()["packets_received"] == 0                # answered in order
+    assert clock.counters()["packets_received"] == 1                # answered in order
     assert clock.now() == 0.005 and emu.clock.stats.steps == 5
+    assert clock.end_sleep() == t0                                  # the sleep still ends once
 
 
 def test_now_brings_the_true_pose_with_it():

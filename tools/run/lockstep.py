@@ -58,6 +58,7 @@ class LockstepClock:
         self._known = False             # _now_s is the emulator's time (no request since)
         self._pose: tuple[float, float, float] | None = None   # true pose at _now_s, if asked
         self._pending: str | None = None    # a request sent whose answer is not read yet
+        self._asked_s: float | None = None  # robot time when the last advance was asked, until ended
         self._pace_start: tuple[float, float] | None = None    # (robot s, wall s) when pacing started
         self.requests = 0
         self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
@@ -82,9 +83,15 @@ class LockstepClock:
         self._pending = request
 
     def _answer_pending(self) -> None:
-        """Collect the answer to a :meth:`start_sleep` not yet ended."""
-        if self._pending is not None:   # only an advance is ever left pending
-            self.end_sleep()
+        """Collect the answer to a :meth:`start_sleep` (the only request ever left pending)."""
+        if self._pending is None:
+            return
+        words = self._answer()
+        self._now_s = float(words[1])
+        self._known = True
+        self._asked_s = float(words[2]) if len(words) > 2 else self._now_s
+        if self.time_scale is not None:
+            self._pace()
 
     def _answer(self) -> list[str]:
         request, self._pending = self._pending, None
@@ -124,20 +131,16 @@ class LockstepClock:
         may work meanwhile but must write nothing to the pty before :meth:`end_sleep` (any other
         request ends the sleep first)."""
         self._send(f"advance {t!r} {self._delta()}")
-        self._known, self._pose = False, None
+        self._known, self._pose, self._asked_s = False, None, None
 
     def end_sleep(self) -> float:
         """Wait for the advance asked by :meth:`start_sleep` (the physics then stands at ``t``);
         with a time scale, also until the wall clock has caught up. Returns the robot time when
         the advance was asked, s (every byte written before it served)."""
-        if self._pending is None or not self._pending.startswith("advance "):
+        self._answer_pending()
+        if self._asked_s is None:
             raise LockstepError("end_sleep() without start_sleep()")
-        words = self._answer()
-        self._now_s = float(words[1])
-        self._known = True
-        asked_s = float(words[2]) if len(words) > 2 else self._now_s
-        if self.time_scale is not None:
-            self._pace()
+        asked_s, self._asked_s = self._asked_s, None
         return asked_s
 
     def sleep_until(self, t: float) -> None:
