@@ -231,7 +231,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
         emulator = EmulatorStats(bus_stats.get("replies_dropped", 0),
                                  None if req.lockstep else clock_stats.get("achieved_scale"),
-                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"))
+                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"),
+                                 emu.final_stats.get("serve_cpu_s"))
     elif counters is not None:
         emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
     aborted = result.aborted
