@@ -126,6 +126,27 @@ def test_now_brings_the_true_pose_with_it():
             assert clock.requests == n + 2
 
 
+def test_the_time_after_a_read_can_be_asked_while_its_reply_is_on_the_way():
+    robot = load_robot_config(shipped("robot.yaml"))
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.attach(bus)
+            clock.sleep_until(0.1)
+            n = clock.requests
+            clock.ask_after_next_write()
+            bus.ping(3)                                 # the request goes out with the ping
+            assert clock.requests == n + 1
+            t, pose = clock.now(), clock.pose()
+            assert clock.requests == n + 1              # both came with it
+            delay = emu.servo(3).return_delay_s
+            assert t == pytest.approx(0.1 + (10 + 14) * BYTE_S + delay + DEFAULT_REPLY_LATENCY_S, abs=1e-12)
+            assert pose == emu.pose
+            bus.ping(3)                                 # not armed again: written() sends nothing
+            assert clock.requests == n + 1
+            assert clock.now() > t and clock.requests == n + 2
+
+
 def test_bad_requests_get_an_error_line_and_the_channel_keeps_serving(bus_in_lockstep):
     emu, bus, clock = bus_in_lockstep
     with pytest.raises(LockstepError, match="unknown request"):

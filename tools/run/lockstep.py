@@ -5,11 +5,14 @@ emulator to advance its physics to ``t`` (after it has taken every byte the driv
 pty), and ``now()`` is the emulator's robot time, which includes the wire time of every bus
 exchange. The protocol is in :mod:`swerve.emulator.control` and emulator/README.md.
 
-Each request is a process hand-over, so the clock asks as little as it can: ``now()`` asks
-``pose`` (time and true pose in one answer) and ``pose()`` reuses that answer while no byte has
-been written since; ``start_sleep(t)`` sends ``advance`` without waiting, so the caller can work
-(e.g. write its log) while the emulator runs the physics, and the answer is read by the next
-call that needs the emulator. The caller must not write to the pty in between.
+Each request is a process hand-over, so the clock asks as little as it can, two requests per
+control cycle: ``now()`` asks ``pose`` (time and true pose in one answer) and ``pose()`` reuses
+that answer while no byte has been written since; with the bus attached (:meth:`attach`),
+``ask_after_next_write()`` sends that request the moment the read's instruction has gone out,
+so the emulator answers it in the same turn as the read; ``start_sleep(t)`` sends ``advance``
+without waiting, so the caller can work (e.g. write its log) while the emulator runs the
+physics, and the answer is read by the next call that needs the emulator (the caller must not
+write to the pty in between).
 """
 from __future__ import annotations
 
@@ -63,6 +66,7 @@ class LockstepClock:
         self.requests = 0
         self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
         self._has_body = bool(self.emulator.get("body", 0))
+        self._attached = self._armed = False
 
     def count_tx(self, tx_bytes: Callable[[], int]) -> None:
         """Count the bytes written to the pty with ``tx_bytes()`` from now on (the barrier)."""
@@ -83,8 +87,11 @@ class LockstepClock:
         self._pending = request
 
     def _answer_pending(self) -> None:
-        """Collect the answer to a :meth:`start_sleep` (the only request ever left pending)."""
+        """Collect the answer to a request left pending (:meth:`start_sleep`, :meth:`written`)."""
         if self._pending is None:
+            return
+        if self._pending.startswith("pose "):
+            self._take_pose(self._answer())
             return
         words = self._answer()
         self._now_s = float(words[1])
@@ -179,10 +186,31 @@ class LockstepClock:
         return self._pose
 
     def _ask_pose(self) -> None:
-        words = self._ask(f"pose {self._delta()}")
+        self._take_pose(self._ask(f"pose {self._delta()}"))
+
+    def _take_pose(self, words: list[str]) -> None:
         self._now_s = float(words[1])
         self._pose = (float(words[2]), float(words[3]), float(words[4]))
         self._known = True
+
+    def ask_after_next_write(self) -> None:
+        """Have :meth:`written` ask for the time and pose right after the next instruction is
+        sent (the emulator answers once it has served it), so the :meth:`now` that follows its
+        reply costs no extra round trip. Needs the bus's write callback (:meth:`attach`)."""
+        self._armed = self._has_body and self._attached
+
+    def written(self) -> None:
+        """The bus's after-write callback: sends the request :meth:`ask_after_next_write` armed."""
+        if self._armed:
+            self._armed = False
+            self._send(f"pose {self._delta()}")
+
+    def attach(self, bus) -> None:
+        """Count the bytes ``bus`` (a :class:`swerve.driver.bus.Bus`) writes to the pty and
+        hear of each write (``bus.call_after_write``)."""
+        self.count_tx(lambda: bus.bytes_written)
+        bus.call_after_write(self.written)
+        self._attached = True
 
     def fault(self, what: str, *args) -> None:
         """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,

@@ -137,6 +137,8 @@ class TrackingLoop:
         self.on_cycle = on_cycle
         self.clock = WallClock() if clock is None else clock
         self._stamp_ns = getattr(self.clock, "stamp_ns", time.time_ns)
+        # a lockstep clock can ask for the time after a read while the reply is on its way
+        self._before_read = getattr(self.clock, "ask_after_next_write", lambda: None)
         self.count_host_cpu = bool(count_host_cpu)
         self.fault_policy = fault_policy
         self.failed_reads = 0
@@ -238,6 +240,7 @@ class TrackingLoop:
                                         f"reference clock stands at {law.reference_time_s:.1f} of "
                                         f"{law.reference.tf_s:.1f} s; stopping", "diverged")
                     self._touch_bus()
+                    self._before_read()
                     try:
                         st = self._read()
                     except LoopAbort as exc:

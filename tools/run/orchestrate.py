@@ -190,7 +190,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         fault_policy = policy(req.on_servo_fault, clock=clock, **margin)
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         if clock is not None:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)
         # its exit stops the wheels and turns the torque off: a stop signal waits for it
         wheels = stack.enter_context(shielded_exit(WheelSet(bus, cfg, fast=req.fast_read)))
         wheels.configure()
