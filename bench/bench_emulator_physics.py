@@ -10,8 +10,8 @@ Usage::
 
 1. **Cost.** ``robot_emulator(time_scale=0)``; all eight loops busy (4 drives at 0.1 m/s, 4
    steering servos sweeping ±0.3 rad, set through the bus with WheelSet), one read and one write
-   per 16 ms of robot time as in a run; ``emu.advance`` over 10 s; CPU (``process_time``) per
-   simulated second; real-time factor = simulated s / CPU s. The served runs below also report
+   per 16 ms of robot time as in a run; ``emu.advance`` over 10 s; CPU of the calling thread
+   (``thread_time``) per simulated second; real-time factor = simulated s / CPU s. The served runs below also report
    the clock's own real-time factor (CPU of the physics steps in the bus thread).
 2. **Max time scale.** The emulator runs in a child process (``--serve``), the client
    (WheelSet.read_state + write_goals) in this one, one cycle every 16 ms / S of wall time for
@@ -75,19 +75,22 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
             Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
         wheels.configure()
         wheels.enable()
-        cpu = wall = 0.0
+        cycles, wall = [], 0.0
         n = round(seconds / CYCLE_S)
         for k in range(n + 10):
             wheels.write_goals(*goals(cfg, k * CYCLE_S))
             wheels.read_state()
-            c0, w0 = time.process_time(), time.perf_counter()
+            c0, w0 = time.thread_time(), time.perf_counter()
             emu.advance(CYCLE_S)
             if k >= 10:                                   # the first cycles warm the caches
-                cpu += time.process_time() - c0
+                cycles.append(time.thread_time() - c0)
                 wall += time.perf_counter() - w0
         sim = n * CYCLE_S
+        cpu = sum(cycles)
+        med = float(np.median(cycles))
         return {"rate_hz": emu.rate_hz, "cpu_per_sim_s": cpu / sim, "rtf": sim / cpu, "wall_rtf": sim / wall,
-                "tick_us": 1e6 * cpu / (sim * emu.rate_hz)}
+                "tick_us": 1e6 * cpu / (sim * emu.rate_hz), "median_cycle_ms": 1e3 * med,
+                "median_tick_us": 1e6 * med / round(CYCLE_S * emu.rate_hz), "median_rtf": CYCLE_S / med}
 
 
 def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str = "ideal") -> dict[str, float]:
@@ -95,8 +98,9 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
     ``swerve emulate --ids 1-N`` has them: even IDs in Velocity mode at 100 units, odd IDs in
     Position mode stepping ±512 pulse every 0.5 s; per cycle the goals written as a Sync Write's
     entries, then (timed) ``emu.advance(16 ms)`` and every servo's Present Current .. Present
-    Position read as a Sync Read's entries (no pty, no packets). CPU (``process_time``) per
-    cycle, per physics tick and per servo-tick."""
+    Position read as a Sync Read's entries (no pty, no packets). CPU of the calling thread
+    (``thread_time``) per cycle, per physics tick and per servo-tick: the median over the
+    cycles (``mean_rtf``: from the mean)."""
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.robot_emulator import build_emulator
 
@@ -111,21 +115,23 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
     first = table[Reg.PRESENT_CURRENT].address                  # present current .. present position
     length = table[Reg.PRESENT_POSITION].address + 4 - first
     n = round(seconds / CYCLE_S)
-    cpu = 0.0
+    cycles = []
     for k in range(n + 10):
         goal = 2048 + (512 if (k * CYCLE_S) % 1.0 < 0.5 else -512)
         for s in emu.servos:                              # a Sync Write's entries
             s.bus_write(gv, (100).to_bytes(4, "little", signed=True))
             s.bus_write(gp, goal.to_bytes(4, "little", signed=True))
-        c0 = time.process_time()
+        c0 = time.thread_time()
         emu.advance(CYCLE_S)
         for s in emu.servos:                              # a Sync Read's entries
             s.read_status(first, length)
         if k >= 10:
-            cpu += time.process_time() - c0
-    ticks = n * round(CYCLE_S * emu.rate_hz)
-    return {"servos": n_servos, "rate_hz": emu.rate_hz, "cycle_ms": 1e3 * cpu / n, "tick_us": 1e6 * cpu / ticks,
-            "servo_tick_us": 1e6 * cpu / ticks / n_servos, "rtf": n * CYCLE_S / cpu}
+            cycles.append(time.thread_time() - c0)
+    per_cycle = float(np.median(cycles))
+    ticks = round(CYCLE_S * emu.rate_hz)
+    return {"servos": n_servos, "rate_hz": emu.rate_hz, "cycle_ms": 1e3 * per_cycle, "tick_us": 1e6 * per_cycle / ticks,
+            "servo_tick_us": 1e6 * per_cycle / ticks / n_servos, "rtf": CYCLE_S / per_cycle,
+            "mean_rtf": n * CYCLE_S / sum(cycles)}
 
 
 # --- 2. served emulator + client cycle -------------------------------------------------------------
@@ -282,16 +288,18 @@ def main(argv=None) -> int:
     print(f"date {time.strftime('%Y-%m-%d')}, nproc {os.cpu_count()}, CPU {cpu_model()!r}, "
           f"Python {platform.python_version()}, load {os.getloadavg()}")
     if args.bank:
-        print(f"\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor |")
+        print("\nCPU time of the calling thread per 16 ms cycle: median over the cycles (mean in brackets; "
+              "neighbours on a shared machine inflate the mean)")
+        print(f"\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor (mean) |")
         print("|---|---|---|---|---|")
         for n in (int(x) for x in args.bank.split(",")):
             b = cost_bank(n, args.cost_seconds, args.rate)
-            print(f"| {n} | {b['cycle_ms']:.3f} | {b['tick_us']:.1f} | {b['servo_tick_us']:.2f} | {b['rtf']:.1f} |",
-                  flush=True)
+            print(f"| {n} | {b['cycle_ms']:.3f} | {b['tick_us']:.1f} | {b['servo_tick_us']:.2f} | {b['rtf']:.1f} "
+                  f"({b['mean_rtf']:.1f}) |", flush=True)
         c = cost_in_process(args.cost_seconds, args.rate)
         print(f"\nthe robot (8 servos + body, a run's bus traffic), {c['rate_hz']:.0f} Hz: "
-              f"{1e3 * c['cpu_per_sim_s'] * CYCLE_S:.3f} ms CPU per 16 ms cycle, {c['tick_us']:.1f} us per tick, "
-              f"real-time factor {c['rtf']:.1f}")
+              f"{c['median_cycle_ms']:.3f} ms CPU per 16 ms cycle, {c['median_tick_us']:.1f} us per tick, "
+              f"real-time factor {c['median_rtf']:.1f} (mean {c['tick_us']:.1f} us per tick, {c['rtf']:.1f})")
         print(f"load after: {os.getloadavg()}")
         return 0
     c = cost_in_process(args.cost_seconds, args.rate)

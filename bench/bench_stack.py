@@ -46,6 +46,7 @@ def main() -> None:
               "| loop period p50 / max ms (robot) | overruns | host CPU per cycle p50 / p99 ms "
               "| host-CPU overruns | rms / final error mm | completed | load 1 min before / after |")
         print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+        breakdown = []
         for k in range(args.repeat):
             log = Path(tmp.name) / f"run_{k}" if args.log else None
             load0 = os.getloadavg()[0]
@@ -59,6 +60,14 @@ def main() -> None:
                   f"{1e3 * s['rms_position_error_m']:.1f} / {1e3 * s['final_position_error_m']:.1f} | "
                   f"{'yes' if s.get('completed') else 'no: ' + str(s.get('abort_cause'))} | "
                   f"{load0:.1f} / {os.getloadavg()[0]:.1f} |", flush=True)
+            breakdown.append(_cycle_breakdown(k + 1, s))
+        print("\nWhere one cycle's wall time goes, ms per 16 ms cycle (means over the run; the two "
+              "processes mostly take turns, so the rest is hand-overs between them and waiting):")
+        print("| run | wall | controller process (loop CPU, log included) | emulator process | "
+              "of which physics | emulator bus, control, select | rest |")
+        print("|---|---|---|---|---|---|---|")
+        for row in breakdown:
+            print(row)
         return
     print("| time scale | period target ms | p50 / p99 / max ms | overruns | missed slots | controller CPU % "
           "| emulator achieved scale | lost sim s | rms / final error mm | completed |")
@@ -76,6 +85,17 @@ def main() -> None:
               f"{1e3 * s.get('rms_position_error_m', float('nan')):.1f} / "
               f"{1e3 * s.get('final_position_error_m', float('nan')):.1f} | "
               f"{'yes' if s.get('completed') else 'no: ' + str(s.get('abort_cause'))} |", flush=True)
+
+
+def _cycle_breakdown(run: int, s: dict) -> str:
+    """One Markdown row: a lockstep run's wall time per cycle split by process (ms)."""
+    n = s["cycles"]
+    wall = 1e3 * s["wall_time_s"] / n
+    client = s["host_cpu_p50_ms"]
+    emu = 1e3 * s["emulator_cpu_s"] / n if s.get("emulator_cpu_s") is not None else float("nan")
+    physics = s["loop_period_target_ms"] / s["emulator_physics_real_time_factor"]
+    return (f"| {run} | {wall:.2f} | {client:.2f} | {emu:.2f} | {physics:.2f} | {emu - physics:.2f} | "
+            f"{wall - client - emu:.2f} |")
 
 
 if __name__ == "__main__":

@@ -26,7 +26,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Sequence
 
 from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
@@ -149,6 +149,11 @@ class Bus:
     def bytes_written(self) -> int:
         """Bytes sent to the port since it was opened (what a lockstep clock's barrier counts)."""
         return self._transport.bytes_written
+
+    def call_after_write(self, callback: Callable[[], None] | None) -> None:
+        """Call ``callback()`` each time an instruction's bytes have been sent, before its reply
+        is awaited (a lockstep clock announces them to its emulator then); None: stop."""
+        self._transport.after_write = callback
 
     # --- models ------------------------------------------------------------------------------
 

@@ -23,6 +23,7 @@ import select
 import termios
 import time
 import warnings
+from typing import Callable
 
 import serial
 
@@ -142,6 +143,9 @@ class Transport:
                 self._fd = None
         #: Bytes handed to the port since it was opened (a lockstep barrier counts on it).
         self.bytes_written = 0
+        #: Called after each :meth:`write` has sent all its bytes (e.g. a lockstep clock
+        #: announcing them to its emulator while the reply is on its way); None: nothing.
+        self.after_write: Callable[[], None] | None = None
         #: Latency timer of the adapter in ms (0 when not a ttyUSB).
         self.latency_timer_ms = latency_timer_ms(url) or 0 if "://" not in url else 0
 
@@ -180,24 +184,30 @@ class Transport:
                 if n is not None and n != len(data):
                     raise self._failed("write", f"only {n} of {len(data)} bytes sent")
                 self.bytes_written += len(data)
-                return
-            termios.tcflush(fd, termios.TCIFLUSH)
-            view, deadline = memoryview(data), None
-            while view:
-                try:
-                    n = os.write(fd, view)
-                    self.bytes_written += n
-                    view = view[n:]
-                except BlockingIOError:  # output queue full: wait until it drains
-                    deadline = deadline or time.monotonic() + max(1.0, len(data) * 20 / self.baud)
-                    remaining = deadline - time.monotonic()
-                    if remaining <= 0 or not select.select([], [fd], [], remaining)[1]:
-                        raise self._failed("write", f"{len(view)} of {len(data)} bytes not sent "
-                                                    f"in time") from None
+            else:
+                self._write_fd(fd, data)
         except TransportError:
             raise
         except _PORT_ERRORS as exc:
             raise self._failed("write", exc) from None
+        if self.after_write is not None:
+            self.after_write()
+
+    def _write_fd(self, fd: int, data: bytes) -> None:
+        """Send ``data`` on the non-blocking descriptor, waiting (bounded) while its queue is full."""
+        termios.tcflush(fd, termios.TCIFLUSH)
+        view, deadline = memoryview(data), None
+        while view:
+            try:
+                n = os.write(fd, view)
+                self.bytes_written += n
+                view = view[n:]
+            except BlockingIOError:  # output queue full: wait until it drains
+                deadline = deadline or time.monotonic() + max(1.0, len(data) * 20 / self.baud)
+                remaining = deadline - time.monotonic()
+                if remaining <= 0 or not select.select([], [fd], [], remaining)[1]:
+                    raise self._failed("write", f"{len(view)} of {len(data)} bytes not sent "
+                                                f"in time") from None
 
     def _read_chunk(self, remaining_s: float) -> bytes:
         """Whatever arrives within ``remaining_s`` (``b""`` if nothing); raises TransportError."""

@@ -6,12 +6,13 @@ by the emulator's bus thread, between requests, so time, bus and physics change 
 
 Protocol (ASCII lines, one reply line per request; times in s as Python ``repr`` floats)::
 
-    advance <t_s> <tx_bytes>   ->  at <now_s>                 robot time moved to max(now, t_s)
+    advance <t_s> <tx_bytes>   ->  at <now_s> <asked_s>       robot time moved to max(now, t_s)
+                                                              from asked_s (after the bytes)
     now <tx_bytes>             ->  at <now_s>
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
     fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
     stats                      ->  stats <key> <int> ...      the bus counters (replies_dropped, ...)
-    info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps>
+    info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> body <0|1>
     (anything else)            ->  error <text>
 
 ``BITS`` of ``hwerror`` are ``+``-separated names (``overload+overheating``) or an integer. A
@@ -42,6 +43,7 @@ class ControlledBus(Protocol):
     """What the channel needs from :class:`swerve.emulator.server.Emulator`."""
 
     rx_bytes: int
+    world: object | None        # the robot body (None: a bus without one, so no pose)
 
     def receive_until(self, rx_bytes: int, timeout_s: float) -> bool:
         """Serve the pty until ``rx_bytes`` bytes have arrived in all; False on timeout."""
@@ -127,7 +129,7 @@ class ControlServer:
         cmd, args = (words[0], words[1:]) if words else ("", [])
         try:
             if cmd == "info" and not args:
-                return f"info {bus.control_info()}"
+                return f"info {bus.control_info()} body {int(bus.world is not None)}"
             if cmd == "stats" and not args:
                 return "stats " + " ".join(f"{k} {v}" for k, v in bus.counters().items())
             if cmd == "fault" and len(args) >= 3:
@@ -148,7 +150,8 @@ class ControlServer:
                 bus.inject_fault(fault[0], fault[1:])
                 return "ok"
             if cmd == "advance":
-                return f"at {bus.advance_to(float(args[0]))!r}"
+                asked = bus.robot_time_s()
+                return f"at {bus.advance_to(float(args[0]))!r} {asked!r}"
             if cmd == "now":
                 return f"at {bus.robot_time_s()!r}"
             t, (x, y, theta) = bus.true_state()

@@ -15,8 +15,9 @@ A write is checked completely before any byte changes (all or nothing).
 """
 from __future__ import annotations
 
+import struct
 from dataclasses import dataclass
-from typing import Callable, Iterable, Iterator, Mapping
+from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
 from swerve.driver.control_table import ControlTable, Reg, Register
 from swerve.driver.errors import RegisterError
@@ -32,6 +33,8 @@ WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_P
 #: Factory Reset options: which items survive.
 RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
 POSITION_MODE = OperatingMode.POSITION
+#: struct codes by item size and signedness.
+STRUCT_CODES = {1: {False: "B", True: "b"}, 2: {False: "H", True: "h"}, 4: {False: "I", True: "i"}}
 TIME_BASED_PROFILE_BIT = 0x04
 
 
@@ -80,6 +83,9 @@ class ServoMemory:
                 self._addr_slot[slot.address] = slot
                 self._addr_slot[slot.address + 1] = slot
                 self._data_slot[slot.data] = slot
+        # addresses a bus access must resolve byte by byte (indirect data and address items)
+        special = [*self._data_slot, *self._addr_slot]
+        self._special_lo, self._special_hi = (min(special), max(special)) if special else (self.size, -1)
         self.watchdog_tripped = False
         self.publisher: Callable[[], None] | None = None
         self.published: frozenset[str] = frozenset()
@@ -143,6 +149,22 @@ class ServoMemory:
         except (KeyError, OverflowError):
             self._put(self.table[name], raw)       # raises RegisterError / OutOfRangeError
 
+    def packer(self, names: Sequence[str]) -> Callable[[Sequence[int]], None] | None:
+        """A writer of raw values for the items ``names`` (values in that order) with one
+        ``struct.pack_into``, if the items lie back to back; ``None`` if not. A value that does not
+        fit raises :class:`struct.error` (items before it in address order may be written)."""
+        regs = sorted((self.table[n] for n in names), key=lambda r: r.address)
+        if any(r.size not in STRUCT_CODES for r in regs) or any(
+                b.address != a.address + a.size for a, b in zip(regs, regs[1:])):
+            return None
+        fmt = struct.Struct("<" + "".join(STRUCT_CODES[r.size][r.signed] for r in regs))
+        order = [list(names).index(r.name) for r in regs]
+        start, buf = regs[0].address, self._bytes
+
+        def write(values: Sequence[int]) -> None:
+            fmt.pack_into(buf, start, *[values[k] for k in order])
+        return write
+
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
 
@@ -184,6 +206,8 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.ACCESS,
                                 f"read {address}+{length} outside the table (0..{self.size - 1})")
         self.publish()
+        if address + length <= self._special_lo or address > self._special_hi:
+            return bytes(self._bytes[address:address + length])     # no indirect data in the range
         out = bytearray(self._bytes[address:address + length])
         for a in range(address, address + length):
             slot = self._data_slot.get(a)
@@ -204,6 +228,9 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
         if address < 0 or address + len(data) > self.size:
             raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
+        new_values = self._whole_items(address, data)
+        if new_values is not None:      # whole plain items: steps 1-2 have nothing to do
+            return self._check_and_apply(new_values, {})
         # 1. resolve indirect data bytes to their targets; collect per-item byte patches
         direct: dict[int, int] = {}
         via_indirect: dict[int, int] = {}
@@ -248,10 +275,29 @@ class ServoMemory:
             for a, b in bytes_.items():
                 raw[a - reg.address] = b
             new_values[reg] = reg.decode(bytes(raw))
+        return self._check_and_apply(new_values, new_slots)
+
+    def _whole_items(self, address: int, data: bytes) -> dict[Register, int] | None:
+        """``{item: new raw value}`` if ``data`` covers whole items only and no indirect byte;
+        ``None`` otherwise (the general path then finds the error or the indirect targets)."""
+        end = address + len(data)
+        if not (end <= self._special_lo or address > self._special_hi):
+            return None
+        out: dict[Register, int] = {}
+        a = address
+        while a < end:
+            reg = self._owner[a]
+            if reg is None or reg.address != a or a + reg.size > end:
+                return None
+            out[reg] = reg.decode(bytes(data[a - address:a - address + reg.size]))
+            a += reg.size
+        return out
+
+    def _check_and_apply(self, new_values: dict[Register, int], new_slots: dict[_Slot, int]) -> list[str]:
+        """Steps 3 and 4 of :meth:`write`: the item rules, then the new values and indirect addresses."""
         torque_on = self.get(Reg.TORQUE_ENABLE) == 1
         for reg, value in new_values.items():
             self._check(reg, value, torque_on, new_values)
-        # 4. apply
         for reg, value in new_values.items():
             self._put(reg, value)
         for slot, v in new_slots.items():

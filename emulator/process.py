@@ -24,6 +24,7 @@ from __future__ import annotations
 import multiprocessing as mp
 import os
 import signal
+import time
 
 from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError, SwerveError
@@ -53,6 +54,7 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
         return
     freeze_startup_heap()
     conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
+    cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
             msg = conn.recv()
@@ -68,11 +70,12 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
             conn.send(("ok", None))
         except Exception as exc:  # noqa: BLE001 - reported to the parent
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    serve_cpu_s = time.process_time() - cpu0
     emu.close()
     try:
         t, pose = emu.true_state()
         conn.send(("stats", dict(bus=emu.stats.as_dict(), clock=emu.clock_stats.as_dict(),
-                                 pose=list(pose), sim_time_s=t)))
+                                 pose=list(pose), sim_time_s=t, serve_cpu_s=serve_cpu_s)))
     except (BrokenPipeError, OSError):
         pass
 

@@ -28,6 +28,7 @@ import json
 import logging
 import math
 import os
+import struct
 import time
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -41,6 +42,7 @@ from swerve.driver.robot_config import RobotConfig
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
+from swerve.emulator.memory import STRUCT_CODES
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
 from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
@@ -76,9 +78,14 @@ class _ServoDynamics:
         self.model = model
         self._servo = servo
         self._memory = servo.memory
-        regs = [servo.table[n] for n in _INPUTS]
+        regs = sorted((servo.table[n] for n in _INPUTS), key=lambda r: r.address)
         self._end = max(r.address + r.size for r in regs)
-        self._layout = [(r.name, r.address, r.address + r.size, r.signed) for r in regs]
+        fmt, at = "<", 0                # the items in address order, gaps skipped
+        for r in regs:
+            fmt += "x" * (r.address - at) + STRUCT_CODES[r.size][r.signed]
+            at = r.address + r.size
+        self._names = [r.name for r in regs]
+        self._unpack = struct.Struct(fmt).unpack_from
         self._raw = b""
         self._items: dict[str, int] = {}
 
@@ -88,15 +95,36 @@ class _ServoDynamics:
         raw = self._memory.stored_bytes(self._end)
         if raw != self._raw:
             self._raw = raw
-            self._items = {n: int.from_bytes(raw[a:b], "little", signed=s) for n, a, b, s in self._layout}
+            self._items = dict(zip(self._names, self._unpack(raw)))
         return self._items
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """One physics step under the servo's current input items."""
+        self.advance_many(dt_s, 1)
+        bits = self.take_hardware_error()
+        if bits:                                    # the physics tripped a protection: latch it
+            self._servo.raise_hardware_error(bits)
+
+    def advance_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple] | None = None) -> int:
+        """Up to ``n`` physics steps under the current input items (:meth:`ServoModel.run`); stops
+        after a step that raised a Hardware Error bit (:meth:`take_hardware_error`, for the
+        caller to latch). ``traces[model]``: the ``(speeds, positions)`` lists the model
+        appends to per step, if present. Returns the steps run."""
         items = self._items
-        self.model.advance(dt_s, self.inputs(), same_inputs=self._items is items)
-        if self.model.pending_hardware_error:       # the physics tripped a protection: latch it
-            self._servo.raise_hardware_error(self.model.take_hardware_error())
+        speeds, positions = traces.get(self.model, (None, None)) if traces else (None, None)
+        return self.model.run(dt_s, self.inputs(), n, same_inputs=self._items is items,
+                              speeds=speeds, positions=positions)
+
+    def take_hardware_error(self) -> int:
+        """Hardware Error bits the physics raised since the last call (then cleared)."""
+        return self.model.take_hardware_error() if self.model.pending_hardware_error else 0
+
+    @property
+    def batchable(self) -> bool:
+        """True if steps may run several at a time, servo after servo: no sensor noise, whose
+        draws from the shared generator would then come in another order."""
+        s = self.model.sensors
+        return not (s.position_noise_std_pulse or s.current_noise_std_a or s.voltage_noise_std_v)
 
     def outputs(self) -> dict[str, int]:
         """Present items as of the last step (at rest before the first)."""
@@ -122,6 +150,15 @@ class RobotWorld:
 
     def step(self, dt_s: float) -> None:
         self.physics.step_body(dt_s)
+
+    def traces(self) -> dict[ServoModel, tuple] | None:
+        """Empty per-step trace lists for a run of several steps, servo after servo
+        (:meth:`RobotPhysics.traces`), or ``None`` if the body must step between the servos."""
+        return self.physics.traces()
+
+    def step_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> None:
+        """``n`` body steps from the servos' recorded ``traces`` (:meth:`RobotPhysics.step_body_many`)."""
+        self.physics.step_body_many(dt_s, n, traces)
 
 
 def status(emu: Emulator) -> dict:

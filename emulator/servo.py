@@ -9,6 +9,7 @@ plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
 from __future__ import annotations
 
 import logging
+import struct
 from typing import Mapping, Protocol
 
 from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
@@ -70,7 +71,12 @@ class VirtualServo:
         self.memory = ServoMemory(table, limit_error=limit_error)
         self.memory.publisher = self._publish
         self.memory.published = frozenset((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
+        # all published items in one write when the table holds them back to back
+        self._pack_published = (self.memory.packer((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
+                                if all(n in table for n in DYNAMICS_OUTPUTS) else None)
         self._view = self.memory.view()
+        self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
+        self._identity_raw = b""
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
         self.dynamics = dynamics
@@ -84,6 +90,10 @@ class VirtualServo:
     # --- identity used by the bus (changes take effect after the status reply) -------------------
     def apply_pending(self) -> None:
         """Make ID, Secondary ID and Baud Rate changes effective (after the reply went out)."""
+        raw = self.memory.stored_bytes(self._identity_end)
+        if raw == self._identity_raw:
+            return                      # none of the three items changed since the last call
+        self._identity_raw = raw
         self.id = self.memory.get(Reg.ID)
         self.secondary_id = self.memory.get(Reg.SECONDARY_ID)
         self.baud_bps = BAUD_RATES[self.memory.get(Reg.BAUD_RATE)]
@@ -312,14 +322,66 @@ class VirtualServo:
 
         Present items are written only when read next (:meth:`ServoMemory.publish`).
         """
+        self.advance_many(dt_s, 1)
+
+    def advance_many(self, dt_s: float, n: int, traces=None) -> None:
+        """``n`` steps of :meth:`advance` with the same result, several at a time where nothing
+        can change the input items in between: a dynamics with ``advance_many(dt_s, k, traces)
+        -> steps run`` runs the steps up to the next Bus Watchdog trip or physics-raised
+        Hardware Error in one call (``traces``: passed through, see
+        :meth:`~swerve.emulator.robot_emulator._ServoDynamics.advance_many`); any other
+        dynamics is stepped one :meth:`Dynamics.advance` at a time.
+        """
         m = self.memory
+        dyn = self.dynamics
+        many = getattr(dyn, "advance_many", None)
+        done = 0
+        while done < n:
+            self._advance_timers(dt_s)                  # the first step of this run, as one tick
+            if many is None:
+                if dyn is not None:
+                    dyn.advance(dt_s, self._view)
+                m.stale = True
+                done += 1
+                continue
+            ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
+            if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
+                tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
+                for _ in range(ran - 1):
+                    tick_ms = (tick_ms + d_ms) % REALTIME_TICK_WRAP
+                    since += dt_s
+                self._tick_ms, self._since_traffic_s = tick_ms, since
+            if done + ran > 1:                          # an earlier step of this call left the items stale
+                m.stale = True
+            done += ran
+            bits = dyn.take_hardware_error()
+            if bits:                                    # the physics tripped a protection: latch it
+                self.raise_hardware_error(bits)
+            m.stale = True
+
+    def _advance_timers(self, dt_s: float) -> None:
+        """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""
         self._tick_ms = (self._tick_ms + dt_s * 1e3) % REALTIME_TICK_WRAP
         self._since_traffic_s += dt_s
-        if self._since_traffic_s > WATCHDOG_UNIT_S and not m.watchdog_tripped:
+        if self._since_traffic_s > WATCHDOG_UNIT_S and not self.memory.watchdog_tripped:
             self._check_watchdog()      # the shortest watchdog time is one unit: cheap gate first
-        if self.dynamics is not None:
-            self.dynamics.advance(dt_s, self._view)
-        m.stale = True
+
+    def _quiet_steps(self, dt_s: float, most: int) -> int:
+        """How many of the next ``most`` steps pass without the Bus Watchdog tripping."""
+        m = self.memory
+        if most <= 0 or m.watchdog_tripped:
+            return max(most, 0)
+        wd = m.get(Reg.BUS_WATCHDOG)
+        if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
+            return most
+        since, limit = self._since_traffic_s, wd * WATCHDOG_UNIT_S
+        if since + (most + 1) * dt_s < limit * (1.0 - 1e-9):
+            return most                 # far from the limit (the margin covers the sums' round-off)
+        for k in range(most):           # the same float sums as the steps will make
+            since += dt_s
+            if since > WATCHDOG_UNIT_S and since > limit:
+                return k
+        return most
 
     def _check_watchdog(self) -> None:
         m = self.memory
@@ -336,9 +398,15 @@ class VirtualServo:
     def _publish(self) -> None:
         """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
         m = self.memory
+        outputs = self.dynamics.outputs() if self.dynamics is not None else {}
+        if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
+            try:
+                self._pack_published([int(self._tick_ms), *[int(outputs[n]) for n in DYNAMICS_OUTPUTS]])
+                return
+            except (KeyError, struct.error):
+                pass                    # item by item below: the same values, or the same error
         m.set(Reg.REALTIME_TICK, int(self._tick_ms))
         if self.dynamics is not None:
-            outputs = self.dynamics.outputs()
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))

@@ -11,7 +11,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from swerve.configs import shipped
 from swerve.driver.bus import Bus
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.physics.params import load_config
 from swerve.driver.control_table import Reg
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
@@ -79,6 +82,69 @@ def test_a_fault_sent_on_the_channel_takes_effect_in_order(bus_in_lockstep):
     with pytest.raises(LockstepError, match="unknown fault"):
         clock.fault("melt", 2)
     assert clock.counters()["packets_received"] == 2
+
+
+def test_a_background_sleep_lets_the_client_work_and_reports_when_it_was_asked(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    bus.sync_write(Reg.GOAL_POSITION, {1: 7, 2: 7, 3: 7})          # 29 bytes, no reply
+    clock.start_sleep(0.016)
+    requests = clock.requests
+    asked = clock.end_sleep()
+    assert clock.requests == requests                               # one request in all
+    assert asked == pytest.approx(29 * BYTE_S) and clock.now() == 0.016
+    assert emu.clock.stats.steps == 16
+    with pytest.raises(LockstepError, match="without start_sleep"):
+        clock.end_sleep()
+
+
+def test_any_request_collects_a_pending_sleep_first(bus_in_lockstep):
+    emu, bus, clock = bus_in_lockstep
+    bus.ping(1)
+    t0 = clock.now()
+    clock.start_sleep(0.005)
+    assert clock.counters()["packets_received"] == 1                # answered in order
+    assert clock.now() == 0.005 and emu.clock.stats.steps == 5
+    assert clock.end_sleep() == t0                                  # the sleep still ends once
+
+
+def test_now_brings_the_true_pose_with_it():
+    """On a robot, the time after a read and the true pose are one request."""
+    robot = load_robot_config(shipped("robot.yaml"))
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.count_tx(lambda: bus.bytes_written)
+            clock.sleep_until(0.1)
+            bus.ping(1)
+            n = clock.requests
+            t = clock.now()
+            pose = clock.pose()
+            assert clock.requests == n + 1
+            assert t > 0.1 and pose == emu.pose
+            bus.ping(2)                                              # bytes since: ask again
+            clock.pose()
+            assert clock.requests == n + 2
+
+
+def test_the_time_after_a_read_can_be_asked_while_its_reply_is_on_the_way():
+    robot = load_robot_config(shipped("robot.yaml"))
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.attach(bus)
+            clock.sleep_until(0.1)
+            n = clock.requests
+            clock.ask_after_next_write()
+            bus.ping(3)                                 # the request goes out with the ping
+            assert clock.requests == n + 1
+            t, pose = clock.now(), clock.pose()
+            assert clock.requests == n + 1              # both came with it
+            delay = emu.servo(3).return_delay_s
+            assert t == pytest.approx(0.1 + (10 + 14) * BYTE_S + delay + DEFAULT_REPLY_LATENCY_S, abs=1e-12)
+            assert pose == emu.pose
+            bus.ping(3)                                 # not armed again: written() sends nothing
+            assert clock.requests == n + 1
+            assert clock.now() > t and clock.requests == n + 2
 
 
 def test_bad_requests_get_an_error_line_and_the_channel_keeps_serving(bus_in_lockstep):

@@ -34,7 +34,8 @@ from typing import Callable, Sequence
 import numpy as np
 
 from swerve.driver.errors import ConfigError
-from swerve.tools.logs.bag import DEFAULT_WHEELS, TOPICS, RunLogWriter, joint_names
+from swerve.tools.logs.bag import DEFAULT_WHEELS, TOPICS, joint_names
+from swerve.tools.logs.messages import CycleMessages
 from swerve.tools.logs.record import CycleRecord
 
 log = logging.getLogger(__name__)
@@ -81,18 +82,6 @@ def parse_live(text: str) -> tuple[str, int]:
 def layout_path() -> Path:
     """The shipped Foxglove layout (3D path, errors, wheel speeds, steering, loop timing)."""
     return Path(str(resources.files("swerve.tools").joinpath("foxglove_layout.json")))
-
-
-class _CycleMessages:
-    """The run log's messages of one cycle without a bag: borrows the writer's own builder, so
-    the live view and the log cannot drift apart."""
-
-    _messages = RunLogWriter._messages
-    _pose = RunLogWriter._pose
-
-    def __init__(self, typestore, joints: list[str]):
-        self._ts = typestore
-        self._joints = joints
 
 
 def _finite(v) -> float | None:
@@ -147,7 +136,7 @@ class LivePublisher:
         from rosbags.typesys import Stores, get_typestore
 
         self._ts = get_typestore(Stores.ROS2_JAZZY)
-        self._msgs = _CycleMessages(self._ts, joint_names(self._wheels))
+        self._msgs = CycleMessages(self._ts, joint_names(self._wheels))
         self._ctx = foxglove.Context()
         try:
             self._server = foxglove.start_server(name=self.name, host=self.host, port=self.requested_port,
@@ -163,7 +152,7 @@ class LivePublisher:
             LIVE_TOPIC, schema=foxglove.Schema(name="swerve.Live", encoding="jsonschema",
                                                data=json.dumps(LIVE_SCHEMA).encode()),
             message_encoding="json", context=self._ctx)
-        self._msgs._messages(CycleRecord(t_s=0.0, stamp_ns=0, cycle=0))   # build serialisers now
+        self._msgs.messages(CycleRecord(t_s=0.0, stamp_ns=0, cycle=0))   # build serialisers now
         self._thread = threading.Thread(target=self._work, name="swerve-live", daemon=True)
         self._thread.start()
         return self
@@ -237,18 +226,13 @@ class LivePublisher:
 
     def _send(self, rec: CycleRecord) -> None:
         ns = int(rec.stamp_ns)
-        for topic, msg in self._msgs._messages(rec):
+        for topic, msg in self._msgs.messages(rec):
             self._channels[topic].log(bytes(self._ts.serialize_cdr(msg, msg.__msgtype__)), log_time=ns)
         self._channels[LIVE_TOPIC].log(json.dumps(live_numbers(rec, self.dropped)).encode(), log_time=ns)
 
     def _send_pose(self, item: "_PoseItem") -> None:
-        T = self._ts.types
-        ns = item.stamp_ns
-        header = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
-            frame_id="odom")
-        msg = T["geometry_msgs/msg/PoseStamped"](header=header, pose=self._msgs._pose(item.pose))
-        self._channels[item.topic].log(bytes(self._ts.serialize_cdr(msg, msg.__msgtype__)), log_time=ns)
+        msg = self._msgs.pose_stamped(self._msgs.header(item.stamp_ns), item.pose)
+        self._channels[item.topic].log(bytes(self._ts.serialize_cdr(msg, msg.__msgtype__)), log_time=item.stamp_ns)
 
 
 class _PoseItem:

@@ -18,7 +18,8 @@ The pose integrates the twist exactly for a twist held constant over the step.
 from __future__ import annotations
 
 import math
-import operator
+from math import cos, sin
+from operator import mul
 
 import numpy as np
 
@@ -61,7 +62,7 @@ class RobotBody:
         self._pinv_rows = self._pinv.tolist()      # the same, as Python floats for the per-step fit
         self._m_rows = self._m.tolist()
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
-        self.twist = np.zeros(3)
+        self._twist = (0.0, 0.0, 0.0)
         self._fit: tuple[list, tuple] | None = None     # (stacked wheel velocities, twist) of the last step
         self._residual_mps = np.zeros(len(self.wheel_xy_m))
 
@@ -93,14 +94,29 @@ class RobotBody:
 
         Scalar arithmetic in Python floats (for four wheels NumPy's per-call overhead costs more
         than the sums); the same fit as :meth:`fit_twist` to round-off."""
-        w = []
-        for v, d in zip(speeds_mps, steer_rad):
-            w += (v * math.cos(d), v * math.sin(d))
-        vx, vy, om = [sum(map(operator.mul, row, w)) for row in self._pinv_rows]
-        self._fit = (w, (vx, vy, om))
-        self.twist = np.array((vx, vy, om))
-        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, om), dt_s)
-        return self.x_m, self.y_m, self.theta_rad
+        return self.step_many(dt_s, ((speeds_mps, steer_rad),))
+
+    def step_many(self, dt_s: float, steps) -> tuple[float, float, float]:
+        """:meth:`step` for consecutive steps: ``steps`` yields ``(speeds_mps, steer_rad)`` per
+        step, each a sequence over the wheels."""
+        r0, r1, r2 = self._pinv_rows
+        x, y, theta = self.x_m, self.y_m, self.theta_rad
+        w = twist = None
+        for vs, ds in steps:
+            w = []
+            for v, d in zip(vs, ds):
+                w += (v * cos(d), v * sin(d))
+            twist = (vx, vy, om) = (sum(map(mul, r0, w)), sum(map(mul, r1, w)), sum(map(mul, r2, w)))
+            x, y, theta = _se2_step(x, y, theta, vx, vy, om, dt_s)
+        if twist is not None:
+            self._twist, self._fit = twist, (w, twist)
+            self.x_m, self.y_m, self.theta_rad = x, y, theta
+        return x, y, theta
+
+    @property
+    def twist(self) -> np.ndarray:
+        """Body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame) of the last step, shape (3,)."""
+        return np.array(self._twist)
 
     @property
     def pose(self) -> tuple[float, float, float]:
@@ -113,6 +129,12 @@ def se2_step(pose: tuple[float, float, float], twist, dt_s: float) -> tuple[floa
     constant (exact SE(2) motion)."""
     x, y, theta = pose
     vx, vy, w = (float(v) for v in twist)
+    return _se2_step(x, y, theta, vx, vy, w, dt_s)
+
+
+def _se2_step(x: float, y: float, theta: float, vx: float, vy: float, w: float,
+              dt_s: float) -> tuple[float, float, float]:
+    """:func:`se2_step` on plain floats."""
     h = w * dt_s
     if abs(h) > 1e-9:
         s, c = math.sin(h) / w, (1.0 - math.cos(h)) / w

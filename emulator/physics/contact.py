@@ -72,10 +72,11 @@ class ContactBody:
         self.normal_n = static_normal_loads_n(self.wheel_xy_m, self.mass_kg, params.gravity_mps2)
         self.limit_n = params.friction_coefficient * self.normal_n
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
-        self.twist = np.zeros(3)
-        self.residual_mps = np.zeros(n)          # slip speed per wheel, m/s
-        self.force_n = np.zeros((n, 2))          # force on the body per wheel, body frame, N
-        self.force_long_n = np.zeros(n)          # its component along the wheel's rolling direction
+        self._xy = self.wheel_xy_m.tolist()      # Python floats for the per-step scalar arithmetic
+        self._limits = self.limit_n.tolist()
+        # last step's twist, slip, forces (x, y per wheel) and longitudinal forces, as floats
+        self._twist = (0.0, 0.0, 0.0)
+        self._slip, self._fx, self._fy, self._flong = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
         self.slip_energy_j = 0.0                 # work dissipated in the tyres
         self.saturated_steps = 0                 # wheel-steps on the friction limit
         self.wheel_steps = 0
@@ -90,11 +91,11 @@ class ContactBody:
         p = self.params
         kl = p.lateral_stiffness_ratio
         m, iz = self.mass_kg, self.yaw_inertia_kg_m2
-        vx, vy, w = (float(x) for x in self.twist)
+        vx, vy, w = self._twist
         a11, a12, a22, a13, a23, a33 = m, 0.0, m, 0.0, 0.0, iz
         r1, r2, r3 = m * vx + dt_s * m * w * vy, m * vy - dt_s * m * w * vx, iz * w
         wheels = []
-        for (x, y), u, d, limit in zip(self.wheel_xy_m.tolist(), speeds_mps, steer_rad, self.limit_n.tolist()):
+        for (x, y), u, d, limit in zip(self._xy, speeds_mps, steer_rad, self._limits):
             u = float(u)
             c, s = math.cos(d), math.sin(d)
             px, py = vx - w * y, vy + w * x
@@ -127,15 +128,38 @@ class ContactBody:
             fy.append(s * fl + c * ft)
             power -= fl * sl + ft * st
             sat += saturated
-        self.residual_mps = np.array(slip)
-        self.force_long_n = np.array(flong)
-        self.force_n = np.array([fx, fy]).T
+        self._slip, self._fx, self._fy, self._flong = slip, fx, fy, flong
         self.slip_energy_j += dt_s * power
         self.saturated_steps += sat
         self.wheel_steps += len(wheels)
-        self.twist = np.array([vx, vy, w])
+        self._twist = (vx, vy, w)
         self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, w), dt_s)
         return self.pose
+
+    @property
+    def twist(self) -> np.ndarray:
+        """Body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame) after the last step, shape (3,)."""
+        return np.array(self._twist)
+
+    @property
+    def residual_mps(self) -> np.ndarray:
+        """Slip speed per wheel at the last step, m/s, shape (n,)."""
+        return np.array(self._slip)
+
+    @property
+    def force_n(self) -> np.ndarray:
+        """Force on the body per wheel at the last step, body frame, N, shape (n, 2)."""
+        return np.array([self._fx, self._fy]).T
+
+    @property
+    def force_long_n(self) -> np.ndarray:
+        """Its component along each wheel's rolling direction, N, shape (n,)."""
+        return np.array(self._flong)
+
+    @property
+    def force_long_list_n(self) -> list[float]:
+        """:attr:`force_long_n` as Python floats (per physics step: no NumPy)."""
+        return self._flong
 
     @property
     def pose(self) -> tuple[float, float, float]:

@@ -49,10 +49,6 @@ class PositionGains:
                    ff1=ff1_gain / 4.0, ff2=ff2_gain / 4.0)
 
 
-def _clamp(x: float, limit: float) -> float:
-    return -limit if x < -limit else limit if x > limit else x
-
-
 class AntiWindupPI:
     """PI(D) core with output saturation and back-calculation anti-windup (gain ``Ka``).
 
@@ -76,14 +72,23 @@ class AntiWindupPI:
     def update(self, dt_s: float, error: float, kp: float, ki: float, extra: float,
                limit: float) -> float:
         """Return the saturated output ``clamp(kp e + I + extra, ±limit)`` and advance ``I``."""
-        ticks = dt_s / self.tick_s
-        self.integral += ki * error * ticks
-        raw = kp * error + self.integral + extra
-        out = _clamp(raw, limit)
-        if out != raw:                  # back-calculation unwinds the integrator, never past zero
-            unwound = self.integral + self.ka * min(ticks, 1.0) * (out - raw)
-            self.integral = unwound if unwound * self.integral > 0.0 else 0.0
+        out, self.integral = pi_step(self.integral, dt_s / self.tick_s, self.ka, error, kp, ki, extra, limit)
         return out
+
+
+def pi_step(integral: float, ticks: float, ka: float, error: float, kp: float, ki: float, extra: float,
+            limit: float) -> tuple[float, float]:
+    """One :meth:`AntiWindupPI.update` on plain floats: ``(output, new integral)``.
+
+    ``ticks`` is the step in firmware ticks (``dt_s / tick_s``), ``ka`` the anti-windup gain.
+    """
+    integral += ki * error * ticks
+    raw = kp * error + integral + extra
+    out = -limit if raw < -limit else limit if raw > limit else raw
+    if out != raw:                  # back-calculation unwinds the integrator, never past zero
+        unwound = integral + ka * min(ticks, 1.0) * (out - raw)
+        integral = unwound if unwound * integral > 0.0 else 0.0
+    return out, integral
 
 
 class ProfileGenerator:
@@ -107,41 +112,56 @@ class ProfileGenerator:
 
     def start_position(self, goal: float, v_max: float, a_max: float) -> None:
         """Classify the new profile (Moving Status bits 5:4) for a new goal position."""
-        if math.isinf(v_max):
-            self.profile_type = u.PROFILE_NONE
-        elif math.isinf(a_max):
-            self.profile_type = u.PROFILE_RECTANGULAR
-        else:
-            dist = abs(goal - self.position)
-            reach = v_max * v_max / a_max          # distance to accelerate to v_max and stop again
-            self.profile_type = u.PROFILE_TRAPEZOIDAL if dist >= reach else u.PROFILE_TRIANGULAR
+        self.profile_type = profile_type(self.position, goal, v_max, a_max)
         self.ongoing = True
 
     def step_position(self, dt_s: float, goal: float, v_max: float, a_max: float) -> None:
         """Advance the position trajectory towards ``goal`` (time-optimal under the limits)."""
-        v0 = self.velocity
-        if math.isinf(v_max):
-            self.position, self.velocity, self.acceleration, self.ongoing = goal, 0.0, 0.0, False
-            return
-        d = goal - self.position
-        s = 1.0 if d >= 0 else -1.0
-        v_cmd = s * min(v_max, math.sqrt(2.0 * a_max * abs(d)) if not math.isinf(a_max) else v_max)
-        dv = a_max * dt_s
-        v1 = v_cmd if abs(v_cmd - v0) <= dv else v0 + math.copysign(dv, v_cmd - v0)
-        step = 0.5 * (v0 + v1) * dt_s
-        if abs(d) <= abs(step) or (abs(d) <= abs(v1) * dt_s and abs(v1) <= dv + 1e-12):
-            self.position, v1, self.ongoing = goal, 0.0, False
-        else:
-            self.position += step
-        self.acceleration = (v1 - v0) / dt_s
-        self.velocity = v1
+        self.position, self.velocity, self.acceleration, self.ongoing = position_profile_step(
+            self.position, self.velocity, self.ongoing, dt_s, goal, v_max, a_max)
 
     def step_velocity(self, dt_s: float, goal: float, a_max: float) -> None:
         """Advance the velocity trajectory towards ``goal`` at most ``a_max`` per second."""
-        v0 = self.velocity
-        dv = a_max * dt_s
-        v1 = goal if abs(goal - v0) <= dv else v0 + math.copysign(dv, goal - v0)
-        self.ongoing = v1 != goal
-        self.acceleration = (v1 - v0) / dt_s
-        self.velocity = v1
-        self.position += 0.5 * (v0 + v1) * dt_s
+        self.position, self.velocity, self.acceleration, self.ongoing = velocity_profile_step(
+            self.position, self.velocity, dt_s, goal, a_max)
+
+
+def profile_type(position: float, goal: float, v_max: float, a_max: float) -> int:
+    """Profile type (Moving Status bits 5:4 as 0..3) of a move from ``position`` to ``goal``."""
+    if math.isinf(v_max):
+        return u.PROFILE_NONE
+    if math.isinf(a_max):
+        return u.PROFILE_RECTANGULAR
+    dist = abs(goal - position)
+    reach = v_max * v_max / a_max          # distance to accelerate to v_max and stop again
+    return u.PROFILE_TRAPEZOIDAL if dist >= reach else u.PROFILE_TRIANGULAR
+
+
+def position_profile_step(position: float, velocity: float, ongoing: bool, dt_s: float,
+                          goal: float, v_max: float, a_max: float) -> tuple[float, float, float, bool]:
+    """One :meth:`ProfileGenerator.step_position` on plain floats: the new
+    ``(position, velocity, acceleration, ongoing)``."""
+    v0 = velocity
+    if math.isinf(v_max):
+        return goal, 0.0, 0.0, False
+    d = goal - position
+    s = 1.0 if d >= 0 else -1.0
+    v_cmd = s * min(v_max, math.sqrt(2.0 * a_max * abs(d)) if not math.isinf(a_max) else v_max)
+    dv = a_max * dt_s
+    v1 = v_cmd if abs(v_cmd - v0) <= dv else v0 + math.copysign(dv, v_cmd - v0)
+    step = 0.5 * (v0 + v1) * dt_s
+    if abs(d) <= abs(step) or (abs(d) <= abs(v1) * dt_s and abs(v1) <= dv + 1e-12):
+        position, v1, ongoing = goal, 0.0, False
+    else:
+        position += step
+    return position, v1, (v1 - v0) / dt_s, ongoing
+
+
+def velocity_profile_step(position: float, velocity: float, dt_s: float, goal: float,
+                          a_max: float) -> tuple[float, float, float, bool]:
+    """One :meth:`ProfileGenerator.step_velocity` on plain floats: the new
+    ``(position, velocity, acceleration, ongoing)``."""
+    v0 = velocity
+    dv = a_max * dt_s
+    v1 = goal if abs(goal - v0) <= dv else v0 + math.copysign(dv, goal - v0)
+    return position + 0.5 * (v0 + v1) * dt_s, v1, (v1 - v0) / dt_s, v1 != goal

@@ -83,8 +83,7 @@ class GearedMotor:
         self.angle_rad = 0.0            # motor side
         self.load_torque_nm = 0.0       # output side
         self.load_inertia_kg_m2 = 0.0   # output side
-        self._key: tuple | None = None  # (dt, load inertia, coasting) of the cached coefficients
-        self._coef: tuple = ()
+        self._coefs: dict[tuple, tuple] = {}     # (dt, load inertia, coasting) -> (Ad, Bd)
 
     @property
     def inertia_kg_m2(self) -> float:
@@ -105,6 +104,17 @@ class GearedMotor:
         """Compute (cache) the driven and coasting discretisations for steps of ``dt_s``."""
         for coasting in (False, True):
             _discrete(self.params, self.inertia_kg_m2, dt_s, coasting)
+
+    def coefficients(self, dt_s: float, coasting: bool) -> tuple:
+        """``(Ad, Bd)`` as nested tuples of floats for steps of ``dt_s`` at the present load inertia;
+        driven: states ``[i, omega_m, theta_m]``, inputs ``[v, tau]``; ``coasting``: ``[omega_m, theta_m]``, ``[tau]``."""
+        key = (dt_s, self.load_inertia_kg_m2, coasting)
+        coef = self._coefs.get(key)
+        if coef is None:                # _discrete caches the expm; this dict skips hashing the params
+            if len(self._coefs) >= 16:
+                self._coefs.clear()
+            coef = self._coefs[key] = _discrete(self.params, self.inertia_kg_m2, dt_s, coasting)
+        return coef
 
     def step(self, dt_s: float, voltage_v: float | None) -> None:
         """Advance ``dt_s`` with the armature voltage held at ``voltage_v`` (None: bridge open)."""
@@ -144,11 +154,7 @@ class GearedMotor:
     def _step_linear(self, dt_s: float, voltage_v: float | None, load_torque_nm: float) -> None:
         tau = load_torque_nm / self.gear_ratio
         coasting = voltage_v is None
-        key = (dt_s, self.load_inertia_kg_m2, coasting)
-        if key != self._key:            # one dict-free lookup per step; _discrete caches the expm
-            self._key = key
-            self._coef = _discrete(self.params, self.inertia_kg_m2, dt_s, coasting)
-        ad, bd = self._coef
+        ad, bd = self.coefficients(dt_s, coasting)
         if coasting:
             (a00, a01), (a10, a11) = ad
             (b0,), (b1,) = bd

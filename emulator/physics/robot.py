@@ -94,18 +94,60 @@ class RobotPhysics:
 
     def _wheel_state(self) -> tuple[list[float], list[float]]:
         """:meth:`wheel_state` as lists of Python floats (per physics step: no NumPy overhead)."""
-        speeds, horn = [], []
-        for w, drive, steer, r, off in self._wheel_servos:
-            speeds.append(w.drive_direction * drive.velocity_radps * r)
-            horn.append(w.steer_direction * (steer.true_position_pulse - w.center_pulse) * u.RAD_PER_PULSE - off)
+        speeds, steer = self._wheel_rows([[drive.velocity_radps] for _, drive, _, _, _ in self._wheel_servos],
+                                         [[steer.true_position_pulse] for _, _, steer, _, _ in self._wheel_servos])
+        return [v for v, in speeds], [d for d, in steer]
+
+    def _wheel_rows(self, drive_radps: list[list[float]], steer_pulse: list[list[float]]
+                    ) -> tuple[list[list[float]], list[list[float]]]:
+        """Per wheel, the ground speeds (m/s) and wheel angles (rad) of consecutive steps from the
+        drive servo's :attr:`ServoModel.velocity_radps` and the steering servo's
+        :attr:`ServoModel.true_position_pulse` at those steps (the backlash state advances)."""
+        speeds, steer = [], []
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
-        if half <= 0.0:
-            return speeds, horn
-        if self._wheel_steer_rad is None:
-            self._wheel_steer_rad = list(horn)
-        # the wheel stays where it is until the horn takes up the free play on either side
-        self._wheel_steer_rad = [min(max(s, h - half), h + half) for s, h in zip(self._wheel_steer_rad, horn)]
-        return speeds, list(self._wheel_steer_rad)
+        state, wheels = self._wheel_steer_rad, []
+        for k, ((w, _, _, r, off), vs, pulses) in enumerate(zip(self._wheel_servos, drive_radps, steer_pulse)):
+            direction, sd, center = w.drive_direction, w.steer_direction, w.center_pulse
+            sp, horn = [], []           # loops, not comprehensions: cheaper for one step
+            for v in vs:
+                sp.append(direction * v * r)
+            for p in pulses:
+                horn.append(sd * (p - center) * u.RAD_PER_PULSE - off)
+            speeds.append(sp)
+            if half > 0.0 and horn:
+                wheel = state[k] if state is not None else horn[0]
+                # the wheel stays where it is until the horn takes up the free play on either side
+                for j, h in enumerate(horn):
+                    horn[j] = wheel = min(max(wheel, h - half), h + half)
+                wheels.append(wheel)
+            steer.append(horn)
+        if wheels:
+            self._wheel_steer_rad = wheels
+        return speeds, steer
+
+    def traces(self) -> dict[ServoModel, tuple[list | None, list | None]] | None:
+        """Empty trace lists ``{model: (speeds, positions)}`` for :meth:`ServoModel.run` (drive
+        servos record speeds, steering servos positions) when the servos may run several steps
+        each before the body follows: with the kinematic body and a stiff supply nothing flows
+        back from the body into the servos. ``None`` otherwise (tyre forces, supply sag)."""
+        if isinstance(self.body, ContactBody) or self.cfg.supply.enabled:
+            return None
+        out: dict[ServoModel, tuple[list | None, list | None]] = {}
+        for _, drive, steer, _, _ in self._wheel_servos:
+            out[drive] = ([], None)
+            out[steer] = (None, [])
+        return out
+
+    def step_body_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> tuple[float, float, float]:
+        """``n`` body steps of ``dt_s`` after the servos ran them, from their ``traces``
+        (:meth:`traces`, filled by :meth:`ServoModel.run`); the same as :meth:`step_body` after
+        each servo step. Returns the pose."""
+        drive = [traces[d][0] for _, d, _, _, _ in self._wheel_servos]
+        steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
+        if any(len(t) != n for t in drive + steer):
+            raise ValueError(f"every wheel servo must have recorded {n} steps")
+        speeds, angles = self._wheel_rows(drive, steer)
+        return self.body.step_many(dt_s, zip(zip(*speeds), zip(*angles)))
 
     def step(self, dt_s: float, tables: Mapping[int, Mapping[str, int]]) -> dict[int, dict[str, int]]:
         """Advance all servos (raw ``tables`` by ID) and the body by ``dt_s``; return present items by ID."""
@@ -120,9 +162,8 @@ class RobotPhysics:
         seen by the servos from their next step."""
         pose = self.body.step(dt_s, *self._wheel_state())
         if isinstance(self.body, ContactBody):
-            for w, r, f in zip(self.geometry.wheels, self.wheel_radius_m, self.body.force_long_n):
-                s = self.servos[w.drive_id]
-                s.external_load(w.drive_direction * s.frame_sign * r * float(f))
+            for (w, s, _, r, _), f in zip(self._wheel_servos, self.body.force_long_list_n):
+                s.external_load(w.drive_direction * s.frame_sign * r * f)
         sup = self.cfg.supply
         if sup.enabled:
             current = sum(s.supply_current_a for s in self.servos.values()) + sup.idle_current_a * len(self.servos)

@@ -13,7 +13,8 @@ import numpy as np
 
 from . import units as u
 from .bessel import BesselFilter
-from .firmware import AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains
+from .firmware import (AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains, pi_step, position_profile_step,
+                       profile_type, velocity_profile_step)
 from .motor import GearedMotor
 from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
                      SensorParams, ThermalParams)
@@ -67,7 +68,7 @@ class ServoModel:
         self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.temperature_c = thermal.ambient_c
-        self._heat_dt, self._heat_decay = 0.0, 1.0     # exp(-dt / time constant) for the last dt
+        self._setup: tuple | None = None            # run()'s derived constants (_derive)
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -207,57 +208,208 @@ class ServoModel:
         so the present items cost nothing between reads. ``same_inputs=True`` promises that
         ``table`` is the mapping of the last call, unchanged: what the firmware derives from the
         items (limits, gains, profile bounds) is then reused instead of derived again.
+        One tick of :meth:`run`.
         """
+        self.run(dt_s, table, 1, same_inputs=same_inputs)
+
+    def run(self, dt_s: float, table: Mapping[str, int], n: int = 1, *, same_inputs: bool = False,
+            speeds: list | None = None, positions: list | None = None) -> int:
+        """Advance up to ``n`` ticks of ``dt_s`` seconds under the unchanging raw items ``table``.
+
+        The same arithmetic, in the same order, as ``n`` calls of :meth:`advance`: the state lives
+        in local variables for the ticks and is stored back at the end. Stops early after a
+        tick in which the protection raised a Hardware Error bit (:attr:`pending_hardware_error`),
+        so the caller can latch it before the next tick. ``speeds`` / ``positions``, if given,
+        get one entry per tick: :attr:`velocity_radps` (rad/s) / :attr:`true_position_pulse`
+        (pulse) after the tick (what the body needs). Returns the ticks run (1..n).
+        """
+        if n < 1:
+            return 0
         plan = self._plan
         if not same_inputs or plan is None or table is not self._plan_table:
             plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
             self._plan_table = table
-        sign = self._sign = plan.sign
-        self._homing = homing = plan.homing
-        mode = plan.mode
-        torque = plan.torque
         motor = self.motor
-        # encoder (inline :meth:`_encoder_pulse`: the same arithmetic)
-        x = sign * (motor.angle_rad / motor.gear_ratio / u.RAD_PER_PULSE + self.encoder_offset_pulse)
-        if self.sensors.position_noise_std_pulse:
-            x += self.rng.normal(0.0, self.sensors.position_noise_std_pulse)
-        raw = math.floor(x)
-        vf = self.velocity_filter
-        if not self._started:
-            vf.reset(raw)
-            self._started = True
-        key = plan.key
+        setup = self._setup
+        if setup is None or setup[0] is not plan or setup[1] != dt_s or setup[2] != motor.load_inertia_kg_m2:
+            setup = self._setup = self._derive(plan, dt_s)
+        (_, _, _, sign, homing, mode, torque, key, position_mode, velocity_mode, pwm_mode, firmware_mode,
+         rewrap_on_switch, current_position, tripped, position_goal, gear, reference_filter, measure_filtered,
+         pwm_lim, margin, ke, r_arm, tick, ticks, ka, fa00, fa01, fa10, fa11, fb0, fb1,
+         a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max) = setup
+        self._sign, self._homing = sign, homing
+        p = motor.params
+        enc_off = self.encoder_offset_pulse
+        noise = self.sensors.position_noise_std_pulse
+        fw = self.fw
+        supply = self.supply_voltage_v
+        vf, rf = self.velocity_filter, self.reference_filter
+        linear = motor.friction is None and not motor.blocked
+        tau = motor.load_torque_nm / gear
+        protection = self.protection
+        i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
+        fy, fdy = vf.y, vf.dy
+        prof = self.profile
+        ppos, pvel, pacc, pongoing = prof.position, prof.velocity, prof.acceleration, prof.ongoing
+        integral = self.loop.integral
+        temp = self.temperature_c
+        duty = self.duty
+        wrap = self._wrap_pulse
+        # only the first tick can see a new mode or goal (the items do not change during the run)
         switched = key != self._prev_key
-        if switched and torque and mode == u.MODE_POSITION:
-            self._rewrap(raw)           # Present Position re-wrapped to one turn (+ Homing Offset)
-        present = raw - self._wrap_pulse + homing
-        vf.step(dt_s, float(raw))
-        if self._measure_filtered:
-            v_meas = vf.dy / PULSE_PER_S_PER_VEL_UNIT
-        else:                           # ideal estimator: the true speed (README: placement choice)
-            v_meas = sign * motor.output_speed_radps / u.RADPS_PER_VEL_UNIT
-        if switched:
-            self.loop.reset()
-            self._hold_position = None
-            if mode in u.POSITION_MODES:
-                self.profile.reset(float(present))
-                self.reference_filter.reset(float(present))
+        new_goal = switched or plan.goal_position != self._prev_goal_position
+        hold, goal_pulse = self._hold_position, self._goal_pulse
+        present = v_meas = 0
+        rad_per_pulse, radps_per_vel_unit, pwm_full_scale = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT, u.PWM_FULL_SCALE
+        floor = math.floor
+        started = self._started
+        for ran in range(1, n + 1):
+            # encoder (:meth:`_encoder_pulse`: the same arithmetic)
+            x = sign * (th / gear / rad_per_pulse + enc_off)
+            if noise:
+                x += self.rng.normal(0.0, noise)
+            raw = floor(x)
+            if not started:
+                vf.reset(raw)
+                fy, fdy = vf.y, vf.dy
+                self._started = started = True
+            if switched and rewrap_on_switch:
+                self._rewrap(raw)       # Present Position re-wrapped to one turn (+ Homing Offset)
+                wrap = self._wrap_pulse
+            present = raw - wrap + homing
+            fy, fdy = fa00 * fy + fa01 * fdy + fb0 * raw, fa10 * fy + fa11 * fdy + fb1 * raw
+            if measure_filtered:
+                v_meas = fdy / PULSE_PER_S_PER_VEL_UNIT
+            else:                       # ideal estimator: the true speed (README: placement choice)
+                v_meas = sign * (w / gear) / radps_per_vel_unit
+            if switched:
+                integral = 0.0
+                hold = None
+                pacc, pongoing = 0.0, False
+                if position_mode:
+                    ppos, pvel = float(present), 0.0
+                    rf.reset(float(present))
+                else:
+                    ppos, pvel = 0.0, v_meas if torque else 0.0
+                    rf.reset(v_meas if torque else 0.0)
+            voltage = None
+            if firmware_mode:           # the firmware's loops (e-Manual: operating modes)
+                w_m = sign * w          # motor speed in the servo frame
+                i_ref = None
+                if velocity_mode:
+                    ppos, pvel, pacc, pongoing = velocity_profile_step(ppos, pvel, dt_s, v_goal, v_a_max)
+                    ref = rf.step(dt_s, pvel) if reference_filter else pvel
+                    counts, integral = pi_step(integral, ticks, ka, ref - v_meas, kp, ki, 0.0, pwm_lim)
+                elif position_mode:
+                    goal = goal_pulse = position_goal
+                    if tripped:
+                        if hold is None:
+                            hold, new_goal = float(present), True
+                        goal = goal_pulse = hold
+                    if new_goal:        # a new profile starts whenever the goal changes
+                        prof.profile_type = profile_type(ppos, goal, p_v_max, p_a_max)
+                        pongoing = True
+                    ppos, pvel, pacc, pongoing = position_profile_step(ppos, pvel, pongoing, dt_s, goal,
+                                                                       p_v_max, p_a_max)
+                    ref = rf.step(dt_s, ppos) if reference_filter else ppos
+                    v_traj = pvel * tick                   # pulse per tick
+                    a_traj = pacc * tick * tick            # pulse per tick²
+                    v_err = v_traj - v_meas * PULSE_PER_S_PER_VEL_UNIT * tick
+                    extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                    counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
+                    if current_position:
+                        goal_i = plan.position_current_limit
+                        i_ref = max(-goal_i, min(goal_i, counts))
+                elif pwm_mode:
+                    counts = plan.pwm_counts
+                else:
+                    i_ref = plan.current_ref
+                if i_ref is not None:   # inner current loop: ideal inverse model + P on the error
+                    i_a = i_ref * u.AMP_PER_CURRENT_UNIT
+                    v = (r_arm * i_a + ke * w_m
+                         + p.inductance_h / fw.current_loop_time_constant_s * (i_a - sign * i_a_))
+                    counts = max(-pwm_lim, min(pwm_lim, v / supply * pwm_full_scale))
+                v = counts / pwm_full_scale * supply
+                # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
+                # (max(lo, min(hi, v)) written out: the same result, without two calls)
+                emf = ke * w_m
+                hi = emf + margin
+                v = v if v < hi else hi
+                lo = emf - margin
+                v = v if v > lo else lo
+                v = v if v < supply else supply
+                v = v if v > -supply else -supply
+                duty = v / supply
+                voltage = sign * v
             else:
-                self.profile.reset(0.0, v_meas if torque else 0.0)
-                self.reference_filter.reset(v_meas if torque else 0.0)
-        voltage = self._control(dt_s, plan, mode, present, v_meas, sign, switched) if torque else None
-        if voltage is None:
-            self.loop.reset()
-            self.duty = 0.0
-            self.profile.reset(float(present) if mode in u.POSITION_MODES else 0.0)
-        motor.step(dt_s, voltage)
-        self._heat(dt_s)
-        if self.protection is not None:
-            self.pending_hardware_error |= self.protection.update(
-                dt_s, motor.current_a, self.temperature_c, self.supply_voltage_v, table)
-        self._prev_key = key
-        self._prev_goal_position = plan.goal_position
+                integral = 0.0
+                duty = 0.0
+                ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
+            if not linear:              # gearbox friction or a held shaft: the motor's own step
+                motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
+                motor.step(dt_s, voltage)
+                i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
+            elif voltage is None:       # bridge open (:meth:`GearedMotor._step_linear`)
+                i_a_, w, th = 0.0, c00 * w + c01 * th + cb0 * tau, c10 * w + c11 * th + cb1 * tau
+            else:
+                i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01 * tau,
+                               a10 * i_a_ + a11 * w + b10 * voltage + b11 * tau,
+                               a20 * i_a_ + a21 * w + th + b20 * voltage + b21 * tau)
+            # winding temperature: first order towards ambient + R_th * I² R
+            steady = ambient + r_th * (i_a_ ** 2 * r_arm)
+            temp = steady + (temp - steady) * decay
+            switched = new_goal = False
+            if speeds is not None:
+                speeds.append(sign * (w / gear))
+            if positions is not None:
+                positions.append((sign * (th / gear / rad_per_pulse + enc_off) - wrap + homing) - sign * enc_off)
+            if protection is not None:
+                bits = protection.update(dt_s, i_a_, temp, supply, table)
+                if bits:
+                    self.pending_hardware_error |= bits
+                    break
+        motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
+        vf.y, vf.dy = fy, fdy
+        prof.position, prof.velocity, prof.acceleration, prof.ongoing = ppos, pvel, pacc, pongoing
+        self.loop.integral = integral
+        self.temperature_c = temp
+        self.duty = duty
+        self._prev_key, self._prev_goal_position = key, plan.goal_position
+        self._hold_position, self._goal_pulse = hold, goal_pulse
         self._last = (table, mode, torque, present, v_meas, sign)
+        return ran
+
+    def _derive(self, plan: "_InputPlan", dt_s: float) -> tuple:
+        """What :meth:`run` needs besides the state, for input items ``plan`` and steps of
+        ``dt_s`` at the present load inertia, as one flat tuple (in :meth:`run`'s unpacking order):
+        plan, step and inertia (the key), then mode flags, limits, gains, and the discrete
+        filter, motor (driven, coasting) and thermal coefficients."""
+        motor, fw, th = self.motor, self.fw, self.thermal
+        p = motor.params
+        vf = self.velocity_filter
+        if dt_s != vf._dt_s:
+            vf.prepare(dt_s)
+        ((fa00, fa01), (fa10, fa11)), (fb0, fb1) = vf._coef
+        (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
+         ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
+        ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
+        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = None
+        if plan.velocity_mode:
+            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
+            kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
+        elif plan.position_mode:
+            g = plan.position_gains
+            kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
+            p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
+        return (plan, dt_s, motor.load_inertia_kg_m2, plan.sign, plan.homing, plan.mode, plan.torque, plan.key,
+                plan.position_mode, plan.velocity_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
+                plan.current_position_mode, plan.tripped, plan.position_goal, motor.gear_ratio,
+                fw.bessel_placement == "reference", self._measure_filtered, plan.pwm_lim, plan.current_margin_v,
+                p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s, self.loop.ka,
+                fa00, fa01, fa10, fa11, fb0, fb1, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21,
+                c00, c01, c10, c11, cb0, cb1, math.exp(-dt_s / th.time_constant_s), th.ambient_c,
+                th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max)
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
@@ -268,69 +420,6 @@ class ServoModel:
                     "present_temperature": round(self.temperature_c)}
         return self._outputs(*self._last)
 
-    def _control(self, dt_s: float, plan: "_InputPlan", mode: int, present: int,
-                 v_meas: float, sign: int, switched: bool) -> float | None:
-        """Run the firmware for ``mode``; return the armature voltage (physical frame), V."""
-        pwm_lim = plan.pwm_lim
-        p = self.motor.params
-        w_m = sign * self.motor.speed_radps        # motor speed in the servo frame
-        i_ref = None
-        if mode == u.MODE_PWM:
-            counts = plan.pwm_counts
-        elif mode == u.MODE_CURRENT:
-            i_ref = plan.current_ref
-        elif mode == u.MODE_VELOCITY:
-            self.profile.step_velocity(dt_s, plan.velocity_goal, plan.velocity_a_max)
-            ref = self.profile.velocity
-            if self.fw.bessel_placement == "reference":
-                ref = self.reference_filter.step(dt_s, ref)
-            g = plan.velocity_gains
-            counts = self.loop.update(dt_s, ref - v_meas, g.kp, g.ki, 0.0, pwm_lim)
-        elif mode in u.POSITION_MODES:
-            counts = self._position_loop(dt_s, plan, mode, present, v_meas, pwm_lim, plan.tripped, switched)
-            if mode == u.MODE_CURRENT_POSITION:
-                goal_i = plan.position_current_limit
-                i_ref, counts = max(-goal_i, min(goal_i, counts)), None
-        else:
-            return None
-        if i_ref is not None:           # inner current loop: ideal inverse model + P on the error
-            i_a = i_ref * u.AMP_PER_CURRENT_UNIT
-            v = (p.resistance_ohm * i_a + p.back_emf_v_s_per_rad * w_m
-                 + p.inductance_h / self.fw.current_loop_time_constant_s * (i_a - sign * self.motor.current_a))
-            counts = max(-pwm_lim, min(pwm_lim, v / self.supply_voltage_v * u.PWM_FULL_SCALE))
-        v = counts / u.PWM_FULL_SCALE * self.supply_voltage_v
-        # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
-        margin = plan.current_margin_v
-        emf = p.back_emf_v_s_per_rad * w_m
-        v = max(emf - margin, min(emf + margin, v))
-        v = max(-self.supply_voltage_v, min(self.supply_voltage_v, v))
-        self.duty = v / self.supply_voltage_v
-        return sign * v
-
-    def _position_loop(self, dt_s: float, plan: "_InputPlan", mode: int, present: int,
-                       v_meas: float, pwm_lim: float, tripped: bool, switched: bool) -> float:
-        goal = plan.position_goal
-        self._goal_pulse = goal
-        new_goal = switched or plan.goal_position != self._prev_goal_position
-        if tripped:
-            if self._hold_position is None:
-                self._hold_position, new_goal = float(present), True
-            goal = self._goal_pulse = self._hold_position
-        v_max, a_max = plan.position_v_max, plan.position_a_max
-        if new_goal:                    # a new profile starts whenever the goal changes
-            self.profile.start_position(goal, v_max, a_max)
-        self.profile.step_position(dt_s, goal, v_max, a_max)
-        ref = self.profile.position
-        if self.fw.bessel_placement == "reference":
-            ref = self.reference_filter.step(dt_s, ref)
-        g = plan.position_gains
-        tick = self.fw.gain_time_base_s
-        v_traj = self.profile.velocity * tick                  # pulse per tick
-        a_traj = self.profile.acceleration * tick * tick       # pulse per tick²
-        v_err = v_traj - v_meas * PULSE_PER_S_PER_VEL_UNIT * tick
-        extra = g.kd * v_err + g.ff1 * v_traj + g.ff2 * a_traj
-        return self.loop.update(dt_s, ref - present, g.kp, g.ki, extra, pwm_lim)
-
     def _cached_gains(self, key: tuple, convert):
         """Converted gains for raw gain items ``key[1:]`` (building the dataclass every tick is slow)."""
         g = self._gains.get(key)
@@ -339,14 +428,6 @@ class ServoModel:
                 self._gains.clear()
             g = self._gains[key] = convert(*key[1:])
         return g
-
-    def _heat(self, dt_s: float) -> None:
-        th = self.thermal
-        if dt_s != self._heat_dt:
-            self._heat_dt, self._heat_decay = dt_s, math.exp(-dt_s / th.time_constant_s)
-        power = self.motor.current_a ** 2 * self.motor.params.resistance_ohm
-        steady = th.ambient_c + th.thermal_resistance_k_per_w * power
-        self.temperature_c = steady + (self.temperature_c - steady) * self._heat_decay
 
     def _outputs(self, t: Mapping[str, int], mode: int, torque: bool, present: int, v_meas: float,
                  sign: int) -> dict[str, int]:
@@ -394,7 +475,8 @@ class _InputPlan:
     __slots__ = ("sign", "homing", "mode", "torque", "key", "goal_position", "tripped", "pwm_lim",
                  "current_margin_v", "pwm_counts", "current_ref", "velocity_goal", "velocity_a_max",
                  "velocity_gains", "position_goal", "position_v_max", "position_a_max", "position_gains",
-                 "position_current_limit")
+                 "position_current_limit", "position_mode", "velocity_mode", "pwm_mode", "current_position_mode",
+                 "firmware_mode", "rewrap_on_switch")
 
     def __init__(self, t: Mapping[str, int], resistance_ohm: float, gains):
         self.sign = -1 if t["drive_mode"] & 1 else 1
@@ -402,6 +484,14 @@ class _InputPlan:
         self.mode = mode = t["operating_mode"]
         self.torque = t["torque_enable"] != 0
         self.key = (mode, self.torque, t["drive_mode"])
+        self.position_mode = mode in u.POSITION_MODES
+        self.velocity_mode = mode == u.MODE_VELOCITY
+        self.pwm_mode = mode == u.MODE_PWM
+        self.current_position_mode = mode == u.MODE_CURRENT_POSITION
+        # torque on in a mode the firmware runs loops for; Position mode re-wraps when it starts
+        self.firmware_mode = self.torque and (self.position_mode or self.velocity_mode or self.pwm_mode
+                                              or mode == u.MODE_CURRENT)
+        self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
         self.goal_position = t["goal_position"]
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])

@@ -36,6 +36,52 @@ def test_ticker_keeps_absolute_deadlines_and_counts_overruns():
     assert s.overruns == 1 and s.loop_period_p50_ms == pytest.approx(16.0)
 
 
+class BackgroundClock(FakeClock):
+    """A clock that sleeps while its caller works (as a lockstep emulator's does)."""
+
+    def __init__(self):
+        super().__init__()
+        self.log = []
+
+    def start_sleep(self, t):
+        self.log.append(("start", t))
+        self.asked, self.target = self.t, t
+
+    def end_sleep(self):
+        self.log.append(("end", self.target))
+        self.t = max(self.t, self.target)
+        return self.asked
+
+
+def test_ticker_runs_the_rest_of_the_cycle_while_a_background_clock_sleeps():
+    fc = BackgroundClock()
+    tk = Ticker(0.016, clock=fc)
+    t0 = tk.start()
+    fc.t += 0.003
+    k = tk.wait(lambda: fc.log.append("work"))
+    assert k == 1 and fc.t == pytest.approx(t0 + 0.016)
+    assert fc.log == [("start", t0 + 0.016), "work", ("end", t0 + 0.016)]
+    assert tk.last_busy_s == pytest.approx(0.003)       # the time when the sleep was asked
+
+
+def test_ticker_counts_an_overrun_seen_by_a_background_clock():
+    fc = BackgroundClock()
+    tk = Ticker(0.016, clock=fc)
+    t0 = tk.start()
+    fc.t += 0.040                                       # past slots 1 and 2
+    assert tk.wait(lambda: None) == 3
+    assert fc.t == pytest.approx(t0 + 3 * 0.016)
+    assert tk.stats.overruns == 1 and tk.stats.missed_slots == 2
+
+
+def test_ticker_runs_the_rest_of_the_cycle_first_on_a_plain_clock():
+    fc = FakeClock()
+    tk = Ticker(0.016, clock=fc)
+    t0 = tk.start()
+    tk.wait(lambda: setattr(fc, "t", fc.t + 0.020))    # the work itself overruns the period
+    assert tk.stats.overruns == 1 and fc.t == pytest.approx(t0 + 2 * 0.016)
+
+
 def test_ticker_rejects_bad_period():
     with pytest.raises(ValueError):
         Ticker(0.0)

@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import io
 import json
-import math
 import struct
 import time
 from dataclasses import dataclass, field
@@ -19,7 +18,8 @@ import numpy as np
 
 from swerve.driver.errors import ConfigError
 
-from .record import CYCLE_FIELDS, CYCLE_SIZE, LAYOUT_VERSION, CycleRecord, pack, unpack
+from .messages import CycleMessages
+from .record import CYCLE_FIELDS, LAYOUT_VERSION, CycleRecord, unpack
 
 #: Value of ``metadata["format"]`` that marks a swerve run log.
 FORMAT = "swerve-runlog"
@@ -87,8 +87,8 @@ class RunLogWriter:
             raise ConfigError(f"run-log metadata is not JSON-serialisable: {exc}") from exc
         self.flush_every = int(flush_every)
         self.cycles_written = 0
-        self._joints = joint_names(wheels)
         self._ts = _typestore()
+        self._msgs = CycleMessages(self._ts, joint_names(wheels))
         self._bag = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._conn: dict = {}
         self._open = False
@@ -147,7 +147,7 @@ class RunLogWriter:
         ns = int(rec.stamp_ns)
         if not self.cycles_written:
             self._put_metadata(ns)
-        for topic, msg in self._messages(rec):
+        for topic, msg in self._msgs.messages(rec):
             self._put(topic, ns, msg)
         self.cycles_written += 1
         if self.cycles_written % self.flush_every == 0:
@@ -158,57 +158,8 @@ class RunLogWriter:
         (~35 ms), which must not land in the first control cycle."""
         z = np.zeros(3)
         rec = CycleRecord(t_s=0.0, stamp_ns=0, cycle=0, ref_pose=z, true_pose=z, sim_pose=z)
-        for _, msg in self._messages(rec):
+        for _, msg in self._msgs.messages(rec):
             self._ts.serialize_cdr(msg, msg.__msgtype__)
-
-    def _messages(self, rec: CycleRecord) -> list:
-        """``(topic, message)`` for one cycle, ``/swerve/cycle`` first."""
-        T = self._ts.types
-        ns = int(rec.stamp_ns)
-        header = T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
-            frame_id="odom")
-        nan4 = np.full(4, np.nan)
-        layout = T["std_msgs/msg/MultiArrayLayout"](
-            dim=[T["std_msgs/msg/MultiArrayDimension"](label="cycle_record_v1", size=CYCLE_SIZE,
-                                                       stride=CYCLE_SIZE)],
-            data_offset=0)
-        out = [("/swerve/cycle", T["std_msgs/msg/Float64MultiArray"](layout=layout, data=pack(rec)))]
-        out.append(("/joint_states", T["sensor_msgs/msg/JointState"](
-            header=header, name=self._joints,
-            position=np.concatenate([nan4, rec.meas_steer_rad]),
-            velocity=np.concatenate([rec.meas_drive_radps, nan4]),
-            effort=np.asarray(rec.meas_current_a, dtype=np.float64))))
-        point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
-            positions=np.concatenate([nan4, rec.cmd_steer_rad]),
-            velocities=np.concatenate([rec.cmd_drive_radps, nan4]),
-            accelerations=np.empty(0), effort=np.empty(0),
-            time_from_start=T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0))
-        out.append(("/trajectory", T["trajectory_msgs/msg/JointTrajectory"](
-            header=header, joint_names=self._joints, points=[point])))
-        nan3 = T["geometry_msgs/msg/Vector3"](x=np.nan, y=np.nan, z=np.nan)
-        out.append(("/odom", T["nav_msgs/msg/Odometry"](
-            header=header, child_frame_id="base_link",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self._pose(rec.est_pose),
-                                                           covariance=np.zeros(36)),
-            twist=T["geometry_msgs/msg/TwistWithCovariance"](
-                twist=T["geometry_msgs/msg/Twist"](linear=nan3, angular=nan3),
-                covariance=np.zeros(36)))))
-        for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
-                            ("/sim_pose", rec.sim_pose)):
-            if np.isfinite(pose).all():
-                out.append((topic, T["geometry_msgs/msg/PoseStamped"](header=header,
-                                                                      pose=self._pose(pose))))
-        return out
-
-    def _pose(self, pose):
-        T = self._ts.types
-        x, y, th = (float(v) for v in pose)
-        return T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2),
-                                                          w=math.cos(th / 2)))
-
 
 # -- reading ---------------------------------------------------------------------------------
 @dataclass

@@ -4,6 +4,15 @@ With this clock the loop waits on simulated time, not the wall clock: ``sleep_un
 emulator to advance its physics to ``t`` (after it has taken every byte the driver wrote to the
 pty), and ``now()`` is the emulator's robot time, which includes the wire time of every bus
 exchange. The protocol is in :mod:`swerve.emulator.control` and emulator/README.md.
+
+Each request is a process hand-over, so the clock asks as little as it can, two requests per
+control cycle: ``now()`` asks ``pose`` (time and true pose in one answer) and ``pose()`` reuses
+that answer while no byte has been written since; with the bus attached (:meth:`attach`),
+``ask_after_next_write()`` sends that request the moment the read's instruction has gone out,
+so the emulator answers it in the same turn as the read; ``start_sleep(t)`` sends ``advance``
+without waiting, so the caller can work (e.g. write its log) while the emulator runs the
+physics, and the answer is read by the next call that needs the emulator (the caller must not
+write to the pty in between).
 """
 from __future__ import annotations
 
@@ -50,9 +59,14 @@ class LockstepClock:
         self._tx_last = 0
         self._now_s = 0.0
         self._known = False             # _now_s is the emulator's time (no request since)
-        self._pace: tuple[float, float] | None = None    # (robot s, wall s) when pacing started
+        self._pose: tuple[float, float, float] | None = None   # true pose at _now_s, if asked
+        self._pending: str | None = None    # a request sent whose answer is not read yet
+        self._asked_s: float | None = None  # robot time when the last advance was asked, until ended
+        self._pace_start: tuple[float, float] | None = None    # (robot s, wall s) when pacing started
         self.requests = 0
         self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
+        self._has_body = bool(self.emulator.get("body", 0))
+        self._attached = self._armed = False
 
     def count_tx(self, tx_bytes: Callable[[], int]) -> None:
         """Count the bytes written to the pty with ``tx_bytes()`` from now on (the barrier)."""
@@ -60,9 +74,35 @@ class LockstepClock:
         self._tx_last = tx_bytes()
 
     def _ask(self, request: str) -> list[str]:
+        self._send(request)
+        return self._answer()
+
+    def _send(self, request: str) -> None:
+        self._answer_pending()
         self.requests += 1
         try:
             self._sock.sendall(request.encode("ascii") + b"\n")
+        except OSError as exc:
+            raise LockstepError(f"lockstep emulator: {request.split()[0]} failed: {exc}") from None
+        self._pending = request
+
+    def _answer_pending(self) -> None:
+        """Collect the answer to a request left pending (:meth:`start_sleep`, :meth:`written`)."""
+        if self._pending is None:
+            return
+        if self._pending.startswith("pose "):
+            self._take_pose(self._answer())
+            return
+        words = self._answer()
+        self._now_s = float(words[1])
+        self._known = True
+        self._asked_s = float(words[2]) if len(words) > 2 else self._now_s
+        if self.time_scale is not None:
+            self._pace()
+
+    def _answer(self) -> list[str]:
+        request, self._pending = self._pending, None
+        try:
             line = self._reader.readline()
         except OSError as exc:
             raise LockstepError(f"lockstep emulator: {request.split()[0]} failed: {exc}") from None
@@ -82,24 +122,46 @@ class LockstepClock:
         """Robot time, s (bus exchanges so far included).
 
         Without bytes written since the last answer, robot time cannot have moved (this client
-        is the one that moves it), so the last answer is returned without asking."""
+        is the one that moves it), so the last answer is returned without asking. Otherwise
+        the true pose comes with the time, for :meth:`pose`."""
+        self._answer_pending()
         if self._tx() != self._tx_last or not self._known:
-            self._now_s = float(self._ask(f"now {self._delta()}")[1])
-            self._known = True
+            if self._has_body:
+                self._ask_pose()
+            else:
+                self._now_s = float(self._ask(f"now {self._delta()}")[1])
+                self._known = True
         return self._now_s
+
+    def start_sleep(self, t: float) -> None:
+        """Ask the emulator to advance robot time to ``t`` and return without waiting; the caller
+        may work meanwhile but must write nothing to the pty before :meth:`end_sleep` (any other
+        request ends the sleep first)."""
+        self._send(f"advance {t!r} {self._delta()}")
+        self._known, self._pose, self._asked_s = False, None, None
+
+    def end_sleep(self) -> float:
+        """Wait for the advance asked by :meth:`start_sleep` (the physics then stands at ``t``);
+        with a time scale, also until the wall clock has caught up. Returns the robot time when
+        the advance was asked, s (every byte written before it served)."""
+        self._answer_pending()
+        if self._asked_s is None:
+            raise LockstepError("end_sleep() without start_sleep()")
+        asked_s, self._asked_s = self._asked_s, None
+        return asked_s
 
     def sleep_until(self, t: float) -> None:
         """Advance robot time to ``t`` (the physics runs there); with a time scale, also wait
         until the wall clock has caught up with it."""
-        self._now_s = float(self._ask(f"advance {t!r} {self._delta()}")[1])
-        self._known = True
-        if self.time_scale is None:
-            return
+        self.start_sleep(t)
+        self.end_sleep()
+
+    def _pace(self) -> None:
         wall = time.monotonic()
-        if self._pace is None:
-            self._pace = (self._now_s, wall)
+        if self._pace_start is None:
+            self._pace_start = (self._now_s, wall)
             return
-        due = self._pace[1] + (self._now_s - self._pace[0]) / self.time_scale
+        due = self._pace_start[1] + (self._now_s - self._pace_start[0]) / self.time_scale
         while due > wall:
             time.sleep(due - wall)
             wall = time.monotonic()
@@ -116,17 +178,45 @@ class LockstepClock:
         return round(self._now_s * 1e9)
 
     def pose(self) -> tuple[float, float, float]:
-        """True body pose ``(x_m, y_m, theta_rad)`` after every byte written so far was served."""
-        words = self._ask(f"pose {self._delta()}")
+        """True body pose ``(x_m, y_m, theta_rad)`` after every byte written so far was served
+        (the answer that came with the last :meth:`now`, if nothing was written since)."""
+        self._answer_pending()
+        if self._pose is None or self._tx() != self._tx_last:
+            self._ask_pose()
+        return self._pose
+
+    def _ask_pose(self) -> None:
+        self._take_pose(self._ask(f"pose {self._delta()}"))
+
+    def _take_pose(self, words: list[str]) -> None:
         self._now_s = float(words[1])
+        self._pose = (float(words[2]), float(words[3]), float(words[4]))
         self._known = True
-        return float(words[2]), float(words[3]), float(words[4])
+
+    def ask_after_next_write(self) -> None:
+        """Have :meth:`written` ask for the time and pose right after the next instruction is
+        sent (the emulator answers once it has served it), so the :meth:`now` that follows its
+        reply costs no extra round trip. Needs the bus's write callback (:meth:`attach`)."""
+        self._armed = self._has_body and self._attached
+
+    def written(self) -> None:
+        """The bus's after-write callback: sends the request :meth:`ask_after_next_write` armed."""
+        if self._armed:
+            self._armed = False
+            self._send(f"pose {self._delta()}")
+
+    def attach(self, bus) -> None:
+        """Count the bytes ``bus`` (a :class:`swerve.driver.bus.Bus`) writes to the pty and
+        hear of each write (``bus.call_after_write``)."""
+        self.count_tx(lambda: bus.bytes_written)
+        bus.call_after_write(self.written)
+        self._attached = True
 
     def fault(self, what: str, *args) -> None:
         """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,
         ``fault("restore", 7)``, ``fault("hwerror", 5, "overload")``."""
         self._ask(" ".join(["fault", str(self._delta()), what, *map(str, args)]))
-        self._known = False
+        self._known, self._pose = False, None
 
     def counters(self) -> dict[str, int]:
         """The emulator's bus counters (``replies_dropped``, ``packets_received``, ...)."""
@@ -134,11 +224,13 @@ class LockstepClock:
         return {k: int(v) for k, v in zip(words[::2], words[1::2])}
 
     def info(self) -> dict[str, float]:
-        """``{"rate_hz", "reply_latency_s", "baud"}`` of the emulator."""
+        """``{"rate_hz", "reply_latency_s", "baud", "body"}`` of the emulator (``body`` 1: it
+        has a robot body, so a true pose)."""
         words = self._ask("info")[1:]
         return {k: float(v) for k, v in zip(words[::2], words[1::2])}
 
     def close(self) -> None:
+        self._pending = None
         for closer in (self._reader.close, self._sock.close):
             try:
                 closer()

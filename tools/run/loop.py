@@ -137,6 +137,8 @@ class TrackingLoop:
         self.on_cycle = on_cycle
         self.clock = WallClock() if clock is None else clock
         self._stamp_ns = getattr(self.clock, "stamp_ns", time.time_ns)
+        # a lockstep clock can ask for the time after a read while the reply is on its way
+        self._before_read = getattr(self.clock, "ask_after_next_write", lambda: None)
         self.count_host_cpu = bool(count_host_cpu)
         self.fault_policy = fault_policy
         self.failed_reads = 0
@@ -238,6 +240,7 @@ class TrackingLoop:
                                         f"reference clock stands at {law.reference_time_s:.1f} of "
                                         f"{law.reference.tf_s:.1f} s; stopping", "diverged")
                     self._touch_bus()
+                    self._before_read()
                     try:
                         st = self._read()
                     except LoopAbort as exc:
@@ -250,6 +253,7 @@ class TrackingLoop:
                         odo = Odometry(geom, odo.pose)   # a rebooted servo's wheel angle starts over
                         continue
                     t_meas = self.clock.now()     # the reply's time on the loop's clock
+                    truth = self._pose_truth()    # the true pose at that time (emulator only)
                     flags = 0
                     if st is None:
                         flags |= _STALE
@@ -269,22 +273,26 @@ class TrackingLoop:
                     drive = [v1 / geom.wheel_radius_m] * 4
                     self._touch_bus(t_meas)
                     self.wheels.write_goals(drive, steer)
-                    truth = self._pose_truth()
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
                     if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
                         flags |= _OVERRUN
                     rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
                                  out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
+                    fields = None
                     if self.on_cycle is not None:
                         fields = self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
                                              pose, out.desired_state, truth, flags)
                         fields["stamp_ns"] = self._stamp_ns()
-                        self.on_cycle(fields)
-                    cpu = time.thread_time() - cpu0
-                    cpu_s.append(cpu)
-                    k = ticker.wait()
+
+                    def finish_cycle(fields=fields, cpu0=cpu0):
+                        # the log is written while a lockstep emulator runs the physics
+                        if fields is not None:
+                            self.on_cycle(fields)
+                        cpu_s.append(time.thread_time() - cpu0)
+
+                    k = ticker.wait(finish_cycle)
                     cpu0 = time.thread_time()
-                    if self.count_host_cpu and ticker.last_busy_s + cpu > ticker.period_s:
+                    if self.count_host_cpu and ticker.last_busy_s + cpu_s[-1] > ticker.period_s:
                         cpu_overruns += 1
             except LoopAbort as exc:
                 aborted = exc

@@ -190,7 +190,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         fault_policy = policy(req.on_servo_fault, clock=clock, **margin)
         bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
         if clock is not None:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)
         # its exit stops the wheels and turns the torque off: a stop signal waits for it
         wheels = stack.enter_context(shielded_exit(WheelSet(bus, cfg, fast=req.fast_read)))
         wheels.configure()
@@ -231,7 +231,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         bus_stats, clock_stats = emu.final_stats["bus"], emu.final_stats["clock"]
         emulator = EmulatorStats(bus_stats.get("replies_dropped", 0),
                                  None if req.lockstep else clock_stats.get("achieved_scale"),
-                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"))
+                                 clock_stats.get("lost_sim_s"), clock_stats.get("real_time_factor"),
+                                 emu.final_stats.get("serve_cpu_s"))
     elif counters is not None:
         emulator = EmulatorStats(counters.get("replies_dropped", 0), None, 0.0)
     aborted = result.aborted

@@ -64,12 +64,14 @@ class LoopTiming:
 class EmulatorStats:
     """What the emulator counted: replies it dropped (fault injection), the time scale it
     achieved (robot s per wall s; wall clock only), the robot time it lost to a slow host, s, and
-    its physics' real-time factor (robot s per CPU s of physics steps; host-measured)."""
+    its physics' real-time factor (robot s per CPU s of physics steps; host-measured) and the CPU
+    its process spent serving the bus, physics included (s; host-measured)."""
 
     emulator_replies_dropped: int
     emulator_achieved_time_scale: float | None
     emulator_lost_sim_s: float | None
     emulator_physics_real_time_factor: float | None = None
+    emulator_cpu_s: float | None = None
 
 
 @dataclass(frozen=True)

@@ -14,7 +14,7 @@ import contextlib
 import gc
 import time
 from dataclasses import dataclass, field
-from typing import Protocol
+from typing import Callable, Protocol
 
 import numpy as np
 
@@ -32,6 +32,10 @@ class Clock(Protocol):
 
     def stamp_ns(self) -> int:
         """A log stamp for the current cycle, ns."""
+
+    # Optional, for a clock that can sleep while its caller works (see Ticker.wait):
+    # start_sleep(t) asks for the sleep; end_sleep() -> float waits for it and returns the
+    # clock's time when it was asked.
 
 
 class WallClock:
@@ -108,20 +112,34 @@ class Ticker:
     def deadline(self, k: int) -> float:
         return self._t0 + k * self.period_s
 
-    def wait(self) -> int:
-        """Sleep until the next slot; return its index (slots missed by an overrun are skipped)."""
+    def wait(self, meanwhile: Callable[[], None] | None = None) -> int:
+        """Sleep until the next slot; return its index (slots missed by an overrun are skipped).
+
+        ``meanwhile``: the rest of the cycle's work (e.g. writing the log). On a clock that can
+        sleep in the background (``start_sleep``/``end_sleep``: a lockstep emulator, whose time
+        host work does not take) it runs while the clock advances; on any other clock first, as
+        part of the cycle."""
         if self._t0 is None:
             raise RuntimeError("Ticker.start() first")
-        now = self.clock.now()
-        self.last_busy_s = now - self._last_wake
         nxt = self._k + 1
+        start_sleep = getattr(self.clock, "start_sleep", None)
+        if start_sleep is not None:
+            start_sleep(self.deadline(nxt))     # a no-op advance if the work ran past it
+            if meanwhile is not None:
+                meanwhile()
+            now = self.clock.end_sleep()        # the clock's time when the sleep was asked
+        else:
+            if meanwhile is not None:
+                meanwhile()
+            now = self.clock.now()
+        self.last_busy_s = now - self._last_wake
         if now > self.deadline(nxt):  # the work ran past the next deadline: overrun
             behind = int((now - self._t0) // self.period_s)  # last slot already begun
             self.stats.overruns += 1
             self.stats.missed_slots += behind - nxt + 1
             self.stats.late_s.append(now - self.deadline(nxt))
             nxt = behind + 1
-        if self.deadline(nxt) > now:
+        if self.deadline(nxt) > self.clock.now():
             self.clock.sleep_until(self.deadline(nxt))
         wake = self.clock.now()
         self.stats.periods_s.append(wake - self._last_wake)

@@ -1,0 +1,197 @@
+"""Several physics ticks per call give exactly the state of one tick at a time.
+
+Between two bus events the emulator runs each servo ``n`` ticks in one call
+(:meth:`ServoModel.run`, :meth:`VirtualServo.advance_many`) and then the kinematic body from the
+recorded wheel states (:meth:`Emulator.step_many`). Here two emulators built alike get the same
+bus writes; one advances with ``emu.advance`` / the lockstep clock (batched), the other with
+``emu.step`` once per tick (interleaved, servo after servo in every tick). Every state variable,
+every published byte and the pose must be equal (``==``, not approximately).
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import pytest
+
+from swerve.configs import shipped
+from swerve.driver.control_table import Reg
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.clock import LockstepClock
+from swerve.emulator.physics import units as u
+from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
+from swerve.emulator.physics.profiles import resolve_emulator_config
+from swerve.emulator.physics.servo_model import ServoModel
+from swerve.emulator.robot_emulator import build_emulator
+
+RATE_HZ = 1000.0
+CYCLE_S = 0.016
+ROBOT_MODES = {i: u.MODE_VELOCITY if i <= 4 else u.MODE_POSITION for i in range(1, 9)}
+#: Every operating mode on a bank of free shafts.
+ALL_MODES = dict(enumerate((u.MODE_VELOCITY, u.MODE_POSITION, u.MODE_PWM, u.MODE_CURRENT,
+                            u.MODE_EXTENDED_POSITION, u.MODE_CURRENT_POSITION, u.MODE_VELOCITY,
+                            u.MODE_POSITION), start=1))
+WATCHDOG_ID = 3        # stops being fed at cycle 40: its Bus Watchdog (60 ms) trips mid-cycle
+TORQUE_OFF_ID = 4      # torque off at cycle 50, on again at cycle 58
+STALLED_IDS = (1, 6)   # held shafts in the bank: the overload protection trips (realistic)
+
+
+def _physics(profile: str, kinematic: bool):
+    cfg = load_config(resolve_emulator_config(profile))
+    if kinematic:          # the realistic servos (friction, protection, tolerances) on the kinematic body
+        cfg = dataclasses.replace(cfg, contact=ContactParams(enabled=False), supply=SupplyParams())
+    return cfg
+
+
+def _emulator(profile: str, body: bool, noise: str | None = None, kinematic: bool = False):
+    robot = load_robot_config(shipped("robot.yaml"))
+    emu = build_emulator(robot if body else None, _physics(profile, kinematic), ids=None if body else range(1, 9),
+                         time_scale=0, rate_hz=RATE_HZ, noise=noise, body=body)
+    modes = ROBOT_MODES if body else ALL_MODES
+    for s in emu.servos:
+        _write(s, Reg.OPERATING_MODE, modes[s.id])
+        if s.id == WATCHDOG_ID:
+            _write(s, Reg.BUS_WATCHDOG, 3)
+        _write(s, Reg.TORQUE_ENABLE, 1)
+        if not body and s.id in STALLED_IDS:
+            s.dynamics.model.motor.blocked = True
+    return emu, modes
+
+
+def _write(servo, reg, value: int) -> None:
+    """A bus write (it may be refused, e.g. goals after a watchdog trip: alike on both emulators)."""
+    t = servo.table[reg]
+    servo.bus_write(t.address, int(value).to_bytes(t.size, "little", signed=True))
+
+
+def _commands(emu, modes, k: int) -> None:
+    """Cycle ``k``'s bus writes: goals in every mode, a profile change, torque off/on, traffic."""
+    for s in emu.servos:
+        mode = modes[s.id]
+        if not (s.id == WATCHDOG_ID and k >= 40):
+            s.note_traffic()
+        if s.dynamics.model.motor.blocked:      # a stalled shaft pushed hard: overload
+            if mode == u.MODE_VELOCITY:
+                _write(s, Reg.GOAL_VELOCITY, 200)
+            else:
+                _write(s, Reg.GOAL_POSITION, 3048)
+        elif mode == u.MODE_VELOCITY:
+            _write(s, Reg.GOAL_VELOCITY, int(150 * math.sin(k / 5.0)) + (300 if 20 < k < 30 else 0))
+        elif mode in u.POSITION_MODES:
+            _write(s, Reg.GOAL_POSITION, 2048 + int(600 * math.sin(k / 7.0)))
+            if k == 15:
+                _write(s, Reg.PROFILE_VELOCITY, 100)
+                _write(s, Reg.PROFILE_ACCELERATION, 20)
+        elif mode == u.MODE_PWM:
+            _write(s, Reg.GOAL_PWM, int(800 * math.sin(k / 4.0)))
+        elif mode == u.MODE_CURRENT:
+            _write(s, Reg.GOAL_CURRENT, int(900 * math.sin(k / 4.0)))
+        if s.id == TORQUE_OFF_ID and k in (50, 58):
+            _write(s, Reg.TORQUE_ENABLE, int(k == 58))
+
+
+def _model_state(m: ServoModel) -> tuple:
+    mo, p = m.motor, m.profile
+    return (mo.current_a, mo.speed_radps, mo.angle_rad, mo.stuck, mo.friction_torque_nm,
+            m.velocity_filter.y, m.velocity_filter.dy, m.reference_filter.y, m.reference_filter.dy,
+            p.position, p.velocity, p.acceleration, p.ongoing, p.profile_type, m.loop.integral,
+            m.temperature_c, m.duty, m._wrap_pulse, m._goal_pulse, m._hold_position,
+            m.protection.overload_timer_s if m.protection is not None else None)
+
+
+def _snapshot(emu) -> list:
+    """Everything observable: the present items as the bus reads them, latched errors, the
+    watchdog, Realtime Tick, every physics state variable, the pose and the clock."""
+    table = emu.servos[0].table
+    first = table[Reg.PRESENT_PWM].address
+    length = table[Reg.PRESENT_TEMPERATURE].address + 1 - first
+    out = [emu.sim_time_s, emu.stats.clock_ticks, emu.world.pose if emu.world is not None else None]
+    for s in emu.servos:
+        out.append((s.id, s.read_status(first, length).params, s.memory.get(Reg.REALTIME_TICK),
+                    s.memory.get(Reg.HARDWARE_ERROR_STATUS), s.memory.get(Reg.BUS_WATCHDOG),
+                    s.memory.get(Reg.TORQUE_ENABLE), _model_state(s.dynamics.model)))
+    return out
+
+
+def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, int]:
+    """The same commands on two emulators: batched steps vs one :meth:`Emulator.step` per tick.
+    Returns both snapshot lists and the number of multi-tick ServoModel.run calls."""
+    runs = []
+    original = ServoModel.run
+
+    def counting(self, dt_s, table, n=1, **kwargs):
+        runs.append(n)
+        return original(self, dt_s, table, n, **kwargs)
+
+    monkeypatch.setattr(ServoModel, "run", counting)
+    batched, stepped = _emulator(**build), _emulator(**build)
+    steps = round(CYCLE_S * RATE_HZ)
+    a, b = [], []
+    for k in range(70):
+        for (emu, modes), out in ((batched, a), (stepped, b)):
+            _commands(emu, modes, k)
+            if emu is batched[0]:
+                advance_batched(emu, k)
+            else:
+                for _ in range(steps):
+                    emu.step(1.0 / RATE_HZ)
+            out.append(_snapshot(emu))
+    return a, b, sum(1 for n in runs if n > 1)
+
+
+def _by_advance(emu, k):
+    emu.advance(CYCLE_S)
+
+
+@pytest.mark.parametrize("profile", ["ideal", "realistic"])
+@pytest.mark.parametrize("body", [True, False], ids=["robot", "bank"])
+def test_batched_ticks_equal_single_ticks(monkeypatch, profile, body):
+    a, b, batched_runs = _runs(monkeypatch, _by_advance, profile=profile, body=body, kinematic=True)
+    assert batched_runs > 0                 # the batched path did run
+    assert a == b
+
+
+def test_batched_ticks_trip_the_watchdog_protection_and_torque_off_as_single_ticks(monkeypatch):
+    """The bank's realistic run exercises every split of a batch: the cases happened."""
+    a, b, _ = _runs(monkeypatch, _by_advance, profile="realistic", body=False)
+    assert a == b
+    final = {row[0]: row for row in a[-1][3:]}
+    assert final[WATCHDOG_ID][4] == -1                       # the watchdog tripped
+    assert all(final[i][3] for i in STALLED_IDS)             # Overload latched on the held shafts
+    assert any({r[0]: r for r in snap[3:]}[TORQUE_OFF_ID][5] == 0 for snap in a)   # torque was off
+
+
+def test_lockstep_clock_runs_batches_equal_to_single_ticks(monkeypatch):
+    """The lockstep clock moves time to arbitrary instants (bus exchanges): uneven batches."""
+    clock = LockstepClock(RATE_HZ)
+
+    def by_clock(emu, k):
+        for t in (0.0003, 0.0041, 0.0107, 0.016):          # instants inside the cycle
+            clock.advance_to(emu, k * CYCLE_S + t)
+
+    a, b, batched_runs = _runs(monkeypatch, by_clock, profile="ideal", body=True)
+    assert batched_runs > 0
+    assert a == b
+
+
+@pytest.mark.parametrize("profile", ["ideal", "realistic"])
+def test_unbatchable_worlds_step_tick_by_tick(monkeypatch, profile):
+    """Sensor noise (shared draws), tyre forces and supply sag keep the per-tick interleaving."""
+    noise = "position=0.5,current=0.002,seed=4" if profile == "ideal" else None
+    a, b, batched_runs = _runs(monkeypatch, _by_advance, profile=profile, body=True, noise=noise)
+    assert batched_runs == 0
+    assert a == b
+
+
+def test_lockstep_jump_equals_single_ticks():
+    """A jump of 0.35 s: several holds of the lock (MAX_STEPS_PER_HOLD) and a watchdog trip."""
+    clock = LockstepClock(RATE_HZ)
+    batched, stepped = _emulator("ideal", True), _emulator("ideal", True)
+    for emu, modes in (batched, stepped):
+        _commands(emu, modes, 3)
+    clock.advance_to(batched[0], 0.35)
+    for _ in range(350):
+        stepped[0].step(1.0 / RATE_HZ)
+    snap = _snapshot(batched[0])
+    assert snap == _snapshot(stepped[0])
+    assert {r[0]: r for r in snap[3:]}[WATCHDOG_ID][4] == -1       # the watchdog tripped during the jump
