@@ -3,10 +3,13 @@
 Runs ``swerve emulate`` in a separate process (as a user would), sets every servo's Return
 Delay Time to 0 (what ``configs/robot.yaml`` asks for), then for a few seconds each times
 Sync Read of Present Position (4 bytes) from IDs 1-8 with dynamixel-sdk 4.1 (unmodified) and
-with the project's ``driver.bus.Bus``, without and with ``--wire-timing`` at 1 Mbps. The
-wire-time limit is computed from the byte counts (10 bits per byte, no gaps).
+with the project's ``driver.bus.Bus``, one after the other against the same emulator process,
+without and with ``--wire-timing`` at 1 Mbps, ``--repeat`` times. The wire-time limit is
+computed from the byte counts (10 bits per byte, no gaps). Per row it also records the CPU
+time per round trip of the client (this process, ``time.process_time``) and of the emulator
+process (``/proc/PID/stat``, 10 ms ticks), and the 1-minute load average when the row started.
 
-    .venv/bin/python bench/bench_emulator.py [--seconds 3] [--no-write]
+    .venv/bin/python bench/bench_emulator.py [--seconds 3] [--repeat 3] [--no-write]
 
 Writes the section "## Emulator bus" of BENCHMARKS.md (other sections untouched).
 """
@@ -18,9 +21,11 @@ import os
 import platform
 import re
 import signal
+import statistics
 import subprocess
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -83,21 +88,45 @@ def _zero_return_delay(port: str) -> None:
         ph.closePort()
 
 
-def _rate(fn, seconds: float) -> tuple[float, int]:
-    """Calls per second of ``fn`` (returns False on failure) and the failure count."""
+@dataclass(frozen=True)
+class Row:
+    """One client measured for ``seconds`` against one emulator."""
+
+    line: str                  # "pty, no wire timing" or "--wire-timing 1 Mbps"
+    client: str
+    rate_hz: float             # round trips per second (failed ones included)
+    fails: int                 # round trips that timed out
+    client_cpu_us: float       # CPU of this process per round trip, us
+    emulator_cpu_us: float     # CPU of the emulator process per round trip, us
+    load_1min: float           # 1-minute load average when the row started
+
+
+def _process_cpu_s(pid: int) -> float:
+    """User + system CPU seconds of process ``pid`` so far (all its threads)."""
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _rate(fn, seconds: float, emulator_pid: int) -> tuple[float, int, float, float]:
+    """Calls per second of ``fn`` (returns False on failure), the failure count, and CPU us per
+    call of this process and of the emulator."""
     for _ in range(20):
         fn()                                   # warm up
     n = fails = 0
+    cpu0, emu0 = time.process_time(), _process_cpu_s(emulator_pid)
     t0 = time.perf_counter()
     deadline = t0 + seconds
     while time.perf_counter() < deadline:
         if not fn():
             fails += 1
         n += 1
-    return n / (time.perf_counter() - t0), fails
+    elapsed = time.perf_counter() - t0
+    cpu, emu = time.process_time() - cpu0, _process_cpu_s(emulator_pid) - emu0
+    return n / elapsed, fails, cpu / n * 1e6, emu / n * 1e6
 
 
-def bench_sdk(port: str, seconds: float) -> tuple[float, int]:
+def bench_sdk(port: str, seconds: float, emulator_pid: int) -> tuple[float, int, float, float]:
     import dynamixel_sdk as sdk
 
     ph, pk = sdk.PortHandler(port), sdk.PacketHandler(2.0)
@@ -107,12 +136,12 @@ def bench_sdk(port: str, seconds: float) -> tuple[float, int]:
     for i in IDS:
         group.addParam(i)
     try:
-        return _rate(lambda: group.txRxPacket() == sdk.COMM_SUCCESS, seconds)
+        return _rate(lambda: group.txRxPacket() == sdk.COMM_SUCCESS, seconds, emulator_pid)
     finally:
         ph.closePort()
 
 
-def bench_driver(port: str, seconds: float) -> tuple[float, int] | None:
+def bench_driver(port: str, seconds: float, emulator_pid: int) -> tuple[float, int, float, float] | None:
     try:
         from swerve.driver.bus import Bus
         from swerve.driver.control_table import Reg
@@ -130,50 +159,63 @@ def bench_driver(port: str, seconds: float) -> tuple[float, int] | None:
             except DxlError:
                 return False
 
-        return _rate(once, seconds)
+        return _rate(once, seconds, emulator_pid)
 
 
-def run(seconds: float) -> list[tuple[str, str, float, int]]:
+SDK, DRIVER = "dynamixel-sdk 4.1", "driver.bus.Bus"
+LINES = (("pty, no wire timing", ()), ("--wire-timing 1 Mbps", ("--wire-timing",)))
+
+
+def run(seconds: float, repeat: int = 1) -> list[Row]:
+    """``repeat`` rounds; in each, per line one emulator process, the SDK then the driver."""
     rows = []
-    for label, extra in (("pty, no wire timing", ()), ("--wire-timing 1 Mbps", ("--wire-timing",))):
-        emu = EmulatorProcess(*extra)
-        try:
-            _zero_return_delay(emu.port)
-            rate, fails = bench_sdk(emu.port, seconds)
-            rows.append((label, "dynamixel-sdk 4.1", rate, fails))
-            res = bench_driver(emu.port, seconds)
-            if res is not None:
-                rows.append((label, "driver.bus.Bus", *res))
-        finally:
-            emu.close()
+    for _ in range(repeat):
+        for label, extra in LINES:
+            emu = EmulatorProcess(*extra)
+            try:
+                _zero_return_delay(emu.port)
+                for client, bench in ((SDK, bench_sdk), (DRIVER, bench_driver)):
+                    load = os.getloadavg()[0]
+                    res = bench(emu.port, seconds, emu.proc.pid)
+                    if res is not None:
+                        rows.append(Row(label, client, *res, load))
+            finally:
+                emu.close()
     return rows
 
 
-def render(rows, seconds: float) -> str:
+def render(rows: list[Row], seconds: float, repeat: int) -> str:
     nbytes, limit = wire_limit_rtps()
     lines = [
         SECTION, "",
         f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC; `nproc` = {os.cpu_count()}; "
-        f"CPU {cpu_model()}; Python {platform.python_version()}; `bench/bench_emulator.py` "
-        f"({seconds:g} s per row).",
+        f"CPU {cpu_model()}; Python {platform.python_version()}; `bench/bench_emulator.py "
+        f"--seconds {seconds:g} --repeat {repeat}`.",
         "",
         "8-servo Sync Read of Present Position (4 bytes, IDs 1-8), Return Delay Time 0, "
-        "`swerve emulate` in its own process, client in this one.",
+        "`swerve emulate` in its own process, client in this one; in each round the SDK and the "
+        "driver take turns against the same emulator process. CPU per round trip: the client "
+        "process and the emulator process; load: 1-minute load average when the row started.",
         "",
-        "| line | client | round trips/s | failed |",
-        "|---|---|---:|---:|",
+        "| round | line | client | round trips/s | failed | client CPU us/rt | emulator CPU us/rt | load |",
+        "|---:|---|---|---:|---:|---:|---:|---:|",
     ]
-    for label, client, rate, fails in rows:
-        lines.append(f"| {label} | {client} | {rate:.0f} | {fails} |")
-    by_line: dict[str, dict[str, float]] = {}
-    for label, client, rate, _ in rows:
-        by_line.setdefault(label, {})[client] = rate
+    per_round = max(1, len(rows) // repeat)
+    for k, r in enumerate(rows):
+        lines.append(f"| {k // per_round + 1} | {r.line} | {r.client} | {r.rate_hz:.0f} | {r.fails} | "
+                     f"{r.client_cpu_us:.0f} | {r.emulator_cpu_us:.0f} | {r.load_1min:.2f} |")
     lines.append("")
-    for label, rates in by_line.items():
+    for label, _ in LINES:
+        rates = {c: statistics.median(r.rate_hz for r in rows if r.line == label and r.client == c)
+                 for c in (SDK, DRIVER) if any(r.line == label and r.client == c for r in rows)}
+        cpu = {c: statistics.median(r.client_cpu_us for r in rows if r.line == label and r.client == c)
+               for c in rates}
         if len(rates) == 2:
-            sdk, ours = rates["dynamixel-sdk 4.1"], rates["driver.bus.Bus"]
-            lines.append(f"- {label}: driver / SDK = **{ours / sdk:.2f}**"
-                         + (f"; driver at {ours / limit:.0%} of the wire limit" if label.startswith("--wire") else ""))
+            lines.append(f"- {label}, medians of {repeat}: driver {rates[DRIVER]:.0f} vs SDK {rates[SDK]:.0f} "
+                         f"round trips/s, driver / SDK = **{rates[DRIVER] / rates[SDK]:.2f}**; client CPU "
+                         f"{cpu[DRIVER]:.0f} vs {cpu[SDK]:.0f} us per round trip"
+                         + (f"; driver at **{rates[DRIVER] / limit:.0%}** of the wire limit, SDK at "
+                            f"{rates[SDK] / limit:.0%}" if label.startswith("--wire") else ""))
     lines += [
         "",
         f"Wire-time limit at 1 Mbps: {nbytes} bytes per round trip (22 instruction + 8 x 15 status) "
@@ -191,9 +233,12 @@ def render(rows, seconds: float) -> str:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per row")
+    ap.add_argument("--repeat", type=int, default=3, help="rounds (each: both lines, both clients)")
     ap.add_argument("--no-write", action="store_true", help="print only, do not edit BENCHMARKS.md")
     args = ap.parse_args()
-    text = render(run(args.seconds), args.seconds)
+    if args.repeat < 1 or not args.seconds > 0:
+        ap.error("--repeat must be >= 1 and --seconds > 0")
+    text = render(run(args.seconds, args.repeat), args.seconds, args.repeat)
     print(text)
     if not args.no_write:
         write_section(SECTION, text)

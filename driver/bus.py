@@ -46,6 +46,30 @@ RegLike = str | Reg
 _CHAINED_READS = frozenset((Instruction.SYNC_READ, Instruction.BULK_READ))
 #: Encoded Sync Read requests kept for reuse (the control loop repeats one request).
 _REQUEST_CACHE_SIZE = 32
+#: struct codes of little-endian raw items by (size, signed), as :meth:`Register.decode` reads them.
+_STRUCT_CODES = {(1, False): "B", (1, True): "b", (2, False): "H", (2, True): "h",
+                 (4, False): "I", (4, True): "i"}
+
+
+def _span_decoder(table: ControlTable, address: int, length: int):
+    """``data -> {register name: raw}`` for the registers wholly inside ``length`` bytes at ``address``.
+
+    One precompiled little-endian :class:`struct.Struct` unpack (gaps skipped) does what
+    :meth:`Register.decode` does for each item; spans with items ``struct`` has no code for, or
+    overlapping items, decode item by item with :meth:`Register.decode`.
+    """
+    regs = table.within(address, length)
+    fmt, pos = ["<"], address
+    for r in regs:
+        code = _STRUCT_CODES.get((r.size, r.signed))
+        if code is None or r.address < pos:
+            return lambda data: {r.name: r.decode(data[r.address - address:r.address - address + r.size])
+                                 for r in regs}
+        fmt.append("x" * (r.address - pos) + code)
+        pos = r.address + r.size
+    fmt.append("x" * (address + length - pos))
+    unpack, names = struct.Struct("".join(fmt)).unpack, tuple(r.name for r in regs)
+    return lambda data: dict(zip(names, unpack(data)))
 
 
 @dataclass(frozen=True)
@@ -104,7 +128,7 @@ class Bus:
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
         self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
-        self._spans: dict[tuple, tuple[ControlTable, int, int]] = {}   # sync read plans
+        self._spans: dict[tuple, tuple] = {}    # sync read plans: (address, length, decoder)
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -213,8 +237,9 @@ class Bus:
                     got[p.id] = p
                 else:
                     self.stray_replies += 1
-        transport.parser.expect_fast(None)
-        missing = [i for i in expect if i not in got]
+        if fast_lengths is not None:
+            transport.parser.expect_fast(None)
+        missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
         if (missing and until_all) or corrupt:
             self._unsettled = True
         if missing and until_all:
@@ -416,8 +441,7 @@ class Bus:
 
     @staticmethod
     def _decode_span(table: ControlTable, address: int, data: bytes) -> dict[str, int]:
-        return {r.name: r.decode(data[r.address - address:r.address - address + r.size])
-                for r in table.within(address, len(data))}
+        return _span_decoder(table, address, len(data))(data)
 
     def sync_read(self, ids: Sequence[int], first: RegLike, last: RegLike | None = None,
                   fast: bool = False) -> dict[int, dict[str, int]]:
@@ -425,24 +449,21 @@ class Bus:
 
         Returns ``{id: {register name: raw}}`` for every register fully inside the span.
         """
-        ids = list(ids)
-        key = (tuple(ids), first, last)
+        ids = tuple(ids)
+        key = (ids, first, last)
         plan = self._spans.get(key)
         if plan is None:
             t = self._group_table(ids)
-            plan = (t, *t.span(first, last if last is not None else first))
+            address, length = t.span(first, last if last is not None else first)
+            plan = (address, length, _span_decoder(t, address, length))
             if len(self._spans) >= _REQUEST_CACHE_SIZE:
                 self._spans.clear()
             self._spans[key] = plan
-        t, address, length = plan
+        address, length, decode = plan
+        raw = self._with_retries(self._sync_read_once, ids, address, length, fast)
+        return {i: decode(raw[i]) for i in ids}
 
-        def once():
-            return self._sync_read_once(ids, address, length, fast)
-
-        raw = self._with_retries(once)
-        return {i: self._decode_span(t, address, raw[i]) for i in ids}
-
-    def _sync_read_request(self, ids: list[int], address: int, length: int,
+    def _sync_read_request(self, ids: Sequence[int], address: int, length: int,
                            fast: bool) -> tuple[InstructionPacket, bytes]:
         key = (address, length, tuple(ids), fast)
         req = self._requests.get(key)
@@ -453,7 +474,7 @@ class Bus:
             req = self._requests[key] = (pkt, pkt.encode())
         return req
 
-    def _sync_read_once(self, ids: list[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
+    def _sync_read_once(self, ids: Sequence[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
         pkt, frame = self._sync_read_request(ids, address, length, fast)
         if fast:
             return self._fast_exchange(pkt, [(i, length) for i in ids], frame)

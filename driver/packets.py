@@ -25,6 +25,7 @@ __all__ = ["ALERT_BIT", "BACKUP_KEY", "BROADCAST_ID", "CLEAR_MULTI_TURN", "HEADE
 
 _STUFF_PATTERN = b"\xff\xff\xfd"
 _STATUS = int(Instruction.STATUS)
+_new = object.__new__
 
 
 # --- CRC-16 (poly 0x8005, init 0x0000, MSB first, no reflection, no final XOR) -------------
@@ -112,11 +113,11 @@ def split_frame(frame: bytes) -> tuple[int, bytes]:
     length = frame[5] | frame[6] << 8
     if length < 3 or PREFIX_BYTES + length != n:
         raise CorruptPacketError(f"LENGTH field {length} does not match a {n}-byte frame")
-    actual = frame[-2] | frame[-1] << 8
-    expected = crc16(frame[:-2])
-    if actual != expected:
-        raise ChecksumError(expected, actual, frame)
-    return frame[4], frame[PREFIX_BYTES:-2]
+    body = frame[:-2]
+    expected = crc16(body)
+    if frame[-2] | frame[-1] << 8 != expected:
+        raise ChecksumError(expected, frame[-2] | frame[-1] << 8, frame)
+    return frame[4], body[PREFIX_BYTES:]
 
 
 # --- packets -----------------------------------------------------------------------------------
@@ -200,8 +201,16 @@ class StatusPacket:
         if id_ > MAX_ID:
             raise CorruptPacketError(f"invalid ID {id_} in status frame (a combined fast read "
                                      f"reply needs FastStatus.decode with the requested lengths)")
-        body = unstuff(body)
-        return cls(id_, body[1], body[2:])
+        if _STUFF_PATTERN in body:
+            body = unstuff(body)
+        return cls._checked(id_, body[1], body[2:])
+
+    @classmethod
+    def _checked(cls, id_: int, error: int, params: bytes) -> "StatusPacket":
+        """A packet from fields a decoder has already checked (ID 0..252, a byte, bytes)."""
+        pkt = _new(cls)
+        pkt.__dict__.update(id=id_, error=error, params=params)
+        return pkt
 
 
 @dataclass(frozen=True)
@@ -264,7 +273,7 @@ class FastStatus:
             sid = frame[pos + 1]
             if sid > MAX_ID:
                 raise CorruptPacketError(f"invalid ID {sid} inside fast read reply")
-            entries.append(StatusPacket(sid, frame[pos], frame[pos + 2:end]))
+            entries.append(StatusPacket._checked(sid, frame[pos], frame[pos + 2:end]))
             crc = crc16(frame[end:end + 2], crc)
             pos = end + 2
         return cls(tuple(entries))

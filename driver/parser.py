@@ -132,24 +132,27 @@ class PacketParser:
     def _drain(self) -> list[Packet | FastStatus]:
         out: list[Packet | FastStatus] = []
         buf = self._buf
+        header, prefix = HEADER, PREFIX_BYTES
         while True:
             n = len(buf)
-            if not buf.startswith(HEADER):
-                start = buf.find(HEADER)
+            if not n:
+                return out
+            if not buf.startswith(header):
+                start = buf.find(header)
                 if start < 0:
                     self.scanned_bytes += n
                     # keep a possible header prefix (up to 3 bytes) for the next chunk
-                    keep = next((k for k in (3, 2, 1) if buf.endswith(HEADER[:k])), 0)
+                    keep = next((k for k in (3, 2, 1) if buf.endswith(header[:k])), 0)
                     if n > keep:
                         self._drop(n - keep)
                     return out
                 self.scanned_bytes += start
                 self._drop(start)
                 n -= start
-            if n <= PREFIX_BYTES:
+            if n <= prefix:
                 return out
             id_, length = buf[4], buf[5] | buf[6] << 8
-            fast = buf[PREFIX_BYTES] == _STATUS and id_ == BROADCAST_ID
+            fast = id_ == BROADCAST_ID and buf[prefix] == _STATUS
             if id_ > MAX_ID and id_ != BROADCAST_ID:
                 self._reject(f"invalid ID {id_} in header; resynchronising", 1)
                 continue
@@ -160,19 +163,22 @@ class PacketParser:
                 self._reject(f"combined fast read reply of LENGTH {length} was not requested"
                              + (f" (expected {self._fast_length})" if self._fast_length > 0 else ""), 1)
                 continue
-            end = PREFIX_BYTES + length
-            limit = min(n, end - _CRC_BYTES)
+            end = prefix + length
             if not fast:
                 # byte stuffing keeps FF FF FD 00 out of a frame's body: a header there means
                 # this frame is bogus or cut short, and the next one starts at that header
-                frm = max(1, self._clean_to - 3)
-                if limit - frm >= len(HEADER):
-                    p = buf.find(HEADER, frm, limit)
-                    self.scanned_bytes += (p + len(HEADER) if p >= 0 else limit) - frm
+                limit = end - _CRC_BYTES if n > end - _CRC_BYTES else n
+                clean = self._clean_to
+                frm = clean - 3 if clean > 4 else 1
+                if limit - frm >= 4:
+                    p = buf.find(header, frm, limit)
                     if p >= 0:
+                        self.scanned_bytes += p + 4 - frm
                         self._reject(f"header inside a {length}-byte frame body; resynchronising", p)
                         continue
-                self._clean_to = max(self._clean_to, limit)
+                    self.scanned_bytes += limit - frm
+                if limit > clean:
+                    self._clean_to = limit
             if n < end:
                 return out
             self.scanned_bytes += end

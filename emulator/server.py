@@ -33,7 +33,7 @@ from swerve.driver.parser import PacketParser
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
-from swerve.emulator.pty_link import PtyLink
+from swerve.emulator.pty_link import PtyLink, precise_timers
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
@@ -56,9 +56,10 @@ BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
 #: Most physics steps :meth:`Emulator.step_many` runs under one hold of the lock (~2 ms of CPU).
 MAX_STEPS_PER_HOLD = 100
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
-#: A reply that is not the last of an exchange may go out this early instead of sleeping
-#: for it (timer slack would otherwise add up over 8 replies); the last one is never early.
-EARLY_WRITE_S = 300e-6
+#: Replies of one exchange due within this window go out together, at the due time of the
+#: latest of them (later than the cable for the earlier ones, never earlier); the reply that
+#: ends the exchange goes out alone at its own due time unless it is already due.
+GROUP_WRITE_S = 1e-3
 #: GIL hand-over interval while the emulator runs, s. CPython's default (5 ms) lets the busy bus
 #: thread delay a client in the same process (tests) by up to 5 ms per hand-over.
 SWITCH_INTERVAL_S = 2e-4
@@ -434,8 +435,9 @@ class Emulator:
         self.stats.packets_received += 1
         self._packet_baud = self.line_baud()    # one termios read per instruction
         try:
+            byte_t = self._byte_time_s()
+            wire_s = len(pkt.encode()) * byte_t     # the instruction's bytes on the wire
             steps = self.clock.stats.steps
-            wire_s = len(pkt.encode()) * self._byte_time_s()     # the instruction's bytes on the wire
             self.clock.on_request(self, wire_s)
             if self.observers and self.clock.stats.steps != steps:
                 self._notify()
@@ -446,14 +448,16 @@ class Emulator:
                     self.stats.malformed_packets += 1
                     log.debug("ignored %s: %s", pkt.name, exc)
                     return
-            end_t = rx_t
-            if self.wire_timing:
-                end_t = max(rx_t, first_byte_t + wire_s)
-            self._transmit(replies, end_t)
-            if touched:
-                with self._lock:
+                # ID / baud changes take effect for the next instruction; the replies are
+                # already encoded, so nothing is left to do once the last one is out (Sync and
+                # Bulk Reads change neither)
+                if pkt.instruction not in SYNC_READS and pkt.instruction not in BULK_READS:
                     for s in touched:
-                        s.apply_pending()      # ID / baud changes take effect after the reply
+                        s.apply_pending()
+            # replies are timed from the instant the request ended on the wire, not from the
+            # end of the dispatch above: the emulator's own work is not charged on top
+            end_t = max(rx_t, first_byte_t + wire_s) if self.wire_timing else rx_t
+            self._transmit(replies, end_t, byte_t)
         except Exception:  # noqa: BLE001 - one bad packet must never stop the bus
             self.stats.dispatch_errors += 1
             log.debug("error handling %r", pkt, exc_info=True)
@@ -569,32 +573,56 @@ class Emulator:
         return [s for s in listening if s.id == id_ or (s.secondary_id <= MAX_ID and s.secondary_id == id_)]
 
     # --- transmit (outside the lock) ------------------------------------------------------------
-    def _transmit(self, replies: list[_Reply], start_t: float) -> None:
+    def _transmit(self, replies: list[_Reply], start_t: float, byte_t: float | None = None) -> None:
+        """Send ``replies`` as the bus would after an instruction that ended at ``start_t``.
+
+        Each reply is due its delay (Return Delay Time, broadcast slot, injected delay) after the
+        previous one, plus its bytes with wire timing; the due times are fixed from ``start_t``
+        before anything is sent. No reply is written before it is due; replies due within
+        :data:`GROUP_WRITE_S` of each other share one write, and the one that ends the exchange
+        is written on its own at its due time (so the client sees the exchange end on time).
+        """
         if not replies:
             return
-        byte_t = self._byte_time_s()
+        if byte_t is None:
+            byte_t = self._byte_time_s()
         if self._transmit_charged(replies, byte_t):
             return
-        t = start_t
-        last = replies[-1]
-        pending = bytearray()
+        wire_byte_t = byte_t if self.wire_timing else 0.0
+        extra_s = self.faults.delay_s
+        due, t = [], start_t
+        frames = []
         for r, frame in self._surviving(replies):
-            due = t + r.delay_s + self.faults.delay_s
-            if self.wire_timing:
-                due += len(frame) * byte_t     # the last byte reaches the host then
-            ahead = due - time.monotonic()
-            if ahead > 0 and (r is last or ahead > EARLY_WRITE_S):
-                self._write(pending)           # what is due goes out before the wait
-                pending.clear()
-                self._sleep_until(due)      # never early for the reply that ends the exchange
-            pending += frame                  # replies due together go out in one write
-            t = max(due, time.monotonic()) if not self.wire_timing else due
-        self._write(pending)
+            t += r.delay_s + extra_s + len(frame) * wire_byte_t   # the last byte reaches the host then
+            due.append(t)
+            frames.append(frame)
+        n = len(frames)
+        if not n:
+            return
+        i = 0
+        while i < n:
+            now = time.monotonic()
+            j = i
+            while j + 1 < n and (due[j + 1] <= now
+                                 or (j + 1 < n - 1 and due[j + 1] - due[i] <= GROUP_WRITE_S)):
+                j += 1
+            if due[j] > now:
+                self._sleep_until(due[j])
+            self._write(b"".join(frames[i:j + 1]))
+            i = j + 1
+        # the pty hands written bytes to the reader through a kernel worker; on a busy core it
+        # waits until this thread blocks, so give it the core now (one syscall, no spinning)
+        os.sched_yield()
 
     def _surviving(self, replies: list[_Reply]):
         """``(reply, frame)`` for each reply fault injection lets through (``frame`` perhaps
         corrupted), drawing faults in reply order (a fast-read frame draws once); counts them."""
         faults = self.faults
+        if faults.drop_rate <= 0 and faults.corrupt_rate <= 0:     # nothing to draw
+            self.stats.replies_sent += len(replies)
+            for r in replies:
+                yield r, r.frame
+            return
         fast_dropped = fast_drawn = False
         for r in replies:
             if r.fast:
@@ -616,9 +644,14 @@ class Emulator:
     def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
         """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
         once and return True. Fault draws happen in the same order as with wall pacing."""
-        faults = self.faults
-        wire_s = sum(r.delay_s + faults.delay_s + len(r.frame) * byte_t for r in replies)
-        answering = sum(1 for r in replies if not r.fast) + (1 if any(r.fast for r in replies) else 0)
+        extra_s, wire_s, answering, fast = self.faults.delay_s, 0, 0, 0
+        for r in replies:
+            wire_s += r.delay_s + extra_s + len(r.frame) * byte_t
+            if r.fast:
+                fast = 1
+            else:
+                answering += 1
+        answering += fast                 # a combined fast-read frame answers once
         steps = self.clock.stats.steps
         if not self.clock.on_replies(self, wire_s, answering):
             return False
@@ -633,11 +666,13 @@ class Emulator:
             self.stats.tx_overflow_bytes += len(data) - sent
 
     def _sleep_until(self, deadline: float) -> None:
-        """Block until ``deadline`` (monotonic s); long waits end early when the bus closes."""
+        """Block until ``deadline`` (monotonic s), never before it; long waits end early when the
+        bus closes. The calling thread gets fine timer slack first (:func:`precise_timers`)."""
+        precise_timers()
         remaining = deadline - time.monotonic()
         if remaining > 2e-3:
             self._stop.wait(remaining)
-        elif remaining > 0:
+        while (remaining := deadline - time.monotonic()) > 0 and not self._stop.is_set():
             time.sleep(remaining)
 
     # --- clock ----------------------------------------------------------------------------------
