@@ -92,7 +92,7 @@ def test_servo_that_does_not_move_leaves_torque_off(rc):
 def test_stall_is_detected_and_torque_left_off(rc):
     cfg = load_config(EMULATOR)
     with make_emulator(rc, cfg) as emu, _bus(emu) as bus:
-        emu.servo(1).dynamics.external_load(0.0, 10.0)         # a blocked wheel: huge load inertia
+        emu.servo(1).dynamics.model.external_load(0.0, 10.0)         # a blocked wheel: huge load inertia
         with pytest.raises(StallError, match="servo ID 1 stalled"):
             tune_servo(bus, 1, "drive", Spec(), cfg.drive_motor, limits=Limits(speed_max_radps=rc.drive_max_radps))
         assert emu.servo(1).read("torque_enable") == 0

@@ -104,15 +104,13 @@ def run(args: argparse.Namespace) -> int:
 
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from swerve.tools.tune.emulated import NOISE, make_emulator
+            from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
                 from swerve.emulator.robot_emulator import robot_emulator
 
-                noise = (f"position={NOISE.position_noise_std_pulse},current={NOISE.current_noise_std_a}"
-                         + (f",seed={args.seed}" if args.seed is not None else "")) if args.noise else None
-                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, noise=noise,
-                                                         baud=args.baud))
+                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud,
+                                                         noise=noise_spec(args.seed) if args.noise else None))
             else:
                 emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
                                                         seed=args.seed, baud=args.baud))
