@@ -229,3 +229,15 @@ def test_emulated_robot_moves_in_robot_time_only(emulated_robot):
             time.sleep(0.2)
             assert emulated_robot.pose == (x, y, theta)
             wheels.stop()
+
+
+def test_a_bus_opened_by_the_fixture_lets_the_clock_ask_with_the_read(emulated_robot):
+    """A loop on the fixture's clock asks for the time after a read as the request goes out."""
+    with emulated_robot.open_bus() as bus:
+        clock = emulated_robot.clock
+        clock.ask_after_next_write()
+        n = clock.requests
+        bus.ping(1)
+        assert clock.requests == n + 1                  # sent by the bus's write, not by now()
+        t = clock.now()
+        assert clock.requests == n + 1 and t == emulated_robot.time_s > 0

@@ -22,14 +22,3 @@ def test_the_plugin_is_registered_through_its_entry_point():
     (ep,) = [e for e in entry_points(group="pytest11") if e.name == "swerve"]
     assert ep.value == "swerve.testing"
 
-
-def test_a_bus_opened_by_the_fixture_lets_the_clock_ask_with_the_read(emulated_robot):
-    """A loop on the fixture's clock asks for the time after a read as the request goes out."""
-    with emulated_robot.open_bus() as bus:
-        clock = emulated_robot.clock
-        clock.ask_after_next_write()
-        n = clock.requests
-        bus.ping(1)
-        assert clock.requests == n + 1                  # sent by the bus's write, not by now()
-        t = clock.now()
-        assert clock.requests == n + 1 and t == emulated_robot.time_s > 0
