@@ -69,18 +69,14 @@ class AntiWindupPI:
         """Clear the integrator (torque off, mode switch)."""
         self.integral = 0.0
 
-    def update(self, dt_s: float, error: float, kp: float, ki: float, extra: float,
-               limit: float) -> float:
-        """Return the saturated output ``clamp(kp e + I + extra, ±limit)`` and advance ``I``."""
-        out, self.integral = pi_step(self.integral, dt_s / self.tick_s, self.ka, error, kp, ki, extra, limit)
-        return out
-
 
 def pi_step(integral: float, ticks: float, ka: float, error: float, kp: float, ki: float, extra: float,
             limit: float) -> tuple[float, float]:
-    """One :meth:`AntiWindupPI.update` on plain floats: ``(output, new integral)``.
+    """One step of the PI(D) core on plain floats: the saturated output
+    ``clamp(kp e + I + extra, ±limit)`` and the new integral ``I``, as ``(output, integral)``.
 
-    ``ticks`` is the step in firmware ticks (``dt_s / tick_s``), ``ka`` the anti-windup gain.
+    ``ticks`` is the step in firmware ticks (``dt_s / tick_s``), ``ka`` the anti-windup gain
+    (:class:`AntiWindupPI` holds both and the integral between steps).
     """
     integral += ki * error * ticks
     raw = kp * error + integral + extra
@@ -110,21 +106,6 @@ class ProfileGenerator:
         self.position, self.velocity, self.acceleration = position, velocity, 0.0
         self.ongoing = False
 
-    def start_position(self, goal: float, v_max: float, a_max: float) -> None:
-        """Classify the new profile (Moving Status bits 5:4) for a new goal position."""
-        self.profile_type = profile_type(self.position, goal, v_max, a_max)
-        self.ongoing = True
-
-    def step_position(self, dt_s: float, goal: float, v_max: float, a_max: float) -> None:
-        """Advance the position trajectory towards ``goal`` (time-optimal under the limits)."""
-        self.position, self.velocity, self.acceleration, self.ongoing = position_profile_step(
-            self.position, self.velocity, self.ongoing, dt_s, goal, v_max, a_max)
-
-    def step_velocity(self, dt_s: float, goal: float, a_max: float) -> None:
-        """Advance the velocity trajectory towards ``goal`` at most ``a_max`` per second."""
-        self.position, self.velocity, self.acceleration, self.ongoing = velocity_profile_step(
-            self.position, self.velocity, dt_s, goal, a_max)
-
 
 def profile_type(position: float, goal: float, v_max: float, a_max: float) -> int:
     """Profile type (Moving Status bits 5:4 as 0..3) of a move from ``position`` to ``goal``."""
@@ -139,8 +120,8 @@ def profile_type(position: float, goal: float, v_max: float, a_max: float) -> in
 
 def position_profile_step(position: float, velocity: float, ongoing: bool, dt_s: float,
                           goal: float, v_max: float, a_max: float) -> tuple[float, float, float, bool]:
-    """One :meth:`ProfileGenerator.step_position` on plain floats: the new
-    ``(position, velocity, acceleration, ongoing)``."""
+    """Advance a position trajectory one step towards ``goal`` (time-optimal under the limits),
+    on plain floats: the new ``(position, velocity, acceleration, ongoing)``."""
     v0 = velocity
     if math.isinf(v_max):
         return goal, 0.0, 0.0, False
@@ -159,8 +140,8 @@ def position_profile_step(position: float, velocity: float, ongoing: bool, dt_s:
 
 def velocity_profile_step(position: float, velocity: float, dt_s: float, goal: float,
                           a_max: float) -> tuple[float, float, float, bool]:
-    """One :meth:`ProfileGenerator.step_velocity` on plain floats: the new
-    ``(position, velocity, acceleration, ongoing)``."""
+    """Advance a velocity trajectory one step towards ``goal``, at most ``a_max`` per second, on
+    plain floats: the new ``(position, velocity, acceleration, ongoing)``."""
     v0 = velocity
     dv = a_max * dt_s
     v1 = goal if abs(goal - v0) <= dv else v0 + math.copysign(dv, goal - v0)

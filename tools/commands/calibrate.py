@@ -100,7 +100,7 @@ def run(args: argparse.Namespace) -> int:
         bus = stack.enter_context(Bus(port, cfg.link.baud, default_model=cfg.model, retries=1,
                                       timeout_margin_s=margin_ms * 1e-3))
         if clock is not None:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)
         session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log, clock=clock))
         scale = cfg.table["present_position"].scale
         if args.emulate and args.yes:

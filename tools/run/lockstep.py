@@ -38,8 +38,9 @@ class LockstepClock:
     """A :class:`~swerve.tools.run.ticker.Clock` in robot seconds, owned by a lockstep emulator.
 
     ``control_path``: the emulator's control socket (``CONTROL`` on ``swerve emulate``'s PORT
-    line, or ``EmulatorProcess.control_path``). Connect before writing to the pty, then call
-    :meth:`count_tx` with the writer's byte counter (e.g. ``lambda: bus.bytes_written``).
+    line, or ``EmulatorProcess.control_path``). Connect before writing to the pty, then
+    :meth:`attach` the :class:`~swerve.driver.bus.Bus` (or give another writer's byte counter to
+    :meth:`count_tx`).
     ``time_scale``: pace robot time at this many robot seconds per wall second (``None``: as
     fast as the emulator runs).
     """
