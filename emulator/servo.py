@@ -371,10 +371,13 @@ class VirtualServo:
         m = self.memory
         if most <= 0 or m.watchdog_tripped:
             return max(most, 0)
+        since = self._since_traffic_s
+        if since + (most + 1) * dt_s < WATCHDOG_UNIT_S * (1.0 - 1e-9):
+            return most                 # within the shortest watchdog time (1 unit), whatever the item says
         wd = m.get(Reg.BUS_WATCHDOG)
         if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
             return most
-        since, limit = self._since_traffic_s, wd * WATCHDOG_UNIT_S
+        limit = wd * WATCHDOG_UNIT_S
         if since + (most + 1) * dt_s < limit * (1.0 - 1e-9):
             return most                 # far from the limit (the margin covers the sums' round-off)
         for k in range(most):           # the same float sums as the steps will make
