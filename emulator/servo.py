@@ -347,8 +347,11 @@ class VirtualServo:
             ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
             if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
                 tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
+                wrap = float(REALTIME_TICK_WRAP)
                 for _ in range(ran - 1):
-                    tick_ms = (tick_ms + d_ms) % REALTIME_TICK_WRAP
+                    tick_ms += d_ms     # (t + d) % wrap, which is t + d below the wrap
+                    if tick_ms >= wrap:
+                        tick_ms %= wrap
                     since += dt_s
                 self._tick_ms, self._since_traffic_s = tick_ms, since
             if done + ran > 1:                          # an earlier step of this call left the items stale

@@ -237,7 +237,8 @@ class ServoModel:
          rewrap_on_switch, current_position, tripped, position_goal, gear, reference_filter, measure_filtered,
          pwm_lim, margin, ke, r_arm, tick, ticks, ka, fa00, fa01, fa10, fa11, fb0, fb1,
          a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
-         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, fsign, l_over_tc) = setup
+         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, fsign, l_over_tc,
+         d_or_ff) = setup
         self._sign, self._homing = sign, homing
         enc_off = self.encoder_offset_pulse
         noise = self.sensors.position_noise_std_pulse
@@ -268,6 +269,7 @@ class ServoModel:
         started = self._started
         # (the int sign and counts as floats: the same products, without int-float conversions per tick)
         sign_off = fsign * enc_off
+        wrap_f, homing_f = float(wrap), float(homing)
         # encoder before noise (:meth:`_encoder_pulse`: the same arithmetic), then after each tick
         x = fsign * (th / gear / rad_per_pulse + enc_off)
         for ran in range(1, n + 1):
@@ -279,6 +281,7 @@ class ServoModel:
             if switched and rewrap_on_switch:
                 self._rewrap(raw)       # Present Position re-wrapped to one turn (+ Homing Offset)
                 wrap = self._wrap_pulse
+                wrap_f = float(wrap)
             present = raw - wrap + homing
             fy, fdy = fa00 * fy + fa01 * fdy + fb0 * raw, fa10 * fy + fa11 * fdy + fb1 * raw
             if measure_filtered:
@@ -315,10 +318,13 @@ class ServoModel:
                     ppos, pvel, pacc, pongoing = position_profile_step(ppos, pvel, pongoing, dt_s, goal,
                                                                        p_v_max, p_a_max)
                     ref = rf.step(dt_s, ppos) if reference_filter else ppos
-                    v_traj = pvel * tick                   # pulse per tick
-                    a_traj = pacc * tick * tick            # pulse per tick²
-                    v_err = v_traj - v_meas * pulse_per_vel_unit * tick
-                    extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                    if d_or_ff:
+                        v_traj = pvel * tick                   # pulse per tick
+                        a_traj = pacc * tick * tick            # pulse per tick²
+                        v_err = v_traj - v_meas * pulse_per_vel_unit * tick
+                        extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                    else:   # kd = ff1 = ff2 = 0: that sum is ±0.0, and kp e + I + ±0.0 equals kp e + I + 0.0
+                        extra = 0.0     # (the integral is never -0.0, so kp e + I is not either)
                     counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
                     if current_position:
                         goal_i = plan.position_current_limit
@@ -365,7 +371,7 @@ class ServoModel:
             if speeds is not None:
                 speeds.append(fsign * (w / gear))
             if positions is not None:
-                positions.append((x - wrap + homing) - sign_off)
+                positions.append((x - wrap_f + homing_f) - sign_off)
             if protection is not None:
                 bits = protection.update(dt_s, i_a_, temp, supply, table)
                 if bits:
@@ -412,7 +418,7 @@ class ServoModel:
                 fa00, fa01, fa10, fa11, fb0, fb1, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21,
                 c00, c01, c10, c11, cb0, cb1, math.exp(-dt_s / th.time_constant_s), th.ambient_c,
                 th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
-                float(plan.sign), p.inductance_h / fw.current_loop_time_constant_s)
+                float(plan.sign), p.inductance_h / fw.current_loop_time_constant_s, bool(kd or ff1 or ff2))
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
