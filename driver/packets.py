@@ -311,6 +311,10 @@ def _u16(v: int) -> bytes:
     return struct.pack("<H", v)
 
 
+#: ID, address and data length of one bulk read/write entry.
+_ID_ADDRESS_LENGTH = struct.Struct("<BHH")
+
+
 def ping(id_: int) -> InstructionPacket:
     return InstructionPacket(id_, Instruction.PING)
 
@@ -376,7 +380,7 @@ def bulk_read(items: Iterable[tuple[int, int, int]], fast: bool = False) -> Inst
         if id_ in seen:
             raise ValueError(f"ID {id_} appears twice in a bulk read")
         seen.add(id_)
-        params += bytes((id_,)) + _u16(address) + _u16(length)
+        params += _ID_ADDRESS_LENGTH.pack(id_, address, length)
     inst = Instruction.FAST_BULK_READ if fast else Instruction.BULK_READ
     return InstructionPacket(BROADCAST_ID, inst, params)
 
@@ -389,7 +393,8 @@ def bulk_write(items: Iterable[tuple[int, int, bytes]]) -> InstructionPacket:
         if id_ in seen:
             raise ValueError(f"ID {id_} appears twice in a bulk write")
         seen.add(id_)
-        params += bytes((id_,)) + _u16(address) + _u16(len(data)) + bytes(data)
+        data = bytes(data)
+        params += _ID_ADDRESS_LENGTH.pack(id_, address, len(data)) + data
     return InstructionPacket(BROADCAST_ID, Instruction.BULK_WRITE, params)
 
 
