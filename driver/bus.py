@@ -212,8 +212,10 @@ class Bus:
         transport = self._transport
         if frame is None:
             frame = pkt.encode()
-        timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
-                                                                      len(expect))
+        timeout = 0.0
+        if expect or self._unsettled:
+            timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
+                                                                          len(expect))
         if self._unsettled:  # the last exchange failed: let late replies land before sending
             self.drained_bytes += transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
             self._unsettled = False

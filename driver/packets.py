@@ -404,7 +404,8 @@ def bulk_write(items: Iterable[tuple[int, int, bytes]]) -> InstructionPacket:
     """``items``: ``(id, address, data)`` per servo; an ID may appear only once."""
     params, seen = bytearray(), set()
     for id_, address, data in items:
-        _check_id(id_, allow_broadcast=False)
+        if not 0 <= id_ <= MAX_ID:
+            _check_id(id_, allow_broadcast=False)
         if id_ in seen:
             raise ValueError(f"ID {id_} appears twice in a bulk write")
         seen.add(id_)
