@@ -227,6 +227,7 @@ class Bus:
         got: dict[int, StatusPacket] = {}
         deadline = time.monotonic() + timeout
         corrupt: list[CorruptPacketError] = []
+        erred = False               # a reply carries an error byte
         while not wanted <= got.keys():
             batch = transport.read_packets(deadline)
             if transport.parser.errors:
@@ -236,18 +237,20 @@ class Bus:
             if not batch and time.monotonic() >= deadline:
                 break
             for p in batch:
-                if isinstance(p, FastStatus):
+                if isinstance(p, StatusPacket):
+                    i = p.id
+                    if i in wanted and i not in got:
+                        got[i] = p
+                        if p.error:
+                            erred = True
+                    else:
+                        self.stray_replies += 1
+                elif isinstance(p, FastStatus):
                     if fast_lengths is not None and BROADCAST_ID not in got:
                         got[BROADCAST_ID] = p
                     else:
                         self.stray_replies += 1
-                    continue
-                if not isinstance(p, StatusPacket):
-                    continue  # our own echo (loop://, half-duplex adapters) or another host
-                if p.id in wanted and p.id not in got:
-                    got[p.id] = p
-                else:
-                    self.stray_replies += 1
+                # anything else is our own echo (loop://, half-duplex adapters) or another host's
         if fast_lengths is not None:
             transport.parser.expect_fast(None)
         missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
@@ -264,7 +267,7 @@ class Bus:
             chained = (pkt.instruction in _CHAINED_READS
                        and list(expect[len(expect) - len(missing):]) == missing)
             raise DxlTimeoutError(missing, pkt.instruction, timeout, cut_off=chained)
-        if check:
+        if check and erred:
             for i in expect:
                 if i in got and got[i].error:
                     self._raise_status(got[i], pkt.instruction)
