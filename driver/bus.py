@@ -51,25 +51,33 @@ _STRUCT_CODES = {(1, False): "B", (1, True): "b", (2, False): "H", (2, True): "h
                  (4, False): "I", (4, True): "i"}
 
 
-def _span_decoder(table: ControlTable, address: int, length: int):
-    """``data -> {register name: raw}`` for the registers wholly inside ``length`` bytes at ``address``.
+def _span_values(table: ControlTable, address: int, length: int):
+    """``(names, values)`` for the registers wholly inside ``length`` bytes at ``address``:
+    their names in address order and ``values(data) -> (raw, ...)`` in that order.
 
     One precompiled little-endian :class:`struct.Struct` unpack (gaps skipped) does what
     :meth:`Register.decode` does for each item; spans with items ``struct`` has no code for, or
     overlapping items, decode item by item with :meth:`Register.decode`.
     """
     regs = table.within(address, length)
+    names = tuple(r.name for r in regs)
     fmt, pos = ["<"], address
     for r in regs:
         code = _STRUCT_CODES.get((r.size, r.signed))
         if code is None or r.address < pos:
-            return lambda data: {r.name: r.decode(data[r.address - address:r.address - address + r.size])
-                                 for r in regs}
+            return names, lambda data: tuple(r.decode(data[r.address - address:r.address - address + r.size])
+                                             for r in regs)
         fmt.append("x" * (r.address - pos) + code)
         pos = r.address + r.size
     fmt.append("x" * (address + length - pos))
-    unpack, names = struct.Struct("".join(fmt)).unpack, tuple(r.name for r in regs)
-    return lambda data: dict(zip(names, unpack(data)))
+    return names, struct.Struct("".join(fmt)).unpack
+
+
+def _span_decoder(table: ControlTable, address: int, length: int):
+    """``data -> {register name: raw}`` for the registers wholly inside ``length`` bytes at
+    ``address`` (:func:`_span_values` as a dict)."""
+    names, values = _span_values(table, address, length)
+    return lambda data: dict(zip(names, values(data)))
 
 
 @dataclass(frozen=True)
@@ -128,7 +136,8 @@ class Bus:
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
         self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
-        self._spans: dict[tuple, tuple] = {}    # sync read plans: (address, length, decoder)
+        # per-request plans: sync read spans (address, length, names, values) and bulk write layouts
+        self._plans: dict[tuple, tuple] = {}
 
     # --- lifecycle ---------------------------------------------------------------------------
 
@@ -168,7 +177,7 @@ class Bus:
     def set_model(self, id_: int, model: str | int | ControlTable) -> None:
         """Declare the model of servo ``id_`` (name, number or table) so no Ping is needed."""
         self._tables[id_] = model if isinstance(model, ControlTable) else table_for(model)
-        self._spans.clear()
+        self._plans.clear()
 
     def register(self, id_: int, reg: RegLike) -> Register:
         """The :class:`Register` named ``reg`` for servo ``id_`` (RegisterError if unknown)."""
@@ -177,7 +186,7 @@ class Bus:
     def _learn(self, res: PingResult) -> None:
         try:
             self._tables[res.id] = table_for(res.model_number)
-            self._spans.clear()
+            self._plans.clear()
         except ConfigError:
             pass
 
@@ -203,8 +212,10 @@ class Bus:
         transport = self._transport
         if frame is None:
             frame = pkt.encode()
-        timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
-                                                                      len(expect))
+        timeout = 0.0
+        if expect or self._unsettled:
+            timeout = window_s if window_s is not None else self.timeout_s(len(frame) + reply_bytes,
+                                                                          len(expect))
         if self._unsettled:  # the last exchange failed: let late replies land before sending
             self.drained_bytes += transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
             self._unsettled = False
@@ -216,6 +227,7 @@ class Bus:
         got: dict[int, StatusPacket] = {}
         deadline = time.monotonic() + timeout
         corrupt: list[CorruptPacketError] = []
+        erred = False               # a reply carries an error byte
         while not wanted <= got.keys():
             batch = transport.read_packets(deadline)
             if transport.parser.errors:
@@ -225,18 +237,20 @@ class Bus:
             if not batch and time.monotonic() >= deadline:
                 break
             for p in batch:
-                if isinstance(p, FastStatus):
+                if isinstance(p, StatusPacket):
+                    i = p.id
+                    if i in wanted and i not in got:
+                        got[i] = p
+                        if p.error:
+                            erred = True
+                    else:
+                        self.stray_replies += 1
+                elif isinstance(p, FastStatus):
                     if fast_lengths is not None and BROADCAST_ID not in got:
                         got[BROADCAST_ID] = p
                     else:
                         self.stray_replies += 1
-                    continue
-                if not isinstance(p, StatusPacket):
-                    continue  # our own echo (loop://, half-duplex adapters) or another host
-                if p.id in wanted and p.id not in got:
-                    got[p.id] = p
-                else:
-                    self.stray_replies += 1
+                # anything else is our own echo (loop://, half-duplex adapters) or another host's
         if fast_lengths is not None:
             transport.parser.expect_fast(None)
         missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
@@ -253,7 +267,7 @@ class Bus:
             chained = (pkt.instruction in _CHAINED_READS
                        and list(expect[len(expect) - len(missing):]) == missing)
             raise DxlTimeoutError(missing, pkt.instruction, timeout, cut_off=chained)
-        if check:
+        if check and erred:
             for i in expect:
                 if i in got and got[i].error:
                     self._raise_status(got[i], pkt.instruction)
@@ -416,7 +430,7 @@ class Bus:
         """Factory Reset (``option``: ResetOption; default keeps ID and baud rate)."""
         self._with_retries(self._simple, pk.factory_reset(id_, option), retry=False)
         self._tables.pop(id_, None)
-        self._spans.clear()
+        self._plans.clear()
 
     def clear(self, id_: int) -> None:
         """Clear multi-turn position (only when stopped, else ServoError Result Fail)."""
@@ -450,18 +464,28 @@ class Bus:
         Returns ``{id: {register name: raw}}`` for every register fully inside the span.
         """
         ids = tuple(ids)
+        names, rows = self.sync_read_rows(ids, first, last, fast)
+        return {i: dict(zip(names, row)) for i, row in zip(ids, rows)}
+
+    def sync_read_rows(self, ids: Sequence[int], first: RegLike, last: RegLike | None = None,
+                       fast: bool = False) -> tuple[tuple[str, ...], list[tuple[int, ...]]]:
+        """:meth:`sync_read` as ``(names, rows)``: the names of the registers fully inside the
+        span in address order, and per ID (in the order of ``ids``) a tuple of their raw values
+        in that order. No dict is built: the form for a loop that reads the same span each cycle.
+        """
+        ids = tuple(ids)
         key = (ids, first, last)
-        plan = self._spans.get(key)
+        plan = self._plans.get(key)
         if plan is None:
             t = self._group_table(ids)
             address, length = t.span(first, last if last is not None else first)
-            plan = (address, length, _span_decoder(t, address, length))
-            if len(self._spans) >= _REQUEST_CACHE_SIZE:
-                self._spans.clear()
-            self._spans[key] = plan
-        address, length, decode = plan
-        raw = self._with_retries(self._sync_read_once, ids, address, length, fast)
-        return {i: decode(raw[i]) for i in ids}
+            plan = (address, length) + _span_values(t, address, length)
+            if len(self._plans) >= _REQUEST_CACHE_SIZE:
+                self._plans.clear()
+            self._plans[key] = plan
+        address, length, names, values = plan
+        data = self._with_retries(self._sync_read_once, ids, address, length, fast)
+        return names, [values(d) for d in data]
 
     def _sync_read_request(self, ids: Sequence[int], address: int, length: int,
                            fast: bool) -> tuple[InstructionPacket, bytes]:
@@ -474,23 +498,23 @@ class Bus:
             req = self._requests[key] = (pkt, pkt.encode())
         return req
 
-    def _sync_read_once(self, ids: Sequence[int], address: int, length: int, fast: bool) -> dict[int, bytes]:
+    def _sync_read_once(self, ids: Sequence[int], address: int, length: int, fast: bool) -> list[bytes]:
+        """The data of each ID's reply, in the order of ``ids``."""
         pkt, frame = self._sync_read_request(ids, address, length, fast)
         if fast:
             return self._fast_exchange(pkt, [(i, length) for i in ids], frame)
         got = self._exchange(pkt, ids, (STATUS_OVERHEAD + length) * len(ids), frame=frame)
-        out = {}
-        for i in ids:
-            data = got[i].params
+        out = [got[i].params for i in ids]
+        for i, data in zip(ids, out):
             if len(data) != length:
                 raise CorruptPacketError(f"sync read reply from ID {i} carries "
                                          f"{len(data)} bytes, expected {length}")
-            out[i] = data
         return out
 
     def _fast_exchange(self, pkt: InstructionPacket, items: list[tuple[int, int]],
-                       frame: bytes | None = None) -> dict[int, bytes]:
-        """Send a fast sync/bulk read and split the single combined reply."""
+                       frame: bytes | None = None) -> list[bytes]:
+        """Send a fast sync/bulk read and split the single combined reply: the data of each
+        entry, in the order of ``items``."""
         ids = [i for i, _ in items]
         lengths = [n for _, n in items]
         reply_bytes = 10 + sum(n + 4 for n in lengths)
@@ -510,13 +534,13 @@ class Bus:
                                   "missing or does not support fast reads") from None
         except CorruptPacketError as exc:
             raise CorruptPacketError(f"fast read reply for IDs {ids} is malformed: {exc}") from None
-        out = {}
+        out = []
         for (i, _), e in zip(items, got[BROADCAST_ID].entries):
             if e.id != i:
                 raise CorruptPacketError(f"fast read reply lists ID {e.id} where ID {i} was expected")
             if e.error:
                 self._raise_status(e, pkt.instruction)
-            out[i] = e.params
+            out.append(e.params)
         return out
 
     def sync_write(self, reg: RegLike, values: Mapping[int, int]) -> None:
@@ -543,7 +567,7 @@ class Bus:
 
         def once():
             if fast:
-                return self._fast_exchange(pkt, [(i, n) for i, _, _, n in spans])
+                return dict(zip(items, self._fast_exchange(pkt, [(i, n) for i, _, _, n in spans])))
             ids = [i for i, *_ in spans]
             got = self._exchange(pkt, ids, sum(STATUS_OVERHEAD + n for *_, n in spans))
             for i, _, _, n in spans:
@@ -557,17 +581,34 @@ class Bus:
 
     def bulk_write(self, items: Mapping[int, Mapping[RegLike, int]]) -> None:
         """Bulk Write ``{id: {reg: raw, ...}}`` (each ID's registers must be contiguous), no reply."""
+        key = ("bulk write",) + tuple((i, tuple(regs)) for i, regs in items.items())
+        layout = self._plans.get(key)
+        if layout is None:
+            layout = self._bulk_write_layout(key[1:])
+            if len(self._plans) >= _REQUEST_CACHE_SIZE:
+                self._plans.clear()
+            self._plans[key] = layout
         entries = []
-        for i, regs in items.items():
-            encoded = sorted((self._encode_write(i, name, raw) for name, raw in regs.items()),
-                             key=lambda rd: rd[0].address)
-            if not encoded:
+        for i, start, regs in layout:
+            values = items[i]
+            entries.append((i, start, b"".join([r.encode(r.check_raw(int(values[name]))) for name, r in regs])))
+        self._with_retries(self._simple, pk.bulk_write(entries))
+
+    def _bulk_write_layout(self, names: Sequence[tuple[int, tuple[RegLike, ...]]]) -> tuple:
+        """Per ID of ``names`` (``(id, (reg, ...))``): ``(id, start address, ((reg, Register), ...))``
+        with the registers in address order; raises for a read-only or non-contiguous one."""
+        layout = []
+        for i, regs in names:
+            found = sorted(((name, self.register(i, name)) for name in regs), key=lambda nr: nr[1].address)
+            if not found:
                 raise ValueError(f"bulk write for ID {i} names no register")
-            start, blob = encoded[0][0].address, b""
-            for r, data in encoded:
-                if r.address != start + len(blob):
+            start = end = found[0][1].address
+            for _, r in found:
+                if not r.writable:
+                    raise RegisterError(f"{r.name} is read-only (servo ID {i})")
+                if r.address != end:
                     raise ValueError(f"bulk write for ID {i}: {r.name} is not contiguous with the "
                                      f"registers before it")
-                blob += data
-            entries.append((i, start, blob))
-        self._with_retries(self._simple, pk.bulk_write(entries))
+                end += r.size
+            layout.append((i, start, tuple(found)))
+        return tuple(layout)

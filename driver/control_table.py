@@ -177,6 +177,11 @@ class Register:
 
     def raw_bounds(self) -> tuple[int, int]:
         """The widest raw range: the item's documented range, else what its size holds."""
+        return self._bounds
+
+    @functools.cached_property
+    def _bounds(self) -> tuple[int, int]:
+        # worked out once per item: the control loop checks eight goals a cycle against it
         if self.min is not None and self.max is not None:
             return self.min, self.max
         bits = 8 * self.size
@@ -184,7 +189,7 @@ class Register:
 
     def check_raw(self, raw: int) -> int:
         """Return ``raw`` if inside the item's fixed range, else raise OutOfRangeError."""
-        lo, hi = self.raw_bounds()
+        lo, hi = self._bounds
         if not lo <= raw <= hi or (self.allowed is not None and raw not in self.allowed):
             raise OutOfRangeError(self.name, raw, lo, hi)
         return raw
@@ -199,7 +204,7 @@ class Register:
         if value is None or (isinstance(value, float) and math.isnan(value)):
             raise OutOfRangeError(self.name, value, *self._si_bounds(), unit=self.unit or "")
         raw = round(value / self.scale) if self.scale else round(value)
-        lo, hi = self.raw_bounds()
+        lo, hi = self._bounds
         if not lo <= raw <= hi:
             raise OutOfRangeError(self.name, value, *self._si_bounds(), unit=self.unit or "")
         return self.check_raw(int(raw))

@@ -75,6 +75,9 @@ class WheelSet:
         self._vel = self.table[Reg.GOAL_VELOCITY]
         self._pos = self.table[Reg.GOAL_POSITION]
         self._first, self._last = Reg.PRESENT_CURRENT, Reg.PRESENT_POSITION
+        self._cur = self.table[Reg.PRESENT_CURRENT]
+        self._vel_now = self.table[Reg.PRESENT_VELOCITY]
+        self._pos_now = self.table[Reg.PRESENT_POSITION]
 
     # --- setup -------------------------------------------------------------------------------
 
@@ -163,20 +166,19 @@ class WheelSet:
     def read_state(self) -> WheelState:
         """Present current, velocity and position of all eight servos from ONE Sync Read
         (or Fast Sync Read) of addresses 126..135, converted to the wheel frame."""
-        raw = self.bus.sync_read(self.ids, self._first, self._last, fast=self.fast)
+        names, rows = self.bus.sync_read_rows(self.ids, self._first, self._last, fast=self.fast)
         t = time.monotonic()
-        cur = self.table[Reg.PRESENT_CURRENT]
-        vel = self.table[Reg.PRESENT_VELOCITY]
-        pos = self.table[Reg.PRESENT_POSITION]
+        ic, iv, ip = names.index(Reg.PRESENT_CURRENT), names.index(Reg.PRESENT_VELOCITY), \
+            names.index(Reg.PRESENT_POSITION)
+        cur, vel, pos = self._cur.to_si, self._vel_now.to_si, self._pos_now.to_si
         dv, dp, dc, sp, sv, sc = [], [], [], [], [], []
-        for w in self.config.wheels:
-            d, s = raw[w.drive_id], raw[w.steer_id]
-            dv.append(w.drive_direction * vel.to_si(d[Reg.PRESENT_VELOCITY]))
-            dp.append(w.drive_direction * pos.to_si(d[Reg.PRESENT_POSITION]))
-            dc.append(w.drive_direction * cur.to_si(d[Reg.PRESENT_CURRENT]))
-            sp.append(w.steer_direction * pos.to_si(s[Reg.PRESENT_POSITION] - w.center_pulse))
-            sv.append(w.steer_direction * vel.to_si(s[Reg.PRESENT_VELOCITY]))
-            sc.append(w.steer_direction * cur.to_si(s[Reg.PRESENT_CURRENT]))
+        for w, d, s in zip(self.config.wheels, rows, rows[len(self.drive_ids):]):
+            dv.append(w.drive_direction * vel(d[iv]))
+            dp.append(w.drive_direction * pos(d[ip]))
+            dc.append(w.drive_direction * cur(d[ic]))
+            sp.append(w.steer_direction * pos(s[ip] - w.center_pulse))
+            sv.append(w.steer_direction * vel(s[iv]))
+            sc.append(w.steer_direction * cur(s[ic]))
         return WheelState(t, tuple(dv), tuple(dp), tuple(sp), tuple(sv), tuple(dc), tuple(sc))
 
     # --- shutdown ----------------------------------------------------------------------------

@@ -237,8 +237,9 @@ class LockstepClock:
         self._t0: float | None = None     # wall time of the first call
 
     def run(self, world: StepWorld) -> float:
-        self._run_to(world)
-        return math.inf
+        if self._t0 is None:
+            self._t0 = time.monotonic()
+        return math.inf         # every move of now_s has already run the physics up to it
 
     def advance_to(self, world: StepWorld, t_s: float) -> float:
         """Move robot time to ``t_s`` (never back) and run the physics there; returns :attr:`now_s`."""

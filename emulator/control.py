@@ -90,10 +90,11 @@ class ControlServer:
         self._listener.listen(4)
         self._listener.setblocking(False)
         self._conns: dict[int, _Connection] = {}
+        self._fds = (self._listener.fileno(),)
 
-    def fds(self) -> list[int]:
-        """Descriptors the bus thread selects on."""
-        return [self._listener.fileno(), *self._conns]
+    def fds(self) -> tuple[int, ...]:
+        """Descriptors the bus thread selects on (kept up to date as connections come and go)."""
+        return self._fds
 
     def handle(self, fd: int, bus: ControlledBus) -> None:
         """Serve a readable descriptor (a new connection or request lines)."""
@@ -104,6 +105,7 @@ class ControlServer:
                 return
             sock.setblocking(True)
             self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes)
+            self._fds = (self._listener.fileno(), *self._conns)
             return
         conn = self._conns.get(fd)
         if conn is None:
@@ -163,6 +165,7 @@ class ControlServer:
         conn = self._conns.pop(fd, None)
         if conn is not None:
             conn.sock.close()
+            self._fds = (self._listener.fileno(), *self._conns)
 
     def close(self) -> None:
         for fd in list(self._conns):

@@ -71,6 +71,7 @@ class ServoMemory:
         self.size = table.size
         self._bytes = bytearray(self.size)
         self._slices = {reg.name: (reg.address, reg.address + reg.size, reg.signed) for reg in table}
+        self._bounds = {reg.name: reg.raw_bounds() for reg in table}     # checked on every bus write
         self._owner: list[Register | None] = [None] * self.size
         for reg in table:
             for a in range(reg.address, reg.address + reg.size):
@@ -228,9 +229,9 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
         if address < 0 or address + len(data) > self.size:
             raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
-        new_values = self._whole_items(address, data)
-        if new_values is not None:      # whole plain items: steps 1-2 have nothing to do
-            return self._check_and_apply(new_values, {})
+        whole = self._whole_items(address, data)
+        if whole is not None:           # whole plain items: steps 1-2 have nothing to do
+            return self._check_and_apply(whole, {})
         # 1. resolve indirect data bytes to their targets; collect per-item byte patches
         direct: dict[int, int] = {}
         via_indirect: dict[int, int] = {}
@@ -269,58 +270,61 @@ class ServoMemory:
                 raise WriteRejected(ErrorNumber.DATA_RANGE, f"indirect address {v} outside 64..661")
             new_slots[slot] = v
         # 3. item rules, against the memory as it will be after the whole write
-        new_values: dict[Register, int] = {}
+        new_values: dict[str, int] = {}
         for reg, bytes_ in patches.items():
             raw = bytearray(self._bytes[reg.address:reg.address + reg.size])
             for a, b in bytes_.items():
                 raw[a - reg.address] = b
-            new_values[reg] = reg.decode(bytes(raw))
+            new_values[reg.name] = reg.decode(bytes(raw))
         return self._check_and_apply(new_values, new_slots)
 
-    def _whole_items(self, address: int, data: bytes) -> dict[Register, int] | None:
-        """``{item: new raw value}`` if ``data`` covers whole items only and no indirect byte;
-        ``None`` otherwise (the general path then finds the error or the indirect targets)."""
+    def _whole_items(self, address: int, data: bytes) -> dict[str, int] | None:
+        """``{item name: new raw value}`` if ``data`` covers whole items only and no indirect
+        byte; ``None`` otherwise (the general path then finds the error or the indirect targets)."""
         end = address + len(data)
         if not (end <= self._special_lo or address > self._special_hi):
             return None
-        out: dict[Register, int] = {}
+        out: dict[str, int] = {}
         a = address
         while a < end:
             reg = self._owner[a]
             if reg is None or reg.address != a or a + reg.size > end:
                 return None
-            out[reg] = reg.decode(bytes(data[a - address:a - address + reg.size]))
+            out[reg.name] = reg.decode(data[a - address:a - address + reg.size])
             a += reg.size
         return out
 
-    def _check_and_apply(self, new_values: dict[Register, int], new_slots: dict[_Slot, int]) -> list[str]:
-        """Steps 3 and 4 of :meth:`write`: the item rules, then the new values and indirect addresses."""
+    def _check_and_apply(self, new_values: dict[str, int], new_slots: dict[_Slot, int]) -> list[str]:
+        """Steps 3 and 4 of :meth:`write`: the item rules, then the new values and indirect
+        addresses. ``new_values`` is keyed by item name (a ``str`` hashes in C; a Register would
+        call its Python ``__hash__`` on every lookup)."""
+        regs = self.table.registers
         torque_on = self.get(Reg.TORQUE_ENABLE) == 1
-        for reg, value in new_values.items():
-            self._check(reg, value, torque_on, new_values)
-        for reg, value in new_values.items():
-            self._put(reg, value)
+        for name, value in new_values.items():
+            self._check(regs[name], value, torque_on, new_values)
+        for name, value in new_values.items():
+            self._put(regs[name], value)
         for slot, v in new_slots.items():
             self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
-        return [reg.name for reg in new_values]
+        return list(new_values)
 
-    def _check(self, reg: Register, value: int, torque_on: bool, pending: dict[Register, int]) -> None:
+    def _check(self, reg: Register, value: int, torque_on: bool, pending: dict[str, int]) -> None:
         if not reg.writable:
             raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is read-only")
         if reg.eeprom and torque_on:
             raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is in EEPROM and torque is on")
         if self.watchdog_tripped and reg.name in WATCHDOG_LOCKED:
             raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} is locked by the bus watchdog")
-        lo, hi = reg.raw_bounds()
+        lo, hi = self._bounds[reg.name]
         if not lo <= value <= hi or (reg.allowed is not None and value not in reg.allowed):
             raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} = {value} outside [{lo}, {hi}]")
         self._check_limits(reg, value, pending)
 
-    def _limit_value(self, name: str, pending: dict[Register, int]) -> int:
-        reg = self.table[name]
-        return pending.get(reg, self.get(name))
+    def _limit_value(self, name: str, pending: dict[str, int]) -> int:
+        value = pending.get(name)
+        return self.get(name) if value is None else value
 
-    def _check_limits(self, reg: Register, value: int, pending: dict[Register, int]) -> None:
+    def _check_limits(self, reg: Register, value: int, pending: dict[str, int]) -> None:
         if reg.limit is not None:
             if reg.name == Reg.PROFILE_VELOCITY and self.get(Reg.DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
                 return  # time-based profile: Profile Velocity is a time, not capped by Velocity Limit

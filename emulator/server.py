@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import gc
 import logging
+import operator
 import os
 import select
 import sys
@@ -27,7 +28,8 @@ from swerve.driver.control_table import table_for
 from swerve.driver.errors import ChecksumError, ConfigError, CorruptPacketError
 from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
-                            parse_sync_read, parse_sync_write)
+                            parse_sync_read, parse_sync_write, stuff)
+from swerve.driver.protocol import PREFIX_BYTES
 from swerve.driver.parser import PacketParser
 
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
@@ -37,6 +39,7 @@ from swerve.emulator.pty_link import PtyLink, precise_timers
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
 
 log = logging.getLogger(__name__)
+_SERVO_ID = operator.attrgetter("id")
 
 
 def freeze_startup_heap() -> None:
@@ -65,7 +68,8 @@ GROUP_WRITE_S = 1e-3
 SWITCH_INTERVAL_S = 2e-4
 SYNC_READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
 BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
-BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
+BUS_WRITES = (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
+BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + BUS_WRITES
 
 
 @dataclass
@@ -148,6 +152,12 @@ def make_servos(ids: Iterable[int], model: str, baud: int, *, limit_error: Error
         for s in servos:
             s.dynamics = dynamics(s)
     return servos
+
+
+def frame_bytes(pkt: InstructionPacket) -> int:
+    """Length of ``pkt``'s frame on the wire, ``len(pkt.encode())``, without computing its CRC:
+    header, ID and LENGTH (:data:`PREFIX_BYTES`), the stuffed INST and params, 2 CRC bytes."""
+    return PREFIX_BYTES + len(stuff(bytes((pkt.instruction,)) + pkt.params)) + 2
 
 
 #: Called with the emulator, under its lock, after each run of clock steps and each ``advance``.
@@ -318,7 +328,7 @@ class Emulator:
         while not self._stop.is_set():
             timeout = inter_byte_s if parser.pending and control is None else IDLE_POLL_S
             timeout = min(timeout, self._run_clock())
-            fds = [pty.master, self._wake_r] + (control.fds() if control is not None else [])
+            fds = [pty.master, self._wake_r, *control.fds()] if control is not None else [pty.master, self._wake_r]
             try:
                 ready, _, _ = select.select(fds, [], [], timeout)
             except (OSError, ValueError):
@@ -436,7 +446,7 @@ class Emulator:
         self._packet_baud = self.line_baud()    # one termios read per instruction
         try:
             byte_t = self._byte_time_s()
-            wire_s = len(pkt.encode()) * byte_t     # the instruction's bytes on the wire
+            wire_s = frame_bytes(pkt) * byte_t      # the instruction's bytes on the wire
             steps = self.clock.stats.steps
             self.clock.on_request(self, wire_s)
             if self.observers and self.clock.stats.steps != steps:
@@ -471,9 +481,10 @@ class Emulator:
     def _listening(self) -> list[VirtualServo]:
         """Servos present on the bus and listening at the client's line speed, by ascending ID."""
         line = self.line_baud() if self.settings.baud_check else None
-        out = [s for s in self.servos
-               if s.id not in self.faults.vanished and (line is None or s.baud_bps == line)]
-        return sorted(out, key=lambda s: s.id)
+        vanished = self.faults.vanished
+        out = [s for s in self.servos if s.id not in vanished and (line is None or s.baud_bps == line)]
+        out.sort(key=_SERVO_ID)         # an ID write may have changed the order
+        return out
 
     def _addressed(self, id_: int) -> list[tuple[VirtualServo, bool]]:
         """``(servo, by_primary_id)`` for every listening servo an ID addresses."""
@@ -508,19 +519,16 @@ class Emulator:
     def _dispatch_bus(self, pkt: InstructionPacket, listening: list[VirtualServo]):
         by_id = {s.id: s for s in listening}
         inst, p = pkt.instruction, pkt.params
-        if inst == Instruction.SYNC_WRITE:
-            address, _length, data = parse_sync_write(p)
+        if inst in BUS_WRITES:
+            if inst == Instruction.SYNC_WRITE:
+                address, _length, data = parse_sync_write(p)
+                entries = [(id_, address, d) for id_, d in data.items()]
+            else:
+                entries = parse_bulk_write(p)
+            writers = self._writers(listening)
             touched = []
-            for id_, d in data.items():
-                for s in self._writers(id_, listening):
-                    s.note_traffic()
-                    s.bus_write(address, d)
-                    touched.append(s)
-            return [], touched
-        if inst == Instruction.BULK_WRITE:
-            touched = []
-            for id_, address, d in parse_bulk_write(p):
-                for s in self._writers(id_, listening):
+            for id_, address, d in entries:
+                for s in writers.get(id_, ()):
                     s.note_traffic()
                     s.bus_write(address, d)
                     touched.append(s)
@@ -569,8 +577,15 @@ class Emulator:
             replies.append(_Reply(st.encode(), s.return_delay_s))
         return replies, present
 
-    def _writers(self, id_: int, listening: list[VirtualServo]) -> list[VirtualServo]:
-        return [s for s in listening if s.id == id_ or (s.secondary_id <= MAX_ID and s.secondary_id == id_)]
+    @staticmethod
+    def _writers(listening: list[VirtualServo]) -> dict[int, list[VirtualServo]]:
+        """The servos an ID in a Sync/Bulk Write addresses (its ID or Secondary ID), by ID."""
+        out: dict[int, list[VirtualServo]] = {}
+        for s in listening:
+            out.setdefault(s.id, []).append(s)
+            if s.secondary_id <= MAX_ID and s.secondary_id != s.id:
+                out.setdefault(s.secondary_id, []).append(s)
+        return out
 
     # --- transmit (outside the lock) ------------------------------------------------------------
     def _transmit(self, replies: list[_Reply], start_t: float, byte_t: float | None = None) -> None:

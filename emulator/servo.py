@@ -77,6 +77,7 @@ class VirtualServo:
         self._view = self.memory.view()
         self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
         self._identity_raw = b""
+        self._torque_address = table[Reg.TORQUE_ENABLE].address
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
         self.dynamics = dynamics
@@ -141,8 +142,8 @@ class VirtualServo:
 
     def bus_write(self, address: int, data: bytes) -> ErrorNumber:
         """A Write (or Sync/Bulk Write entry) with every rule; returns the error number."""
-        if (address <= self.table[Reg.TORQUE_ENABLE].address < address + len(data)
-                and self._latched and data[self.table[Reg.TORQUE_ENABLE].address - address] == 1):
+        torque = self._torque_address
+        if address <= torque < address + len(data) and self._latched and data[torque - address] == 1:
             return ErrorNumber.RESULT_FAIL   # torque cannot come back before a reboot (UNCONFIRMED no.)
         try:
             changed = self.memory.write(address, data)

@@ -90,6 +90,17 @@ def test_crc_check_value():
     assert P.crc16(b"123456789") == 0xFEE8
 
 
+def test_two_byte_crc_table_is_two_steps_of_the_byte_table():
+    t = P._CRC_TABLE
+    assert P._CRC_TABLE16 == [((t[h] << 8) & 0xFFFF) ^ t[lo ^ (t[h] >> 8)]
+                              for h in range(256) for lo in range(256)]
+    for data in (b"", b"\x01", b"\xff\xff\xfd\x00", bytes(range(256)) * 3):
+        crc = 0
+        for b in data:                  # the e-Manual's one-byte-at-a-time update
+            crc = ((crc << 8) ^ t[(crc >> 8) ^ b]) & 0xFFFF
+        assert P.crc16(data) == crc
+
+
 FAST_SYNC = "FF FF FD 00 FE 19 00 55 00 03 A6 00 00 00 84 08 00 07 1F 08 00 00 16 CA 00 04 FF 03 00 00 D1 9E"
 FAST_BULK = "FF FF FD 00 FE 14 00 55 00 03 A6 00 00 00 67 A4 00 07 A5 01 24 74 00 04 1F D9 C1"
 

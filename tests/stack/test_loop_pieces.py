@@ -165,8 +165,9 @@ def test_cycle_dict_is_a_cycle_record():
     sd = np.array([1.0, 2.0, 0.3, 0.1, -0.1])
     for m in (meas, None):
         f = TrackingLoop._cycle(3, 0.048, 0.016, [3.0] * 4, [0.1, -0.1, -0.1, 0.1], 0.1, 0.2,
-                                -0.2, m, np.array([0.5, 0.6, 0.7]), sd, np.full(3, np.nan), 2)
+                                -0.2, m, np.array([0.5, 0.6, 0.7]), sd, np.full(3, np.nan), 2, 48_000_000)
         rec = CycleRecord(**f)
+        assert rec.stamp_ns == 48_000_000
         for name in ("cmd_drive_radps", "meas_drive_radps", "meas_current_a", "est_pose",
                      "ref_pose", "ref_delta"):
             assert f[name].dtype == np.float64

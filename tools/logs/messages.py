@@ -7,7 +7,7 @@ cannot drift apart. Parts that are the same every cycle are built once.
 """
 from __future__ import annotations
 
-import math
+from math import cos, isfinite, sin
 from typing import Sequence
 
 import numpy as np
@@ -34,52 +34,58 @@ class CycleMessages:
         self._zero_duration = T["builtin_interfaces/msg/Duration"](sec=0, nanosec=0)
         self._empty = np.empty(0)
         self._covariance = np.zeros(36)
+        # the message classes, looked up once
+        self._Float64MultiArray = T["std_msgs/msg/Float64MultiArray"]
+        self._Header, self._Time = T["std_msgs/msg/Header"], T["builtin_interfaces/msg/Time"]
+        self._JointState = T["sensor_msgs/msg/JointState"]
+        self._JointTrajectory = T["trajectory_msgs/msg/JointTrajectory"]
+        self._JointTrajectoryPoint = T["trajectory_msgs/msg/JointTrajectoryPoint"]
+        self._Odometry = T["nav_msgs/msg/Odometry"]
+        self._PoseWithCovariance = T["geometry_msgs/msg/PoseWithCovariance"]
+        self._PoseStamped, self._Pose = T["geometry_msgs/msg/PoseStamped"], T["geometry_msgs/msg/Pose"]
+        self._Point, self._Quaternion = T["geometry_msgs/msg/Point"], T["geometry_msgs/msg/Quaternion"]
 
     def header(self, stamp_ns: int):
         """``std_msgs/Header`` at ``stamp_ns`` in the ``odom`` frame."""
-        T = self._ts.types
-        ns = int(stamp_ns)
-        return T["std_msgs/msg/Header"](
-            stamp=T["builtin_interfaces/msg/Time"](sec=ns // 1_000_000_000, nanosec=ns % 1_000_000_000),
-            frame_id="odom")
+        sec, nanosec = divmod(int(stamp_ns), 1_000_000_000)
+        return self._Header(stamp=self._Time(sec=sec, nanosec=nanosec), frame_id="odom")
 
     def messages(self, rec: CycleRecord) -> list:
         """``(topic, message)`` for one cycle, ``/swerve/cycle`` first; a pose topic whose pose
         is not finite (unknown) is left out."""
-        T = self._ts.types
         header = self.header(rec.stamp_ns)
-        out = [("/swerve/cycle", T["std_msgs/msg/Float64MultiArray"](layout=self._layout, data=pack(rec)))]
-        out.append(("/joint_states", T["sensor_msgs/msg/JointState"](
-            header=header, name=self._joints,
-            position=np.concatenate([_NAN4, rec.meas_steer_rad]),
-            velocity=np.concatenate([rec.meas_drive_radps, _NAN4]),
-            effort=np.asarray(rec.meas_current_a, dtype=np.float64))))
-        point = T["trajectory_msgs/msg/JointTrajectoryPoint"](
+        out = [("/swerve/cycle", self._Float64MultiArray(layout=self._layout, data=pack(rec))),
+               ("/joint_states", self._JointState(
+                   header=header, name=self._joints,
+                   position=np.concatenate([_NAN4, rec.meas_steer_rad]),
+                   velocity=np.concatenate([rec.meas_drive_radps, _NAN4]),
+                   effort=np.asarray(rec.meas_current_a, dtype=np.float64)))]
+        point = self._JointTrajectoryPoint(
             positions=np.concatenate([_NAN4, rec.cmd_steer_rad]),
             velocities=np.concatenate([rec.cmd_drive_radps, _NAN4]),
             accelerations=self._empty, effort=self._empty, time_from_start=self._zero_duration)
-        out.append(("/trajectory", T["trajectory_msgs/msg/JointTrajectory"](
-            header=header, joint_names=self._joints, points=[point])))
-        out.append(("/odom", T["nav_msgs/msg/Odometry"](
+        out.append(("/trajectory", self._JointTrajectory(header=header, joint_names=self._joints,
+                                                         points=[point])))
+        out.append(("/odom", self._Odometry(
             header=header, child_frame_id="base_link",
-            pose=T["geometry_msgs/msg/PoseWithCovariance"](pose=self.pose(rec.est_pose),
-                                                           covariance=self._covariance),
+            pose=self._PoseWithCovariance(pose=self.pose(rec.est_pose), covariance=self._covariance),
             twist=self._no_twist)))
         for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
                             ("/sim_pose", rec.sim_pose)):
-            if np.isfinite(pose).all():
-                out.append((topic, self.pose_stamped(header, pose)))
+            x, y, th = pose.tolist()
+            if isfinite(x) and isfinite(y) and isfinite(th):
+                out.append((topic, self._PoseStamped(header=header, pose=self._planar(x, y, th))))
         return out
 
     def pose(self, pose):
         """``geometry_msgs/Pose`` of a planar pose ``(x_m, y_m, theta_rad)``."""
-        T = self._ts.types
-        x, y, th = (float(v) for v in pose)
-        return T["geometry_msgs/msg/Pose"](
-            position=T["geometry_msgs/msg/Point"](x=x, y=y, z=0.0),
-            orientation=T["geometry_msgs/msg/Quaternion"](x=0.0, y=0.0, z=math.sin(th / 2),
-                                                          w=math.cos(th / 2)))
+        x, y, th = map(float, pose)
+        return self._planar(x, y, th)
+
+    def _planar(self, x: float, y: float, th: float):
+        return self._Pose(position=self._Point(x=x, y=y, z=0.0),
+                          orientation=self._Quaternion(x=0.0, y=0.0, z=sin(th / 2), w=cos(th / 2)))
 
     def pose_stamped(self, header, pose):
         """``geometry_msgs/PoseStamped`` of a planar pose under ``header``."""
-        return self._ts.types["geometry_msgs/msg/PoseStamped"](header=header, pose=self.pose(pose))
+        return self._PoseStamped(header=header, pose=self.pose(pose))

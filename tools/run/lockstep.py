@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import math
 import socket
+import struct
 import time
 from typing import Callable
 
@@ -53,6 +54,12 @@ class LockstepClock:
             self._sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
             self._sock.settimeout(CONTROL_TIMEOUT_S)
             self._sock.connect(str(control_path))
+            # a blocking socket whose kernel send/receive calls time out: each request costs
+            # one send and one receive, without the poll() a Python-level timeout adds to each
+            self._sock.settimeout(None)
+            limit = struct.pack("ll", int(CONTROL_TIMEOUT_S), round(CONTROL_TIMEOUT_S % 1 * 1e6))  # timeval
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO, limit)
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_SNDTIMEO, limit)
         except OSError as exc:
             raise LockstepError(f"cannot connect to the lockstep control socket {control_path}: {exc}") from None
         self._reader = self._sock.makefile("rb")      # buffered: one recv per reply line
@@ -107,12 +114,25 @@ class LockstepClock:
             line = self._reader.readline()
         except OSError as exc:
             raise LockstepError(f"lockstep emulator: {request.split()[0]} failed: {exc}") from None
+        if not line.endswith(b"\n") and (line or not self._closed_by_peer()):
+            raise LockstepError(f"lockstep emulator: {request.split()[0]} got no answer "
+                                f"within {CONTROL_TIMEOUT_S:g} s")
         words = line.decode("ascii", "replace").split()
         if not words:
             raise LockstepError("the lockstep emulator closed its control channel")
         if words[0] == "error":
             raise LockstepError(f"lockstep emulator: {' '.join(words[1:])}")
         return words
+
+    def _closed_by_peer(self) -> bool:
+        """After a read that returned nothing: True if the emulator closed the channel, False
+        if the read timed out."""
+        try:
+            return self._sock.recv(1, socket.MSG_PEEK | socket.MSG_DONTWAIT) == b""
+        except BlockingIOError:
+            return False
+        except OSError:
+            return True
 
     def _delta(self) -> int:
         total = self._tx()

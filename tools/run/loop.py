@@ -278,16 +278,16 @@ class TrackingLoop:
                         flags |= _OVERRUN
                     rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
                                  out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
-                    fields = None
+                    log_args = None
                     if self.on_cycle is not None:
-                        fields = self._cycle(k_base + k, t, period, drive, steer, v1, w1, w2, meas,
-                                             pose, out.desired_state, truth, flags)
-                        fields["stamp_ns"] = self._stamp_ns()
+                        log_args = (k_base + k, t, period, drive, steer, v1, w1, w2, meas, pose,
+                                    out.desired_state, truth, flags, self._stamp_ns())
 
-                    def finish_cycle(fields=fields, cpu0=cpu0):
-                        # the log is written while a lockstep emulator runs the physics
-                        if fields is not None:
-                            self.on_cycle(fields)
+                    def finish_cycle(log_args=log_args, cpu0=cpu0):
+                        # the log's record is built and written while a lockstep emulator runs
+                        # the physics
+                        if log_args is not None:
+                            self.on_cycle(self._cycle(*log_args))
                         cpu_s.append(time.thread_time() - cpu0)
 
                     k = ticker.wait(finish_cycle)
@@ -314,7 +314,7 @@ class TrackingLoop:
             log.warning("could not command zero wheel speed: %s", exc)
 
     @staticmethod
-    def _cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose, sd, truth, flags) -> dict:
+    def _cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose, sd, truth, flags, stamp_ns) -> dict:
         """The ``on_cycle`` dict: :class:`tools.logs.record.CycleRecord` fields, float64 arrays.
 
         ``pose`` (3,) must be the caller's own copy (it is logged as is)."""
@@ -325,7 +325,7 @@ class TrackingLoop:
             meas_drive, meas_steer = np.array(meas.drive_radps), np.array(meas.steer_rad)
             meas_current = np.array([*meas.drive_current_a, *meas.steer_current_a])
         return dict(
-            cycle=k, t_s=t, stamp_ns=time.time_ns(), period_s=period,
+            cycle=k, t_s=t, stamp_ns=stamp_ns, period_s=period,
             cmd_drive_radps=np.array(drive, float), cmd_steer_rad=np.array(steer, float),
             cmd_v1_mps=float(v1), cmd_omega_radps=np.array([w1, w2]),
             meas_drive_radps=meas_drive, meas_steer_rad=meas_steer, meas_current_a=meas_current,
