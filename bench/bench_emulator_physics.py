@@ -19,7 +19,8 @@ Usage::
    cycle was due. Also reported: the simulated time the physics clock delivered per wall second
    and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
 ``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
-free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot).
+free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot), then the
+robot's physics in a lockstep run's batches (:func:`cost_lockstep`).
 3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
 Prints a markdown section for BENCHMARKS.md.
 """
