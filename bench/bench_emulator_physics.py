@@ -19,7 +19,8 @@ Usage::
    cycle was due. Also reported: the simulated time the physics clock delivered per wall second
    and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
 ``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
-free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot).
+free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot), then the
+robot's physics in a lockstep run's batches (:func:`cost_lockstep`).
 3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
 Prints a markdown section for BENCHMARKS.md.
 """
@@ -91,6 +92,54 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
         return {"rate_hz": emu.rate_hz, "cpu_per_sim_s": cpu / sim, "rtf": sim / cpu, "wall_rtf": sim / wall,
                 "tick_us": 1e6 * cpu / (sim * emu.rate_hz), "median_cycle_ms": 1e3 * med,
                 "median_tick_us": 1e6 * med / round(CYCLE_S * emu.rate_hz), "median_rtf": CYCLE_S / med}
+
+
+#: Physics steps per 16 ms lockstep cycle between the bus events of a run at 1 kHz: the Sync Read's
+#: replies, the goals' Bulk Write, the ``advance`` to the next deadline (measured in a lockstep run).
+LOCKSTEP_BATCHES = (2, 1, 13)
+
+
+def cost_lockstep(seconds: float, rate_hz: float | None) -> dict[str, float]:
+    """The robot's physics per 16 ms cycle as a lockstep run batches it (:data:`LOCKSTEP_BATCHES`):
+    per cycle every servo's Sync Read entry (present current .. position, which publishes the
+    present items), two steps, the goals as Bulk Write entries (the items change every cycle),
+    one step, then thirteen; direct calls, no pty. CPU of the calling thread in
+    ``emu.step_many`` per cycle, median over the cycles."""
+    cfg = load_robot_config(ROBOT)
+    with robot_emulator(ROBOT, PHYSICS, time_scale=0, rate_hz=rate_hz) as emu, \
+            Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
+        wheels.configure()
+        wheels.enable()
+        bus.sync_read(wheels.ids, Reg.TORQUE_ENABLE)      # the enable has arrived (the steps bypass the pty)
+        by_id = {s.id: s for s in emu.servos}
+        table = emu.servos[0].table
+        first = table[Reg.PRESENT_CURRENT].address
+        length = table[Reg.PRESENT_POSITION].address + 4 - first
+        address = {i: table[Reg.GOAL_VELOCITY].address for i in cfg.drive_ids}
+        address.update({i: table[Reg.GOAL_POSITION].address for i in cfg.steer_ids})
+        dt = 1.0 / emu.rate_hz
+        pre, mid = (round(k * emu.rate_hz / 1000.0) for k in LOCKSTEP_BATCHES[:2])
+        post = round(CYCLE_S * emu.rate_hz) - pre - mid
+        cycles = []
+        n = round(seconds / CYCLE_S)
+        for k in range(n + 10):
+            for s in emu.servos:                          # a Sync Read's entries
+                s.note_traffic()
+                s.read_status(first, length)
+            c0 = time.thread_time()
+            emu.step_many(dt, pre)
+            c = time.thread_time() - c0
+            for i, raw in wheels.goal_raw(*goals(cfg, k * CYCLE_S)).items():    # a Bulk Write's entries
+                by_id[i].note_traffic()
+                by_id[i].bus_write(address[i], raw.to_bytes(4, "little", signed=True))
+            c0 = time.thread_time()
+            emu.step_many(dt, mid)
+            emu.step_many(dt, post)
+            if k >= 10:
+                cycles.append(c + time.thread_time() - c0)
+        med = float(np.median(cycles))
+        return {"rate_hz": emu.rate_hz, "median_cycle_ms": 1e3 * med, "median_rtf": CYCLE_S / med,
+                "rtf": n * CYCLE_S / sum(cycles)}
 
 
 def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str = "ideal") -> dict[str, float]:
@@ -300,6 +349,10 @@ def main(argv=None) -> int:
         print(f"\nthe robot (8 servos + body, a run's bus traffic), {c['rate_hz']:.0f} Hz: "
               f"{c['median_cycle_ms']:.3f} ms CPU per 16 ms cycle, {c['median_tick_us']:.1f} us per tick, "
               f"real-time factor {c['median_rtf']:.1f} (mean {c['tick_us']:.1f} us per tick, {c['rtf']:.1f})")
+        c = cost_lockstep(args.cost_seconds, args.rate)
+        print(f"the robot in lockstep batches ({'+'.join(map(str, LOCKSTEP_BATCHES))} steps per cycle at 1 kHz, "
+              f"the goals changing every cycle): {c['median_cycle_ms']:.3f} ms CPU per 16 ms cycle, "
+              f"real-time factor {c['median_rtf']:.1f} (mean {c['rtf']:.1f})")
         print(f"load after: {os.getloadavg()}")
         return 0
     c = cost_in_process(args.cost_seconds, args.rate)

@@ -348,8 +348,11 @@ class VirtualServo:
             ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
             if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
                 tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
+                wrap = float(REALTIME_TICK_WRAP)
                 for _ in range(ran - 1):
-                    tick_ms = (tick_ms + d_ms) % REALTIME_TICK_WRAP
+                    tick_ms += d_ms     # (t + d) % wrap, which is t + d below the wrap
+                    if tick_ms >= wrap:
+                        tick_ms %= wrap
                     since += dt_s
                 self._tick_ms, self._since_traffic_s = tick_ms, since
             if done + ran > 1:                          # an earlier step of this call left the items stale
@@ -372,10 +375,13 @@ class VirtualServo:
         m = self.memory
         if most <= 0 or m.watchdog_tripped:
             return max(most, 0)
+        since = self._since_traffic_s
+        if since + (most + 1) * dt_s < WATCHDOG_UNIT_S * (1.0 - 1e-9):
+            return most                 # within the shortest watchdog time (1 unit), whatever the item says
         wd = m.get(Reg.BUS_WATCHDOG)
         if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
             return most
-        since, limit = self._since_traffic_s, wd * WATCHDOG_UNIT_S
+        limit = wd * WATCHDOG_UNIT_S
         if since + (most + 1) * dt_s < limit * (1.0 - 1e-9):
             return most                 # far from the limit (the margin covers the sums' round-off)
         for k in range(most):           # the same float sums as the steps will make

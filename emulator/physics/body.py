@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 from math import cos, sin
-from operator import mul
 
 import numpy as np
 
@@ -59,11 +58,14 @@ class RobotBody:
         self.wheel_xy_m = np.asarray(wheel_xy_m, float)
         self._m = contact_matrix(self.wheel_xy_m)
         self._pinv = np.linalg.pinv(self._m)       # (3, 2n): least-squares solution operator
-        self._pinv_rows = self._pinv.tolist()      # the same, as Python floats for the per-step fit
+        # the same as Python floats for the per-step fit: per wheel, the (vx, vy, ω) coefficients of
+        # its v cos δ and of its v sin δ
+        cols = list(zip(*self._pinv.tolist()))
+        self._wheel_columns = list(zip(cols[0::2], cols[1::2]))
         self._m_rows = self._m.tolist()
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
         self._twist = (0.0, 0.0, 0.0)
-        self._fit: tuple[list, tuple] | None = None     # (stacked wheel velocities, twist) of the last step
+        self._fit: tuple | None = None     # (wheel speeds, steering angles, twist) of the last step
         self._residual_mps = np.zeros(len(self.wheel_xy_m))
 
     @property
@@ -71,7 +73,8 @@ class RobotBody:
         """Each wheel's contact-velocity misfit (slip speed) at the last fit, m/s, shape (n,);
         computed when asked (the steps only keep what it needs)."""
         if self._fit is not None:
-            w, twist = self._fit
+            vs, ds, twist = self._fit
+            w = [v * f(d) for v, d in zip(vs, ds) for f in (cos, sin)]
             r = [sum(a * t for a, t in zip(row, twist)) - wi for row, wi in zip(self._m_rows, w)]
             self._residual_mps = np.hypot(r[0::2], r[1::2])
             self._fit = None
@@ -99,17 +102,25 @@ class RobotBody:
     def step_many(self, dt_s: float, steps) -> tuple[float, float, float]:
         """:meth:`step` for consecutive steps: ``steps`` yields ``(speeds_mps, steer_rad)`` per
         step, each a sequence over the wheels."""
-        r0, r1, r2 = self._pinv_rows
+        columns = self._wheel_columns
         x, y, theta = self.x_m, self.y_m, self.theta_rad
-        w = twist = None
+        vs = ds = twist = None
         for vs, ds in steps:
-            w = []
-            for v, d in zip(vs, ds):
-                w += (v * cos(d), v * sin(d))
-            twist = (vx, vy, om) = (sum(map(mul, r0, w)), sum(map(mul, r1, w)), sum(map(mul, r2, w)))
+            # twist = pinv @ [v1 cos δ1, v1 sin δ1, v2 cos δ2, ...]: each row summed term by term in
+            # that order, from 0.0 (what sum() does)
+            vx = vy = om = 0.0
+            for v, d, ((cx, cy, cw), (sx, sy, sw)) in zip(vs, ds, columns):
+                c, s = v * cos(d), v * sin(d)
+                vx += cx * c
+                vy += cy * c
+                om += cw * c
+                vx += sx * s
+                vy += sy * s
+                om += sw * s
+            twist = (vx, vy, om)
             x, y, theta = _se2_step(x, y, theta, vx, vy, om, dt_s)
         if twist is not None:
-            self._twist, self._fit = twist, (w, twist)
+            self._twist, self._fit = twist, (tuple(vs), tuple(ds), twist)
             self.x_m, self.y_m, self.theta_rad = x, y, theta
         return x, y, theta
 

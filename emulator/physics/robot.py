@@ -85,6 +85,12 @@ class RobotPhysics:
         self._wheel_steer_rad: list[float] | None = None    # wheel angles behind the backlash
         self._wheel_servos = [(w, self.servos[w.drive_id], self.servos[w.steer_id], r, off) for w, r, off in
                               zip(geometry.wheels, self.wheel_radius_m.tolist(), self.steer_zero_offset_rad.tolist())]
+        # per wheel, for _wheel_rows: drive direction, steering direction, steering centre (pulse) as
+        # floats (the same products as with the ints, without a conversion per step), radius, offset
+        self._wheel_frames = [(float(w.drive_direction), float(w.steer_direction), float(w.center_pulse), r, off)
+                              for w, _, _, r, off in self._wheel_servos]
+        self._drive_models = [d for _, d, _, _, _ in self._wheel_servos]
+        self._steer_models = [s for _, _, s, _, _ in self._wheel_servos]
         self.bus_voltage_v = cfg.supply_voltage_v
 
     def wheel_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -104,16 +110,13 @@ class RobotPhysics:
         drive servo's :attr:`ServoModel.velocity_radps` and the steering servo's
         :attr:`ServoModel.true_position_pulse` at those steps (the backlash state advances)."""
         speeds, steer = [], []
+        rad_per_pulse = u.RAD_PER_PULSE
         half = 0.5 * self.cfg.tolerances.steer_backlash_rad
         state, wheels = self._wheel_steer_rad, []
-        for k, ((w, _, _, r, off), vs, pulses) in enumerate(zip(self._wheel_servos, drive_radps, steer_pulse)):
-            direction, sd, center = w.drive_direction, w.steer_direction, w.center_pulse
-            sp, horn = [], []           # loops, not comprehensions: cheaper for one step
-            for v in vs:
-                sp.append(direction * v * r)
-            for p in pulses:
-                horn.append(sd * (p - center) * u.RAD_PER_PULSE - off)
-            speeds.append(sp)
+        for k, ((direction, sd, center, r, off), vs, pulses) in enumerate(zip(self._wheel_frames, drive_radps,
+                                                                               steer_pulse)):
+            speeds.append([direction * v * r for v in vs])
+            horn = [sd * (p - center) * rad_per_pulse - off for p in pulses]
             if half > 0.0 and horn:
                 wheel = state[k] if state is not None else horn[0]
                 # the wheel stays where it is until the horn takes up the free play on either side
@@ -132,20 +135,20 @@ class RobotPhysics:
         back from the body into the servos. ``None`` otherwise (tyre forces, supply sag)."""
         if isinstance(self.body, ContactBody) or self.cfg.supply.enabled:
             return None
-        out: dict[ServoModel, tuple[list | None, list | None]] = {}
-        for _, drive, steer, _, _ in self._wheel_servos:
-            out[drive] = ([], None)
-            out[steer] = (None, [])
+        out: dict[ServoModel, tuple[list | None, list | None]] = {d: ([], None) for d in self._drive_models}
+        for s in self._steer_models:
+            out[s] = (None, [])
         return out
 
     def step_body_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> tuple[float, float, float]:
         """``n`` body steps of ``dt_s`` after the servos ran them, from their ``traces``
         (:meth:`traces`, filled by :meth:`ServoModel.run`); the same as :meth:`step_body` after
         each servo step. Returns the pose."""
-        drive = [traces[d][0] for _, d, _, _, _ in self._wheel_servos]
-        steer = [traces[s][1] for _, _, s, _, _ in self._wheel_servos]
-        if any(len(t) != n for t in drive + steer):
-            raise ValueError(f"every wheel servo must have recorded {n} steps")
+        drive = [traces[d][0] for d in self._drive_models]
+        steer = [traces[s][1] for s in self._steer_models]
+        for t in drive + steer:
+            if len(t) != n:
+                raise ValueError(f"every wheel servo must have recorded {n} steps")
         speeds, angles = self._wheel_rows(drive, steer)
         return self.body.step_many(dt_s, zip(zip(*speeds), zip(*angles)))
 

@@ -237,16 +237,18 @@ class ServoModel:
          rewrap_on_switch, current_position, tripped, position_goal, gear, reference_filter, measure_filtered,
          pwm_lim, margin, ke, r_arm, tick, ticks, ka, fa00, fa01, fa10, fa11, fb0, fb1,
          a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
-         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max) = setup
+         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, fsign, l_over_tc,
+         d_or_ff) = setup
         self._sign, self._homing = sign, homing
-        p = motor.params
         enc_off = self.encoder_offset_pulse
         noise = self.sensors.position_noise_std_pulse
-        fw = self.fw
         supply = self.supply_voltage_v
+        neg_supply = -supply
         vf, rf = self.velocity_filter, self.reference_filter
         linear = motor.friction is None and not motor.blocked
         tau = motor.load_torque_nm / gear
+        # the load's terms of the motor step, the same every tick of the run
+        b01_tau, b11_tau, b21_tau, cb0_tau, cb1_tau = b01 * tau, b11 * tau, b21 * tau, cb0 * tau, cb1 * tau
         protection = self.protection
         i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
         fy, fdy = vf.y, vf.dy
@@ -261,15 +263,17 @@ class ServoModel:
         new_goal = switched or plan.goal_position != self._prev_goal_position
         hold, goal_pulse = self._hold_position, self._goal_pulse
         present = v_meas = 0
-        rad_per_pulse, radps_per_vel_unit, pwm_full_scale = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT, u.PWM_FULL_SCALE
+        rad_per_pulse, radps_per_vel_unit = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT
+        pulse_per_vel_unit, pwm_full_scale = PULSE_PER_S_PER_VEL_UNIT, float(u.PWM_FULL_SCALE)
         floor = math.floor
         started = self._started
+        # (the int sign and counts as floats: the same products, without int-float conversions per tick)
+        sign_off = fsign * enc_off
+        wrap_f, homing_f = float(wrap), float(homing)
+        # encoder before noise (:meth:`_encoder_pulse`: the same arithmetic), then after each tick
+        x = fsign * (th / gear / rad_per_pulse + enc_off)
         for ran in range(1, n + 1):
-            # encoder (:meth:`_encoder_pulse`: the same arithmetic)
-            x = sign * (th / gear / rad_per_pulse + enc_off)
-            if noise:
-                x += self.rng.normal(0.0, noise)
-            raw = floor(x)
+            raw = floor(x + self.rng.normal(0.0, noise)) if noise else floor(x)
             if not started:
                 vf.reset(raw)
                 fy, fdy = vf.y, vf.dy
@@ -277,12 +281,13 @@ class ServoModel:
             if switched and rewrap_on_switch:
                 self._rewrap(raw)       # Present Position re-wrapped to one turn (+ Homing Offset)
                 wrap = self._wrap_pulse
+                wrap_f = float(wrap)
             present = raw - wrap + homing
             fy, fdy = fa00 * fy + fa01 * fdy + fb0 * raw, fa10 * fy + fa11 * fdy + fb1 * raw
             if measure_filtered:
-                v_meas = fdy / PULSE_PER_S_PER_VEL_UNIT
+                v_meas = fdy / pulse_per_vel_unit
             else:                       # ideal estimator: the true speed (README: placement choice)
-                v_meas = sign * (w / gear) / radps_per_vel_unit
+                v_meas = fsign * (w / gear) / radps_per_vel_unit
             if switched:
                 integral = 0.0
                 hold = None
@@ -295,7 +300,7 @@ class ServoModel:
                     rf.reset(v_meas if torque else 0.0)
             voltage = None
             if firmware_mode:           # the firmware's loops (e-Manual: operating modes)
-                w_m = sign * w          # motor speed in the servo frame
+                w_m = fsign * w         # motor speed in the servo frame
                 i_ref = None
                 if velocity_mode:
                     ppos, pvel, pacc, pongoing = velocity_profile_step(ppos, pvel, dt_s, v_goal, v_a_max)
@@ -313,10 +318,13 @@ class ServoModel:
                     ppos, pvel, pacc, pongoing = position_profile_step(ppos, pvel, pongoing, dt_s, goal,
                                                                        p_v_max, p_a_max)
                     ref = rf.step(dt_s, ppos) if reference_filter else ppos
-                    v_traj = pvel * tick                   # pulse per tick
-                    a_traj = pacc * tick * tick            # pulse per tick²
-                    v_err = v_traj - v_meas * PULSE_PER_S_PER_VEL_UNIT * tick
-                    extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                    if d_or_ff:
+                        v_traj = pvel * tick                   # pulse per tick
+                        a_traj = pacc * tick * tick            # pulse per tick²
+                        v_err = v_traj - v_meas * pulse_per_vel_unit * tick
+                        extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                    else:   # kd = ff1 = ff2 = 0: that sum is ±0.0, and kp e + I + ±0.0 equals kp e + I + 0.0
+                        extra = 0.0     # (the integral is never -0.0, so kp e + I is not either)
                     counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
                     if current_position:
                         goal_i = plan.position_current_limit
@@ -327,8 +335,7 @@ class ServoModel:
                     i_ref = plan.current_ref
                 if i_ref is not None:   # inner current loop: ideal inverse model + P on the error
                     i_a = i_ref * u.AMP_PER_CURRENT_UNIT
-                    v = (r_arm * i_a + ke * w_m
-                         + p.inductance_h / fw.current_loop_time_constant_s * (i_a - sign * i_a_))
+                    v = r_arm * i_a + ke * w_m + l_over_tc * (i_a - fsign * i_a_)
                     counts = max(-pwm_lim, min(pwm_lim, v / supply * pwm_full_scale))
                 v = counts / pwm_full_scale * supply
                 # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
@@ -339,9 +346,9 @@ class ServoModel:
                 lo = emf - margin
                 v = v if v > lo else lo
                 v = v if v < supply else supply
-                v = v if v > -supply else -supply
+                v = v if v > neg_supply else neg_supply
                 duty = v / supply
-                voltage = sign * v
+                voltage = fsign * v
             else:
                 integral = 0.0
                 duty = 0.0
@@ -351,19 +358,20 @@ class ServoModel:
                 motor.step(dt_s, voltage)
                 i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
             elif voltage is None:       # bridge open (:meth:`GearedMotor._step_linear`)
-                i_a_, w, th = 0.0, c00 * w + c01 * th + cb0 * tau, c10 * w + c11 * th + cb1 * tau
+                i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
             else:
-                i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01 * tau,
-                               a10 * i_a_ + a11 * w + b10 * voltage + b11 * tau,
-                               a20 * i_a_ + a21 * w + th + b20 * voltage + b21 * tau)
+                i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01_tau,
+                               a10 * i_a_ + a11 * w + b10 * voltage + b11_tau,
+                               a20 * i_a_ + a21 * w + th + b20 * voltage + b21_tau)
+            x = fsign * (th / gear / rad_per_pulse + enc_off)
             # winding temperature: first order towards ambient + R_th * I² R
             steady = ambient + r_th * (i_a_ ** 2 * r_arm)
             temp = steady + (temp - steady) * decay
             switched = new_goal = False
             if speeds is not None:
-                speeds.append(sign * (w / gear))
+                speeds.append(fsign * (w / gear))
             if positions is not None:
-                positions.append((sign * (th / gear / rad_per_pulse + enc_off) - wrap + homing) - sign * enc_off)
+                positions.append((x - wrap_f + homing_f) - sign_off)
             if protection is not None:
                 bits = protection.update(dt_s, i_a_, temp, supply, table)
                 if bits:
@@ -409,7 +417,8 @@ class ServoModel:
                 p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s, self.loop.ka,
                 fa00, fa01, fa10, fa11, fb0, fb1, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21,
                 c00, c01, c10, c11, cb0, cb1, math.exp(-dt_s / th.time_constant_s), th.ambient_c,
-                th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max)
+                th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
+                float(plan.sign), p.inductance_h / fw.current_loop_time_constant_s, bool(kd or ff1 or ff2))
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
