@@ -393,10 +393,15 @@ class Bus:
         r = self.register(id_, Reg.HARDWARE_ERROR_STATUS)
         return r.decode(self._with_retries(self._read_raw, id_, r.address, r.size, check=False))
 
-    def _encode_write(self, id_: int, reg: RegLike, raw: int) -> tuple[Register, bytes]:
+    def _writable(self, id_: int, reg: RegLike) -> Register:
+        """The :class:`Register` ``reg`` of servo ``id_``; RegisterError if it is read-only."""
         r = self.register(id_, reg)
         if not r.writable:
             raise RegisterError(f"{r.name} is read-only (servo ID {id_})")
+        return r
+
+    def _encode_write(self, id_: int, reg: RegLike, raw: int) -> tuple[Register, bytes]:
+        r = self._writable(id_, reg)
         return r, r.encode(r.check_raw(int(raw)))
 
     def write_bytes(self, id_: int, address: int, data: bytes) -> None:
@@ -599,13 +604,11 @@ class Bus:
         with the registers in address order; raises for a read-only or non-contiguous one."""
         layout = []
         for i, regs in names:
-            found = sorted(((name, self.register(i, name)) for name in regs), key=lambda nr: nr[1].address)
+            found = sorted(((name, self._writable(i, name)) for name in regs), key=lambda nr: nr[1].address)
             if not found:
                 raise ValueError(f"bulk write for ID {i} names no register")
             start = end = found[0][1].address
             for _, r in found:
-                if not r.writable:
-                    raise RegisterError(f"{r.name} is read-only (servo ID {i})")
                 if r.address != end:
                     raise ValueError(f"bulk write for ID {i}: {r.name} is not contiguous with the "
                                      f"registers before it")

@@ -160,6 +160,11 @@ class InstructionPacket:
         """The frame as sent on the wire (stuffed, with CRC)."""
         return _frame(self.id, bytes((self.instruction,)) + self.params)
 
+    def wire_length(self) -> int:
+        """``len(self.encode())`` without computing the CRC: header, ID and LENGTH
+        (:data:`PREFIX_BYTES`), the stuffed INST and params, 2 CRC bytes."""
+        return PREFIX_BYTES + len(stuff(bytes((self.instruction,)) + self.params)) + 2
+
     @classmethod
     def decode(cls, frame: bytes) -> "InstructionPacket":
         """Parse one complete instruction frame (raises on a bad CRC, length, header or ID)."""
@@ -404,8 +409,7 @@ def bulk_write(items: Iterable[tuple[int, int, bytes]]) -> InstructionPacket:
     """``items``: ``(id, address, data)`` per servo; an ID may appear only once."""
     params, seen = bytearray(), set()
     for id_, address, data in items:
-        if not 0 <= id_ <= MAX_ID:
-            _check_id(id_, allow_broadcast=False)
+        _check_id(id_, allow_broadcast=False)
         if id_ in seen:
             raise ValueError(f"ID {id_} appears twice in a bulk write")
         seen.add(id_)

@@ -71,7 +71,6 @@ class ServoMemory:
         self.size = table.size
         self._bytes = bytearray(self.size)
         self._slices = {reg.name: (reg.address, reg.address + reg.size, reg.signed) for reg in table}
-        self._bounds = {reg.name: reg.raw_bounds() for reg in table}     # checked on every bus write
         self._owner: list[Register | None] = [None] * self.size
         for reg in table:
             for a in range(reg.address, reg.address + reg.size):
@@ -315,7 +314,7 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is in EEPROM and torque is on")
         if self.watchdog_tripped and reg.name in WATCHDOG_LOCKED:
             raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} is locked by the bus watchdog")
-        lo, hi = self._bounds[reg.name]
+        lo, hi = reg.raw_bounds()
         if not lo <= value <= hi or (reg.allowed is not None and value not in reg.allowed):
             raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} = {value} outside [{lo}, {hi}]")
         self._check_limits(reg, value, pending)

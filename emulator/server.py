@@ -28,8 +28,7 @@ from swerve.driver.control_table import table_for
 from swerve.driver.errors import ChecksumError, ConfigError, CorruptPacketError
 from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
-                            parse_sync_read, parse_sync_write, stuff)
-from swerve.driver.protocol import PREFIX_BYTES
+                            parse_sync_read, parse_sync_write)
 from swerve.driver.parser import PacketParser
 
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
@@ -152,12 +151,6 @@ def make_servos(ids: Iterable[int], model: str, baud: int, *, limit_error: Error
         for s in servos:
             s.dynamics = dynamics(s)
     return servos
-
-
-def frame_bytes(pkt: InstructionPacket) -> int:
-    """Length of ``pkt``'s frame on the wire, ``len(pkt.encode())``, without computing its CRC:
-    header, ID and LENGTH (:data:`PREFIX_BYTES`), the stuffed INST and params, 2 CRC bytes."""
-    return PREFIX_BYTES + len(stuff(bytes((pkt.instruction,)) + pkt.params)) + 2
 
 
 #: Called with the emulator, under its lock, after each run of clock steps and each ``advance``.
@@ -446,7 +439,7 @@ class Emulator:
         self._packet_baud = self.line_baud()    # one termios read per instruction
         try:
             byte_t = self._byte_time_s()
-            wire_s = frame_bytes(pkt) * byte_t      # the instruction's bytes on the wire
+            wire_s = pkt.wire_length() * byte_t      # the instruction's bytes on the wire
             steps = self.clock.stats.steps
             self.clock.on_request(self, wire_s)
             if self.observers and self.clock.stats.steps != steps:

@@ -179,3 +179,14 @@ def test_param_parsers_invert_builders():
     bw = P.bulk_write([(1, 32, b"\xa0\x00"), (2, 31, b"P")])
     assert P.parse_bulk_write(bw.params) == [(1, 32, b"\xa0\x00"), (2, 31, b"P")]
     assert P.parse_sync_read(P.sync_read(132, 4, [1, 2]).params) == (132, 4, (1, 2))
+
+
+@pytest.mark.parametrize("pkt", [
+    P.ping(1),
+    P.sync_read(126, 10, range(1, 9)),
+    P.bulk_write([(1, 104, b"\x10\x00\x00\x00"), (5, 116, b"\x00\x08\x00\x00")]),
+    P.write(3, 116, b"\xff\xff\xfd\x00"),                   # stuffed: one byte longer on the wire
+    InstructionPacket(7, 0xFF, b"\xff\xfd\xff\xff\xfd"),    # the pattern across INST and params
+], ids=["ping", "sync_read", "bulk_write", "stuffed_write", "stuffed_across_inst"])
+def test_wire_length_is_the_encoded_length(pkt):
+    assert pkt.wire_length() == len(pkt.encode())

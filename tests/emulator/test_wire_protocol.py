@@ -134,15 +134,3 @@ def test_wire_timing_costs_at_least_the_wire_time():
                 assert len(_collect(port, 8)) == 8
                 best = min(best, time.monotonic() - t)
             assert best >= 0.95 * nbytes * 10 / baud     # 142 bytes at 57600 bps = 24.7 ms
-
-
-@pytest.mark.parametrize("pkt", [
-    pk.ping(1),
-    pk.sync_read(126, 10, range(1, 9)),
-    pk.bulk_write([(1, 104, b"\x10\x00\x00\x00"), (5, 116, b"\x00\x08\x00\x00")]),
-    pk.write(3, 116, b"\xff\xff\xfd\x00"),                   # stuffed: one byte longer on the wire
-    pk.InstructionPacket(7, 0xFF, b"\xff\xfd\xff\xff\xfd"),    # the pattern across INST and params
-], ids=["ping", "sync_read", "bulk_write", "stuffed_write", "stuffed_across_inst"])
-def test_frame_bytes_is_the_encoded_length(pkt):
-    from swerve.emulator.server import frame_bytes
-    assert frame_bytes(pkt) == len(pkt.encode())
