@@ -70,7 +70,8 @@ class ServoModel:
         self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.temperature_c = thermal.ambient_c
-        self._setup: tuple | None = None            # run()'s derived constants (_derive)
+        self._plant: tuple | None = None            # run()'s constants per step and inertia (_derive_plant)
+        self._inputs: tuple | None = None           # run()'s constants per input items (_derive_inputs)
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -238,22 +239,24 @@ class ServoModel:
             plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
             self._plan_table = table
         motor = self.motor
-        setup = self._setup
-        if setup is None or setup[0] is not plan or setup[1] != dt_s or setup[2] != motor.load_inertia_kg_m2:
-            setup = self._setup = self._derive(plan, dt_s)
-        coef, coef_array = setup[3], setup[4]
+        inputs = self._inputs
+        if inputs is None or inputs[0] is not plan:
+            inputs = self._inputs = self._derive_inputs(plan)
+        plant = self._plant
+        if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
+            plant = self._plant = self._derive_plant(dt_s)
         self._sign, self._homing = sign, homing = plan.sign, plan.homing
         linear = motor.friction is None and not motor.blocked
         protection = self.protection
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
         if _COMPILED_TICKS is not None and linear and protection is None and not noisy:
-            kernel, coef = _COMPILED_TICKS, coef_array
+            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
             speed_trace, position_trace = self._traces
         else:                           # the same function as Python, with the objects it calls per tick
-            kernel = servo_ticks
+            kernel, plant_coef, input_coef = servo_ticks, plant[2], inputs[1]
             speed_trace = [0.0] * n if record_speeds else None
             position_trace = [0.0] * n if record_positions else None
         vf, rf, prof = self.velocity_filter, self.reference_filter, self.profile
@@ -264,7 +267,7 @@ class ServoModel:
          prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
          self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
          present, v_meas) = kernel(
-            n, dt_s, coef, homing, record_speeds, speed_trace, record_positions, position_trace,
+            n, dt_s, plant_coef, input_coef, homing, record_speeds, speed_trace, record_positions, position_trace,
             self.rng if noisy else None, None if linear else motor, protection,
             None if protection is None else table,
             motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
@@ -283,23 +286,9 @@ class ServoModel:
         self._last = (table, plan.mode, plan.torque, present, v_meas, sign)
         return ran
 
-    def _derive(self, plan: "_InputPlan", dt_s: float) -> tuple:
-        """What :meth:`run` needs besides the state, for input items ``plan`` and steps of
-        ``dt_s`` at the present load inertia: ``(plan, dt_s, inertia, coef, coef_array)``, the
-        first three the key; ``coef`` the constants of :func:`servo_ticks` (mode flags as 1.0 /
-        0.0, limits, gains, and the discrete filter, motor (driven, coasting) and thermal
-        coefficients) as a tuple of floats, ``coef_array`` the same as a float64 array for the
-        compiled kernel (``None`` without it)."""
-        motor, fw, th = self.motor, self.fw, self.thermal
-        p = motor.params
-        vf = self.velocity_filter
-        if dt_s != vf._dt_s:
-            vf.prepare(dt_s)
-        ((fa00, fa01), (fa10, fa11)), (fb0, fb1) = vf._coef
-        bessel_a1, bessel_a0 = bessel_coefficients(vf.cutoff_radps, vf.norm)
-        (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
-         ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
-        ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
+    def _derive_inputs(self, plan: "_InputPlan") -> tuple:
+        """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
+        limits, gains, goals, as ``(plan, floats, float64 array or None without the compiled kernel)``."""
         v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
         if plan.velocity_mode:
             v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
@@ -308,23 +297,39 @@ class ServoModel:
             g = plan.position_gains
             kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
             p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
+        flags = (plan.velocity_mode, plan.position_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
+                 plan.current_position_mode, plan.tripped, self.fw.bessel_placement == "reference",
+                 self._measure_filtered, bool(kd or ff1 or ff2), plan.torque)
         unused = 0.0
+        coef = (*(1.0 if f else 0.0 for f in flags), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
+                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
+                unused if plan.position_goal is None else plan.position_goal,
+                unused if plan.position_current_limit is None else plan.position_current_limit,
+                unused if plan.pwm_counts is None else plan.pwm_counts,
+                unused if plan.current_ref is None else plan.current_ref)
+        return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
+
+    def _derive_plant(self, dt_s: float) -> tuple:
+        """:func:`servo_ticks`'s ``plant`` for steps of ``dt_s`` at the present load inertia: the
+        discrete filter, motor (driven, coasting) and thermal coefficients and the firmware's
+        constants, as ``(dt_s, inertia, floats, float64 array or None without the compiled kernel)``."""
+        motor, fw, th = self.motor, self.fw, self.thermal
+        p = motor.params
+        vf = self.velocity_filter
+        if dt_s != vf._dt_s:
+            vf.prepare(dt_s)
+        ((fa00, fa01), (fa10, fa11)), (fb0, fb1) = vf._coef
+        (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
+         ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
+        ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
         coef = tuple(map(float, (
-            plan.velocity_mode, plan.position_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
-            plan.current_position_mode, plan.tripped, fw.bessel_placement == "reference", self._measure_filtered,
-            bool(kd or ff1 or ff2), plan.torque, plan.sign, motor.gear_ratio, plan.pwm_lim, plan.current_margin_v,
-            p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s, self.loop.ka,
-            fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0, a00, a01, a10, a11, a20, a21,
-            b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+            motor.gear_ratio, p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s,
+            self.loop.ka, p.inductance_h / fw.current_loop_time_constant_s,
+            fa00, fa01, fa10, fa11, fb0, fb1, *bessel_coefficients(vf.cutoff_radps, vf.norm),
+            a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
             math.exp(-dt_s / th.time_constant_s), th.ambient_c, th.thermal_resistance_k_per_w,
-            v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, p.inductance_h / fw.current_loop_time_constant_s,
-            unused if plan.position_goal is None else plan.position_goal,
-            unused if plan.position_current_limit is None else plan.position_current_limit,
-            unused if plan.pwm_counts is None else plan.pwm_counts,
-            unused if plan.current_ref is None else plan.current_ref,
             self.sensors.position_noise_std_pulse)))
-        return (plan, dt_s, motor.load_inertia_kg_m2, coef,
-                None if _COMPILED_TICKS is None else np.array(coef))
+        return dt_s, motor.load_inertia_kg_m2, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
@@ -452,14 +457,15 @@ def wrapped_pulse(raw_pulse: int) -> int:
     return u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
 
 
-def servo_ticks(n, dt_s, coef, homing, record_speeds, speeds, record_positions, positions, rng, motor,
+def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, motor,
                 protection, table, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
                 temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, enc_off, supply,
                 load_torque_nm):
     """Up to ``n`` ticks of one servo (:meth:`ServoModel.run`): state in, state out, on plain numbers.
 
-    ``coef``: the constants of :meth:`ServoModel._derive` (a tuple, or a float64 array when
-    compiled); ``homing``: Homing Offset, pulse. ``speeds`` / ``positions``: buffers of ``n``
+    ``plant`` / ``inputs``: the constants of :meth:`ServoModel._derive_plant` /
+    :meth:`ServoModel._derive_inputs` (tuples, or float64 arrays when compiled); ``homing``:
+    Homing Offset, pulse. ``speeds`` / ``positions``: buffers of ``n``
     entries that get the output speed (rad/s) / true position (pulse) after each tick when
     ``record_speeds`` / ``record_positions``. ``rng`` (position noise), ``motor`` (its own step:
     gearbox friction, a held shaft) and ``protection`` (with the raw limit items ``table``) are
@@ -475,12 +481,12 @@ def servo_ticks(n, dt_s, coef, homing, record_speeds, speeds, record_positions, 
     ``switched`` and ``new_goal``), then the last Present Position (pulse) and measured velocity
     (velocity units).
     """
+    (gear, ke, r_arm, tick, ticks, ka, l_over_tc, fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0,
+     a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+     decay, ambient, r_th, noise) = plant
     (velocity_mode, position_mode, pwm_mode, firmware_mode, rewrap_on_switch, current_position, tripped,
-     reference_filter, measure_filtered, d_or_ff, torque, fsign, gear, pwm_lim, margin, ke, r_arm, tick, ticks, ka,
-     fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0, a00, a01, a10, a11, a20, a21,
-     b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1, decay, ambient, r_th,
-     v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, l_over_tc,
-     position_goal, position_current_limit, pwm_counts, current_ref, noise) = coef
+     reference_filter, measure_filtered, d_or_ff, torque, fsign, pwm_lim, margin, v_goal, v_a_max, kp, ki, kd, ff1,
+     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref) = inputs
     neg_supply = -supply
     tau = load_torque_nm / gear
     # the load's terms of the motor step, the same every tick of the run
@@ -496,8 +502,7 @@ def servo_ticks(n, dt_s, coef, homing, record_speeds, speeds, record_positions, 
     v_meas = 0.0
     bits = 0
     ran = 0
-    while ran < n:
-        ran += 1
+    for ran in range(1, n + 1):
         if rng is not None:
             raw = math.floor(x + rng.normal(0.0, noise))
         else:
