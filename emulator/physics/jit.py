@@ -9,8 +9,9 @@ identity and :data:`ENABLED` is False.
 
 The compiled kernel is cached on disk (``cache=True``): in ``__pycache__`` next to the module when
 that is writable, else in numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both).
-numba keys the cache on the kernel's own source file; :func:`compiled` adds the files of the
-helpers it calls (``depends``), so editing a helper recompiles the kernel.
+numba keys the cache on the kernel's own source file; :func:`compiled` adds this file (the compile
+options) and the files of the helpers the kernel calls (``depends``), so editing either
+recompiles the kernel.
 """
 from __future__ import annotations
 
@@ -44,9 +45,9 @@ def compiled(fn: Callable, depends: tuple[str, ...] = ()) -> Callable | None:
         return None
     kernel = numba.njit(cache=True)(fn)
     cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
-    if depends and cache_file is not None and hasattr(cache_file, "_source_stamp"):
+    if cache_file is not None and hasattr(cache_file, "_source_stamp"):
         digest = hashlib.sha256()
-        for path in depends:
+        for path in (__file__, *depends):  # this file: the compile options
             digest.update(Path(path).read_bytes())
         cache_file._source_stamp = (cache_file._source_stamp, digest.hexdigest())
     return kernel
