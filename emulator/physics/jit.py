@@ -8,7 +8,8 @@ helpers, which stay ordinary Python functions for every other caller. Without nu
 identity and :data:`ENABLED` is False.
 
 The compiled kernel is cached on disk (``cache=True``): in ``__pycache__`` next to the module when
-that is writable, else in numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both).
+that is writable, else in numba's per-user cache directory (``NUMBA_CACHE_DIR`` overrides both);
+with none writable, the kernel runs as Python (with a warning) rather than compile at every start.
 numba keys the cache on the kernel's own source file; :func:`compiled` adds this file (the compile
 options) and the files of the helpers the kernel calls (``depends``), so editing either
 recompiles the kernel.
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -43,7 +45,12 @@ def compiled(fn: Callable, depends: tuple[str, ...] = ()) -> Callable | None:
     helpers ``fn`` calls, added to the cache's freshness stamp."""
     if not ENABLED:
         return None
-    kernel = numba.njit(cache=True)(fn)
+    try:
+        kernel = numba.njit(cache=True)(fn)
+    except RuntimeError as exc:     # no writable cache directory: compiling at every start would cost seconds
+        warnings.warn(f"{exc}; set NUMBA_CACHE_DIR to a writable directory. Running {fn.__name__} as Python.",
+                      RuntimeWarning, stacklevel=2)
+        return None
     cache_file = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
     if cache_file is not None and hasattr(cache_file, "_source_stamp"):
         digest = hashlib.sha256()
