@@ -280,7 +280,8 @@ class ServoModel:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
-        self.pending_hardware_error |= bits
+        if bits:
+            self.pending_hardware_error |= bits
         self._hold_position = hold if holding else None
         self._prev_key, self._prev_goal_position = key, plan.goal_position
         self._last = (table, plan.mode, plan.torque, present, v_meas, sign)
@@ -498,10 +499,10 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
     wrap_f, homing_f = float(wrap), float(homing)
     # encoder before noise (:meth:`ServoModel._encoder_pulse`: the same arithmetic), then after each tick
     x = fsign * (th / gear / rad_per_pulse + enc_off)
-    present = 0
-    v_meas = 0.0
-    bits = 0
-    ran = 0
+    # the inner current loop runs in Current and Current-based Position modes
+    current_loop = current_position or not (velocity_mode or position_mode or pwm_mode)
+    present = bits = ran = 0
+    v_meas = voltage = i_ref = counts = 0.0
     for ran in range(1, n + 1):
         if rng is not None:
             raw = math.floor(x + rng.normal(0.0, noise))
@@ -529,12 +530,8 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             else:
                 ppos, pvel = 0.0, v_meas if torque else 0.0
                 ry, rdy = bessel_reset(v_meas if torque else 0.0, 0.0, bessel_a1, bessel_a0)
-        coasting = True             # bridge open unless the firmware drives it
-        voltage = 0.0
-        if firmware_mode:           # the firmware's loops (e-Manual: operating modes)
+        if firmware_mode:           # the firmware's loops (e-Manual: operating modes); else the bridge is open
             w_m = fsign * w         # motor speed in the servo frame
-            current_loop = False
-            i_ref = counts = 0.0
             if velocity_mode:
                 ppos, pvel, pacc, pongoing = velocity_profile_step(ppos, pvel, dt_s, v_goal, v_a_max)
                 ref = pvel
@@ -566,12 +563,10 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
                     extra = 0.0     # (the integral is never -0.0, so kp e + I is not either)
                 counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
                 if current_position:
-                    current_loop = True
                     i_ref = max(-position_current_limit, min(position_current_limit, counts))
             elif pwm_mode:
                 counts = pwm_counts
             else:
-                current_loop = True
                 i_ref = current_ref
             if current_loop:        # inner current loop: ideal inverse model + P on the error
                 i_a = i_ref * u.AMP_PER_CURRENT_UNIT
@@ -588,7 +583,6 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             v = v if v < supply else supply
             v = v if v > neg_supply else neg_supply
             duty = v / supply
-            coasting = False
             voltage = fsign * v
         else:
             integral = 0.0
@@ -596,9 +590,9 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
         if motor is not None:       # gearbox friction or a held shaft: the motor's own step
             motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
-            motor.step(dt_s, None if coasting else voltage)
+            motor.step(dt_s, voltage if firmware_mode else None)
             i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
-        elif coasting:              # bridge open (:meth:`GearedMotor._step_linear`)
+        elif not firmware_mode:     # bridge open (:meth:`GearedMotor._step_linear`)
             i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
         else:
             i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01_tau,
