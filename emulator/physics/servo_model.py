@@ -599,7 +599,8 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
                            a10 * i_a_ + a11 * w + b10 * voltage + b11_tau,
                            a20 * i_a_ + a21 * w + th + b20 * voltage + b21_tau)
         x = fsign * (th / gear / rad_per_pulse + enc_off)
-        # winding temperature: first order towards ambient + R_th * I² R
+        # winding temperature: first order towards ambient + R_th * I² R (I·I, not I ** 2: Python's
+        # ** is libm's pow, which is not always the correctly rounded I·I compiled code computes)
         steady = ambient + r_th * (i_a_ * i_a_ * r_arm)
         temp = steady + (temp - steady) * decay
         switched = new_goal = False
