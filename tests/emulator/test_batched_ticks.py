@@ -222,6 +222,8 @@ def _compiled_runs(monkeypatch, **build) -> tuple[list, list, int]:
         calls.append(args[0])
         return kernel(*args)
 
+    counting.signatures = kernel.signatures     # loaded already: ServoModel.prepare need not load it
+
     snaps = []
     for compiled_kernel in (counting, None):
         monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernel)
@@ -241,10 +243,27 @@ def _compiled_runs(monkeypatch, **build) -> tuple[list, list, int]:
 def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
     """Every mode, the watchdog's hold, torque off and on, profiles, D and feed-forward gains:
     every state variable, published byte and the pose equal (``==``) both ways."""
+    kernel = servo_model._COMPILED_TICKS
     compiled, python, calls = _compiled_runs(monkeypatch, profile="ideal", body=body, placement=placement)
+    assert len(kernel.signatures) == 1          # every run of every mode: one specialisation
     # the compiled kernel ran every servo every cycle, but the bank's held shafts (Python: motor.step)
     assert calls >= 70 * (8 if body else 8 - len(STALLED_IDS))
     assert compiled == python
+
+
+@pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
+def test_the_emulator_loads_the_compiled_kernel_when_built():
+    """Built, the emulator has the kernel loaded (a first tick would stall the bus for its load
+    or compile); running it needs no other specialisation."""
+    code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
+            "from swerve.emulator.physics.params import load_config; "
+            "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
+            "from swerve.emulator.robot_emulator import build_emulator; "
+            "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
+            "body=True, time_scale=0, rate_hz=1000.0); print(len(k.signatures)); "
+            "emu.advance(0.016); print(len(k.signatures))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["1", "1"]
 
 
 def test_no_jit_switch_selects_the_python_function():
