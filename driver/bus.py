@@ -32,8 +32,7 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
 from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
                            RegisterError, ServoError)
-from swerve.driver.packets import (BROADCAST_ID, PREFIX_BYTES, FastStatus, Instruction, InstructionPacket,
-                                   StatusPacket)
+from swerve.driver.packets import BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket
 from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
@@ -226,14 +225,11 @@ class Bus:
             return {}
         wanted = set(expect)
         got: dict[int, StatusPacket] = {}
-        # a reply of several statuses (or a fast read's slices) comes in pieces: wake once, when
-        # all of it is there; a single status comes whole, and may be shorter (no data on error)
-        wake_bytes = reply_bytes if until_all and (len(expect) > 1 or fast_lengths) else 0
         deadline = time.monotonic() + timeout
         corrupt: list[CorruptPacketError] = []
         erred = False               # a reply carries an error byte
         while not wanted <= got.keys():
-            batch = transport.read_packets(deadline, wake_bytes)
+            batch = transport.read_packets(deadline)
             if transport.parser.errors:
                 errs = transport.parser.take_errors()
                 self.corrupt_frames += len(errs)
@@ -526,7 +522,7 @@ class Bus:
         entry, in the order of ``items``."""
         ids = [i for i, _ in items]
         lengths = [n for _, n in items]
-        reply_bytes = PREFIX_BYTES + pk.fast_status_length(lengths)
+        reply_bytes = 10 + sum(n + 4 for n in lengths)
         try:
             got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False, frame=frame,
                                  fast_lengths=lengths)

@@ -5,9 +5,7 @@ Any URL pyserial knows works: ``/dev/ttyUSB0`` (U2D2), a pty path (the emulator)
 ports without a file descriptor) with the time left to a :func:`time.monotonic`
 deadline; nothing spins. On a plain serial device the transport talks to the file
 descriptor directly: one ``write`` per request, and one ``read`` of everything available
-per ``select`` wakeup. When the caller knows how many bytes a reply has (a Sync Read's chain
-of statuses), ``select`` wakes once, when all of them are queued, or at the deadline
-(termios ``VMIN``, see :meth:`Transport.read_packets`).
+per ``select`` wakeup.
 
 Every OS-level failure of the port (unplugged adapter, ``termios.error``, EIO, a closed
 or invalid descriptor, end of file) is raised as a :class:`TransportError` naming the port.
@@ -48,12 +46,6 @@ DEFAULT_MARGIN_S = 0.002
 _PORT_ERRORS = (OSError, termios.error, serial.SerialException, TypeError, ValueError)
 #: Largest read per wakeup, bytes (several whole replies).
 _READ_CHUNK = 4096
-#: Largest termios VMIN (a ``cc_t``, one byte): the most bytes one ``select`` wakeup can wait for.
-_VMIN_MAX = 255
-#: Most bytes one ``read`` returns while VMIN is larger: Linux copies tty input through a 64-byte
-#: buffer (``iterate_tty_read`` in ``drivers/tty/tty_io.c``) and ``n_tty_read`` only goes on to
-#: the next 64 bytes once the bytes copied reach VMIN (``kb - kbuf >= minimum``).
-_N_TTY_READ_PIECE = 64
 
 _SYSFS_USB_SERIAL = "/sys/bus/usb-serial/devices"
 _TTYUSB = re.compile(r"^ttyUSB\d+$")
@@ -151,11 +143,6 @@ class Transport:
                 self._fd = None
         #: Bytes handed to the port since it was opened (a lockstep barrier counts on it).
         self.bytes_written = 0
-        self._received = 0          # bytes read since the last write (the reply so far)
-        # termios VMIN as this transport last left it: 1 = wake on any byte (pyserial's 0 reads
-        # the same for select); the port's own (VMIN, VTIME), kept to restore them
-        self._vmin = 1
-        self._saved_vmin_vtime: tuple[int, int] | None = None
         #: Called after each :meth:`write` has sent all its bytes (e.g. a lockstep clock
         #: announcing them to its emulator while the reply is on its way); None: nothing.
         self.after_write: Callable[[], None] | None = None
@@ -167,12 +154,7 @@ class Transport:
         return bool(self._port is not None and self._port.is_open)
 
     def close(self) -> None:
-        """Close the port (idempotent), leaving its termios VMIN/VTIME as pyserial set them."""
-        if self._fd is not None and self._vmin != 1:
-            try:
-                self._set_vmin(self._fd, 1)
-            except _PORT_ERRORS:
-                pass
+        """Close the port (idempotent)."""
         self._fd = None
         if self._port is not None and self._port.is_open:
             try:
@@ -194,7 +176,6 @@ class Transport:
         """Drop unread input and buffered partial frames, then send ``data``."""
         self._check_open("write")
         self.parser.reset()
-        self._received = 0
         fd = self._fd
         try:
             if fd is None:
@@ -228,33 +209,8 @@ class Transport:
                     raise self._failed("write", f"{len(view)} of {len(data)} bytes not sent "
                                                 f"in time") from None
 
-    def _set_vmin(self, fd: int, vmin: int) -> None:
-        """Let ``select`` report ``fd`` readable only once ``vmin`` bytes are queued (1: any byte).
-
-        Linux's n_tty line discipline (serial ports such as the U2D2's ttyUSB, and ptys) reports
-        a non-canonical tty readable to poll/select when ``commit_head - read_tail >= amt`` with
-        ``amt = poll && !TIME_CHAR(tty) && MIN_CHAR(tty) ? MIN_CHAR(tty) : 1``
-        (``input_available_p`` in ``drivers/tty/n_tty.c``), so with VTIME 0 the threshold is
-        VMIN. A read on the non-blocking descriptor still returns whatever is queued. ``vmin``
-        1 puts back the (VMIN, VTIME) found before the first change (pyserial writes 0, 0).
-        """
-        attrs = termios.tcgetattr(fd)
-        cc = attrs[6]
-        if self._saved_vmin_vtime is None:
-            self._saved_vmin_vtime = (cc[termios.VMIN], cc[termios.VTIME])
-        if vmin == 1:
-            cc[termios.VMIN], cc[termios.VTIME] = self._saved_vmin_vtime
-        else:
-            cc[termios.VMIN], cc[termios.VTIME] = vmin, 0
-        termios.tcsetattr(fd, termios.TCSANOW, attrs)
-        self._vmin = vmin
-
-    def _read_chunk(self, remaining_s: float, wait_bytes: int = 1) -> bytes:
-        """Whatever arrives within ``remaining_s`` (``b""`` if nothing); raises TransportError.
-
-        On a descriptor, ``select`` wakes once ``wait_bytes`` (at most 255) are queued; at the
-        deadline, whatever fewer bytes did arrive are read. Wrapped ports return on any byte.
-        """
+    def _read_chunk(self, remaining_s: float) -> bytes:
+        """Whatever arrives within ``remaining_s`` (``b""`` if nothing); raises TransportError."""
         self._check_open("read")
         fd = self._fd
         try:
@@ -262,35 +218,17 @@ class Transport:
                 port = self._port
                 port.timeout = remaining_s
                 return port.read(max(1, port.in_waiting))
-            vmin = min(wait_bytes, _VMIN_MAX) if wait_bytes > 1 else 1
-            if vmin != self._vmin:
-                self._set_vmin(fd, vmin)
-            if not select.select([fd], [], [], remaining_s)[0] and vmin == 1:
+            if not select.select([fd], [], [], remaining_s)[0]:
                 return b""
             try:
                 data = os.read(fd, _READ_CHUNK)
             except BlockingIOError:
                 return b""
-            if vmin > _N_TTY_READ_PIECE and len(data) == _N_TTY_READ_PIECE:
-                data = self._read_rest(fd, data)
         except _PORT_ERRORS as exc:
             raise self._failed("read", exc) from None
         if not data:  # readable but end of file: the device went away
             raise self._failed("read", "end of file (device disconnected)")
-        self._received += len(data)
         return data
-
-    @staticmethod
-    def _read_rest(fd: int, first: bytes) -> bytes:
-        """``first`` (a full :data:`_N_TTY_READ_PIECE`) and the rest queued on ``fd``, read
-        piece by piece while VMIN exceeds the piece."""
-        pieces = [first]
-        while len(pieces[-1]) == _N_TTY_READ_PIECE:
-            try:
-                pieces.append(os.read(fd, _READ_CHUNK))
-            except BlockingIOError:
-                break
-        return b"".join(pieces)
 
     def drain_quiet(self, quiet_s: float, max_s: float) -> int:
         """Discard input until the line has been silent for ``quiet_s`` (at most ``max_s``).
@@ -311,22 +249,18 @@ class Transport:
         self.parser.reset()
         return dropped
 
-    def read_packets(self, deadline: float, reply_bytes: int = 0) -> list:
+    def read_packets(self, deadline: float) -> list:
         """Packets completed by bytes arriving before ``deadline`` (monotonic s).
 
         Returns as soon as at least one packet is complete; returns ``[]`` at the
-        deadline (after giving up on a dangling partial frame). ``reply_bytes``: the size
-        of the whole reply to the last :meth:`write`, if known. On a plain serial device
-        ``select`` then wakes once the rest of it is queued (VMIN, at most 255 bytes), not
-        for each piece the adapter or emulator delivers; a reply that stays shorter (a
-        silent servo, an error status without data) is read at the deadline.
+        deadline (after giving up on a dangling partial frame).
         """
         parser = self.parser
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
                 return parser.flush() if parser.pending else []
-            chunk = self._read_chunk(remaining, reply_bytes - self._received)
+            chunk = self._read_chunk(remaining)
             if chunk:
                 packets = parser.feed(chunk)
                 if packets:
