@@ -17,7 +17,10 @@ may block in ``select`` before calling again. Its behaviour is passed in, as pys
 Besides ``run``, a clock sees each exchange: :meth:`PhysicsClock.on_request` once an instruction
 has arrived (``wire_s``: its bytes at the line speed) and :meth:`PhysicsClock.on_replies` before
 the replies go out. A wall-paced clock ignores both (the server then paces replies in wall time);
-the lockstep clock charges them in simulated time and runs the physics through them.
+the lockstep clock charges them in simulated time. It runs the physics up to an instruction's
+arrival before the instruction executes; the steps that replies or an ``advance`` owe it runs
+after the answer has gone out (in ``run``, or in :meth:`PhysicsClock.catch_up` when the true
+state is asked for first), so the client works while the emulator steps.
 """
 from __future__ import annotations
 
@@ -78,6 +81,10 @@ class PhysicsClock(Protocol):
         """``replies`` status frames totalling ``wire_s`` (bytes, return delays) are due. True: the
         clock charged them in simulated time, so they go out at once; False: the server paces
         them in wall time."""
+
+    # optional: catch_up(world), run the steps simulated time has passed but the physics has not
+    # yet (a lockstep clock leaves those owed by replies and move_to for later); the emulator
+    # calls it before the true state is read or a fault applied
 
 
 @dataclass
@@ -214,14 +221,17 @@ class LockstepClock:
     """Simulated time that advances only when asked; the bus costs what it would on the cable.
 
     :attr:`now_s` is robot time (s since start). It moves forward in two ways, both in the bus
-    thread: :meth:`advance_to` (a client's request through the control channel), and every bus
-    exchange: the instruction's bytes (``on_request``), then per reply the Return Delay Time,
-    ``reply_latency_s`` and its bytes (``on_replies``). After each move the physics runs every
-    whole step of ``1/rate_hz`` up to :attr:`now_s`, so a read sees the state at the time its
-    instruction ended on the wire (to one step), and at a requested time on the step grid the
-    physics stands exactly there. :meth:`run` runs nothing new and lets the bus thread sleep
-    until the next request: a client that stops asking leaves the robot paused.
-    ``stats.achieved_scale`` is then the real-time factor (robot s per wall s).
+    thread: :meth:`advance_to` or :meth:`move_to` (a client's request through the control
+    channel), and every bus exchange: the instruction's bytes (``on_request``), then per reply
+    the Return Delay Time, ``reply_latency_s`` and its bytes (``on_replies``). The physics runs
+    every whole step of ``1/rate_hz`` up to :attr:`now_s`: before an instruction executes (so a
+    read sees the state at the time its instruction ended on the wire, to one step), in
+    :meth:`advance_to`, and otherwise in :meth:`run` or :meth:`catch_up`. The steps replies and
+    :meth:`move_to` owe thus run after the answer is out, while the client works; nothing
+    reads the world in between. At a requested time on the step grid the physics stands
+    exactly there. Once caught up, :meth:`run` lets the bus thread sleep until the next
+    request: a client that stops asking leaves the robot paused. ``stats.achieved_scale`` is
+    then the real-time factor (robot s per wall s).
     """
 
     def __init__(self, rate_hz: float = 1000.0, reply_latency_s: float = DEFAULT_REPLY_LATENCY_S):
@@ -237,15 +247,23 @@ class LockstepClock:
         self._t0: float | None = None     # wall time of the first call
 
     def run(self, world: StepWorld) -> float:
-        if self._t0 is None:
-            self._t0 = time.monotonic()
-        return math.inf         # every move of now_s has already run the physics up to it
+        self._run_to(world)     # the steps owed by replies or move_to, if any
+        return math.inf
 
-    def advance_to(self, world: StepWorld, t_s: float) -> float:
-        """Move robot time to ``t_s`` (never back) and run the physics there; returns :attr:`now_s`."""
+    def catch_up(self, world: StepWorld) -> None:
+        self._run_to(world)
+
+    def move_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back); the physics follows in :meth:`run` or
+        :meth:`catch_up`. Returns :attr:`now_s`."""
         if not math.isfinite(t_s):
             raise ConfigError(f"cannot advance to t = {t_s!r} s")
         self.now_s = max(self.now_s, float(t_s))
+        return self.now_s
+
+    def advance_to(self, world: StepWorld, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back) and run the physics there; returns :attr:`now_s`."""
+        self.move_to(t_s)
         self._run_to(world)
         return self.now_s
 
@@ -258,7 +276,6 @@ class LockstepClock:
         cost = wire_s + replies * self.reply_latency_s
         self.now_s += cost
         self.bus_s += cost
-        self._run_to(world)
         return True
 
     def _run_to(self, world: StepWorld) -> None:

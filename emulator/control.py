@@ -7,7 +7,9 @@ by the emulator's bus thread, between requests, so time, bus and physics change 
 Protocol (ASCII lines, one reply line per request; times in s as Python ``repr`` floats)::
 
     advance <t_s> <tx_bytes>   ->  at <now_s> <asked_s>       robot time moved to max(now, t_s)
-                                                              from asked_s (after the bytes)
+                                                              from asked_s (after the bytes); the
+                                                              physics runs after this answer, before
+                                                              any later request is served
     now <tx_bytes>             ->  at <now_s>
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
     fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
@@ -48,8 +50,12 @@ class ControlledBus(Protocol):
     def receive_until(self, rx_bytes: int, timeout_s: float) -> bool:
         """Serve the pty until ``rx_bytes`` bytes have arrived in all; False on timeout."""
 
-    def advance_to(self, t_s: float) -> float:
-        """Move robot time to ``t_s`` (never back); the new robot time."""
+    def move_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back); the new robot time. The physics follows
+        before the bus serves anything else (or in :meth:`settle`)."""
+
+    def settle(self) -> None:
+        """Run the physics up to robot time (before the true state is read or a fault applied)."""
 
     def robot_time_s(self) -> float:
         """Robot time now."""
@@ -148,14 +154,15 @@ class ControlServer:
                 return (f"error only {bus.rx_bytes - (target - tx)} of the {tx} announced bytes arrived "
                         f"within {BARRIER_TIMEOUT_S:g} s")
             conn.rx_base = target
+            if cmd == "advance":
+                asked = bus.robot_time_s()
+                return f"at {bus.move_to(float(args[0]))!r} {asked!r}"
+            if cmd == "now":
+                return f"at {bus.robot_time_s()!r}"
+            bus.settle()
             if cmd == "fault":
                 bus.inject_fault(fault[0], fault[1:])
                 return "ok"
-            if cmd == "advance":
-                asked = bus.robot_time_s()
-                return f"at {bus.advance_to(float(args[0]))!r} {asked!r}"
-            if cmd == "now":
-                return f"at {bus.robot_time_s()!r}"
             t, (x, y, theta) = bus.true_state()
             return f"pose {bus.robot_time_s()!r} {float(x)!r} {float(y)!r} {float(theta)!r} {t!r}"
         except (ValueError, KeyError) as exc:

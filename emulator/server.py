@@ -177,7 +177,7 @@ class Emulator:
         The robot body, stepped after the servos; gives :attr:`pose`.
     control : ControlServer, optional
         The lockstep control channel (:mod:`swerve.emulator.control`), served by the bus thread;
-        needs a clock with ``advance_to`` (:class:`~swerve.emulator.clock.LockstepClock`).
+        needs a clock with ``move_to`` (:class:`~swerve.emulator.clock.LockstepClock`).
     """
 
     def __init__(self, servos: Sequence[VirtualServo], *, link: LinkSettings = LinkSettings(),
@@ -194,7 +194,7 @@ class Emulator:
         self.clock: PhysicsClock = clock if clock is not None else FrozenClock()
         self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
         self.world = world
-        if control is not None and not hasattr(self.clock, "advance_to"):
+        if control is not None and not hasattr(self.clock, "move_to"):
             raise ConfigError("a lockstep control channel needs a lockstep clock")
         self.control = control
         #: Bytes received from the client on the pty (the control channel's barrier counts them).
@@ -338,6 +338,7 @@ class Emulator:
                 for fd in ready:
                     if fd not in (pty.master, self._wake_r):
                         control.handle(fd, self)
+        self.settle()                   # steps still owed to a lockstep clock, before close() reads
 
     def _receive(self) -> None:
         """Read what the client sent and serve every instruction it completes."""
@@ -384,13 +385,17 @@ class Emulator:
             self._abandon_partial()
         return True
 
-    def advance_to(self, t_s: float) -> float:
-        """Move robot time to ``t_s`` (lockstep clock) and run the physics there; the new time."""
-        steps = self.clock.stats.steps
-        now = self.clock.advance_to(self, t_s)
-        if self.observers and self.clock.stats.steps != steps:
-            self._notify()
-        return now
+    def move_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (lockstep clock) without waiting for the physics: the bus
+        thread runs it before it next serves a byte or blocks, or in :meth:`settle`. The new time."""
+        return self.clock.move_to(t_s)
+
+    def settle(self) -> None:
+        """Run the physics steps robot time has passed but the physics has not yet (lockstep runs
+        those owed by replies and :meth:`move_to` after the answer is out). Bus thread only."""
+        catch_up = getattr(self.clock, "catch_up", None)
+        if catch_up is not None:
+            self._clocked(catch_up)
 
     def robot_time_s(self) -> float:
         """Robot time of a lockstep clock (bus exchanges included); the physics time otherwise."""
@@ -660,12 +665,9 @@ class Emulator:
             else:
                 answering += 1
         answering += fast                 # a combined fast-read frame answers once
-        steps = self.clock.stats.steps
         if not self.clock.on_replies(self, wire_s, answering):
             return False
         self._write(b"".join(frame for _, frame in self._surviving(replies)))
-        if self.observers and self.clock.stats.steps != steps:
-            self._notify()
         return True
 
     def _write(self, data: bytes) -> None:
@@ -709,16 +711,23 @@ class Emulator:
 
     def _run_clock(self) -> float:
         """Let the clock run what is due; the seconds the bus thread may block (``inf``: no limit)."""
+        wait_s = self._clocked(self.clock.run)
+        return IDLE_POLL_S if wait_s is None else wait_s
+
+    def _clocked(self, call):
+        """``call(self)``, a clock method that may run physics steps; its result. A physics error
+        is counted and logged, not raised (a bug must not kill the bus): then None. Observers
+        hear of new steps."""
         steps = self.clock.stats.steps
         try:
-            wait_s = self.clock.run(self)
+            return call(self)
         except Exception:  # noqa: BLE001 - a physics bug must not kill the bus
             self.stats.dispatch_errors += 1
             log.debug("error in physics step", exc_info=True)
-            wait_s = IDLE_POLL_S
-        if self.observers and self.clock.stats.steps != steps:
-            self._notify()
-        return wait_s
+            return None
+        finally:
+            if self.observers and self.clock.stats.steps != steps:
+                self._notify()
 
     def _notify(self) -> None:
         with self._lock:

@@ -152,11 +152,30 @@ def test_lockstep_clock_charges_requests_and_replies_and_runs_the_physics_throug
     from swerve.emulator.clock import LockstepClock
 
     c, world = LockstepClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
-    c.on_request(world, 0.6e-3)               # the instruction ends on the wire at 0.6 ms
-    assert world.dts == [] and c.now_s == pytest.approx(0.6e-3)
+    c.on_request(world, 1.2e-3)               # the instruction ends on the wire at 1.2 ms
+    assert len(world.dts) == 1 and c.now_s == pytest.approx(1.2e-3)    # it executes at 1 ms
     assert c.on_replies(world, 1.0e-3, replies=8) is True      # 1 ms of frames + 8 x 50 us
-    assert c.now_s == pytest.approx(2.0e-3) and c.bus_s == pytest.approx(2.0e-3)
+    assert c.now_s == pytest.approx(2.6e-3) and c.bus_s == pytest.approx(2.6e-3)
+    assert len(world.dts) == 1                # the replies' steps wait until they are out:
+    assert c.run(world) == math.inf           # the bus thread runs them before it blocks
     assert len(world.dts) == 2                # the physics stands at 2 ms, the last whole step
+    c.on_replies(world, 1.0e-3, replies=0)
+    c.catch_up(world)                         # or before the true state is read
+    assert len(world.dts) == 3
+
+
+def test_lockstep_clock_move_to_leaves_the_physics_to_run_or_catch_up():
+    from swerve.emulator.clock import LockstepClock
+
+    c, world = LockstepClock(rate_hz=1000.0), FakeWorld()
+    assert c.move_to(0.016) == 0.016 and world.dts == []       # the answer can go out first
+    assert c.move_to(0.010) == 0.016                           # never back
+    c.catch_up(world)
+    assert len(world.dts) == 16 and c.stats.steps == 16
+    c.move_to(0.032)
+    assert c.run(world) == math.inf and c.stats.steps == 32
+    with pytest.raises(ConfigError):
+        c.move_to(math.inf)
 
 
 def test_wall_and_frozen_clocks_leave_reply_pacing_to_the_server():
