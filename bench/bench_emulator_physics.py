@@ -18,6 +18,8 @@ Usage::
    ``--sim-seconds`` of simulated time. A cycle misses its deadline if it ends after the next
    cycle was due. Also reported: the simulated time the physics clock delivered per wall second
    and the time it had to drop (ClockStats). Largest S with no miss and no dropped time wins.
+The servo ticks run compiled when numba is installed (``pip install swerve[fast]``), as Python with
+``SWERVE_NO_JIT=1``; the header says which.
 ``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
 free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot), then the
 robot's physics in a lockstep run's batches (:func:`cost_lockstep`).
@@ -64,6 +66,12 @@ def goals(cfg, t_s: float):
     """Busy goals: 0.1 m/s on every wheel, steering sweeping ±0.3 rad (every loop works)."""
     d = 0.3 * math.sin(2 * math.pi * 0.5 * t_s)
     return [V1_MPS / cfg.wheel_radius_m] * 4, [d, -d, -d, d]
+
+
+def tick_kernel() -> str:
+    """Where the servo ticks run: compiled with numba, or Python (no numba, or ``SWERVE_NO_JIT`` set)."""
+    from swerve.emulator.physics import jit
+    return f"compiled (numba {jit.numba.__version__})" if jit.ENABLED else "Python"
 
 
 # --- 1. cost --------------------------------------------------------------------------------------
@@ -335,7 +343,7 @@ def main(argv=None) -> int:
         return serve(args.time_scale, args.rate, args.status_file)
 
     print(f"date {time.strftime('%Y-%m-%d')}, nproc {os.cpu_count()}, CPU {cpu_model()!r}, "
-          f"Python {platform.python_version()}, load {os.getloadavg()}")
+          f"Python {platform.python_version()}, load {os.getloadavg()}, servo ticks {tick_kernel()}")
     if args.bank:
         print("\nCPU time of the calling thread per 16 ms cycle: median over the cycles (mean in brackets; "
               "neighbours on a shared machine inflate the mean)")

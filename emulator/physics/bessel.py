@@ -11,6 +11,8 @@ from functools import lru_cache
 import numpy as np
 from scipy import signal
 
+from .jit import jitable
+
 
 @lru_cache(maxsize=32)
 def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, float]:
@@ -35,6 +37,21 @@ def _discrete(cutoff_radps: float, norm: str, dt_s: float) -> tuple:
     return tuple(tuple(map(float, r)) for r in ad), (float(bd[0, 0]), float(bd[1, 0]))   # Python floats: fast
 
 
+@jitable
+def bessel_reset(value: float, rate: float, a1: float, a0: float) -> tuple[float, float]:
+    """Steady state ``(y, dy)`` of the filter ``a0 / (s^2 + a1 s + a0)`` on an input at ``value``
+    moving at ``rate`` per second."""
+    return float(value) - float(rate) * a1 / a0, float(rate)
+
+
+@jitable
+def bessel_step(y: float, dy: float, u: float, a00: float, a01: float, a10: float, a11: float, b0: float,
+                b1: float) -> tuple[float, float]:
+    """One step of the discrete filter with input ``u`` held: the new state ``(y, dy)`` from the
+    state ``(y, dy)`` and the discrete matrices ``Ad = [[a00, a01], [a10, a11]]``, ``Bd = [b0, b1]``."""
+    return a00 * y + a01 * dy + b0 * u, a10 * y + a11 * dy + b1 * u
+
+
 class BesselFilter:
     """Discrete 2nd-order Bessel low-pass with unity DC gain.
 
@@ -56,8 +73,7 @@ class BesselFilter:
 
     def reset(self, value: float = 0.0, rate: float = 0.0) -> None:
         """Put the filter in steady state on an input at ``value`` moving at ``rate`` per second."""
-        a1, a0 = bessel_coefficients(self.cutoff_radps, self.norm)
-        self.y, self.dy = float(value) - float(rate) * a1 / a0, float(rate)
+        self.y, self.dy = bessel_reset(value, rate, *bessel_coefficients(self.cutoff_radps, self.norm))
 
     def prepare(self, dt_s: float) -> None:
         """Compute (cache) the coefficients for steps of ``dt_s``."""
@@ -68,7 +84,5 @@ class BesselFilter:
         if dt_s != self._dt_s:
             self._dt_s, self._coef = dt_s, _discrete(self.cutoff_radps, self.norm, dt_s)
         ((a00, a01), (a10, a11)), (b0, b1) = self._coef
-        y, dy = self.y, self.dy
-        self.y = a00 * y + a01 * dy + b0 * u
-        self.dy = a10 * y + a11 * dy + b1 * u
+        self.y, self.dy = bessel_step(self.y, self.dy, u, a00, a01, a10, a11, b0, b1)
         return self.y

@@ -16,6 +16,7 @@ import math
 from dataclasses import dataclass
 
 from . import units as u
+from .jit import jitable
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,7 @@ class AntiWindupPI:
         self.integral = 0.0
 
 
+@jitable
 def pi_step(integral: float, ticks: float, ka: float, error: float, kp: float, ki: float, extra: float,
             limit: float) -> tuple[float, float]:
     """One step of the PI(D) core on plain floats: the saturated output
@@ -107,6 +109,7 @@ class ProfileGenerator:
         self.ongoing = False
 
 
+@jitable
 def profile_type(position: float, goal: float, v_max: float, a_max: float) -> int:
     """Profile type (Moving Status bits 5:4 as 0..3) of a move from ``position`` to ``goal``."""
     if math.isinf(v_max):
@@ -118,6 +121,7 @@ def profile_type(position: float, goal: float, v_max: float, a_max: float) -> in
     return u.PROFILE_TRAPEZOIDAL if dist >= reach else u.PROFILE_TRIANGULAR
 
 
+@jitable
 def position_profile_step(position: float, velocity: float, ongoing: bool, dt_s: float,
                           goal: float, v_max: float, a_max: float) -> tuple[float, float, float, bool]:
     """Advance a position trajectory one step towards ``goal`` (time-optimal under the limits),
@@ -138,6 +142,7 @@ def position_profile_step(position: float, velocity: float, ongoing: bool, dt_s:
     return position, v1, (v1 - v0) / dt_s, ongoing
 
 
+@jitable
 def velocity_profile_step(position: float, velocity: float, dt_s: float, goal: float,
                           a_max: float) -> tuple[float, float, float, bool]:
     """Advance a velocity trajectory one step towards ``goal``, at most ``a_max`` per second, on

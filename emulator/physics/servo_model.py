@@ -11,10 +11,12 @@ from typing import Mapping
 
 import numpy as np
 
+from . import bessel, firmware
 from . import units as u
-from .bessel import BesselFilter
+from .bessel import BesselFilter, bessel_coefficients, bessel_reset, bessel_step
 from .firmware import (AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains, pi_step, position_profile_step,
                        profile_type, velocity_profile_step)
+from .jit import compiled, jitable
 from .motor import GearedMotor
 from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
                      SensorParams, ThermalParams)
@@ -23,6 +25,9 @@ from .protection import Protection
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
 PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
+#: The items of a servo with torque off (what :meth:`ServoModel.prepare` runs the kernel on once).
+_IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
+               "goal_position": 0, "goal_pwm": 0, "pwm_limit": 0, "current_limit": 0, "bus_watchdog": 0}
 GOAL_KEYS = ("goal_velocity", "goal_position", "goal_pwm", "goal_current")
 OUTPUT_KEYS = ("present_pwm", "present_current", "present_velocity", "present_position",
                "velocity_trajectory", "position_trajectory", "present_input_voltage",
@@ -68,7 +73,8 @@ class ServoModel:
         self.velocity_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.reference_filter = BesselFilter(firmware.bessel_cutoff_radps, firmware.bessel_norm)
         self.temperature_c = thermal.ambient_c
-        self._setup: tuple | None = None            # run()'s derived constants (_derive)
+        self._plant: tuple | None = None            # run()'s constants per step and inertia (_derive_plant)
+        self._inputs: tuple | None = None           # run()'s constants per input items (_derive_inputs)
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -83,6 +89,7 @@ class ServoModel:
         self._gains: dict[tuple, object] = {}   # raw gain items -> converted gains
         self._plan: _InputPlan | None = None     # what the firmware derives from the input items
         self._plan_table: Mapping[str, int] | None = None
+        self._traces = np.empty(0), np.empty(0)     # the compiled kernel's speed / position buffers
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -135,10 +142,14 @@ class ServoModel:
     def prepare(self, dt_s: float) -> None:
         """Compute the discretisations for steps of ``dt_s`` now (motor driven and coasting,
         Bessel filters): SciPy's first ``expm`` takes ~9 ms, which in a running emulator would
-        stall the bus when torque first goes on."""
+        stall the bus when torque first goes on. Likewise load the compiled tick kernel
+        (:mod:`.jit`; ~0.1 s from numba's cache, a few seconds the first time it compiles)."""
         self.motor.prepare(dt_s)
         self.velocity_filter.prepare(dt_s)
         self.reference_filter.prepare(dt_s)
+        if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
+            spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
+            spare.run(dt_s, _IDLE_ITEMS, 1, speeds=[], positions=[])
 
     def set_shaft_angle(self, angle_rad: float) -> None:
         """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
@@ -172,7 +183,7 @@ class ServoModel:
         return math.floor(x)
 
     def _rewrap(self, raw_pulse: int) -> None:
-        self._wrap_pulse = u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
+        self._wrap_pulse = wrapped_pulse(raw_pulse)
 
     # ---- one tick ------------------------------------------------------------------------------
     def step(self, dt_s: float, table: Mapping[str, int]) -> dict[str, int]:
@@ -216,12 +227,17 @@ class ServoModel:
             speeds: list | None = None, positions: list | None = None) -> int:
         """Advance up to ``n`` ticks of ``dt_s`` seconds under the unchanging raw items ``table``.
 
-        The same arithmetic, in the same order, as ``n`` calls of :meth:`advance`: the state lives
-        in local variables for the ticks and is stored back at the end. Stops early after a
-        tick in which the protection raised a Hardware Error bit (:attr:`pending_hardware_error`),
-        so the caller can latch it before the next tick. ``speeds`` / ``positions``, if given,
-        get one entry per tick: :attr:`velocity_radps` (rad/s) / :attr:`true_position_pulse`
-        (pulse) after the tick (what the body needs). Returns the ticks run (1..n).
+        The same arithmetic, in the same order, as ``n`` calls of :meth:`advance`: the ticks run
+        in :func:`servo_ticks` on the state taken from the model, which is stored back at the end.
+        Stops early after a tick in which the protection raised a Hardware Error bit
+        (:attr:`pending_hardware_error`), so the caller can latch it before the next tick.
+        ``speeds`` / ``positions``, if given, get one entry per tick: :attr:`velocity_radps`
+        (rad/s) / :attr:`true_position_pulse` (pulse) after the tick (what the body needs).
+        Returns the ticks run (1..n).
+
+        Without gearbox friction, a held shaft, protection or position noise (the ``ideal``
+        profile) the ticks run in the compiled kernel when numba is installed (:mod:`.jit`);
+        otherwise, and with ``SWERVE_NO_JIT=1``, in the same function as plain Python.
         """
         if n < 1:
             return 0
@@ -230,169 +246,81 @@ class ServoModel:
             plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
             self._plan_table = table
         motor = self.motor
-        setup = self._setup
-        if setup is None or setup[0] is not plan or setup[1] != dt_s or setup[2] != motor.load_inertia_kg_m2:
-            setup = self._setup = self._derive(plan, dt_s)
-        (_, _, _, sign, homing, mode, torque, key, position_mode, velocity_mode, pwm_mode, firmware_mode,
-         rewrap_on_switch, current_position, tripped, position_goal, gear, reference_filter, measure_filtered,
-         pwm_lim, margin, ke, r_arm, tick, ticks, ka, fa00, fa01, fa10, fa11, fb0, fb1,
-         a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
-         decay, ambient, r_th, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, fsign, l_over_tc,
-         d_or_ff) = setup
-        self._sign, self._homing = sign, homing
-        enc_off = self.encoder_offset_pulse
-        noise = self.sensors.position_noise_std_pulse
-        supply = self.supply_voltage_v
-        neg_supply = -supply
-        vf, rf = self.velocity_filter, self.reference_filter
+        inputs = self._inputs
+        if inputs is None or inputs[0] is not plan:
+            inputs = self._inputs = self._derive_inputs(plan)
+        plant = self._plant
+        if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
+            plant = self._plant = self._derive_plant(dt_s)
+        self._sign, self._homing = sign, homing = plan.sign, plan.homing
         linear = motor.friction is None and not motor.blocked
-        tau = motor.load_torque_nm / gear
-        # the load's terms of the motor step, the same every tick of the run
-        b01_tau, b11_tau, b21_tau, cb0_tau, cb1_tau = b01 * tau, b11 * tau, b21 * tau, cb0 * tau, cb1 * tau
         protection = self.protection
-        i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
-        fy, fdy = vf.y, vf.dy
-        prof = self.profile
-        ppos, pvel, pacc, pongoing = prof.position, prof.velocity, prof.acceleration, prof.ongoing
-        integral = self.loop.integral
-        temp = self.temperature_c
-        duty = self.duty
-        wrap = self._wrap_pulse
-        # only the first tick can see a new mode or goal (the items do not change during the run)
+        noisy = bool(self.sensors.position_noise_std_pulse)
+        record_speeds, record_positions = speeds is not None, positions is not None
+        if _COMPILED_TICKS is not None and linear and protection is None and not noisy:
+            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
+            if len(self._traces[0]) < n:
+                self._traces = np.empty(n), np.empty(n)
+            speed_trace, position_trace = self._traces
+        else:                           # the same function as Python, with the objects it calls per tick
+            kernel, plant_coef, input_coef = servo_ticks, plant[2], inputs[1]
+            speed_trace = [0.0] * n if record_speeds else None
+            position_trace = [0.0] * n if record_positions else None
+        vf, rf, prof = self.velocity_filter, self.reference_filter, self.profile
+        hold = self._hold_position
+        key = plan.key
         switched = key != self._prev_key
-        new_goal = switched or plan.goal_position != self._prev_goal_position
-        hold, goal_pulse = self._hold_position, self._goal_pulse
-        present = v_meas = 0
-        rad_per_pulse, radps_per_vel_unit = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT
-        pulse_per_vel_unit, pwm_full_scale = PULSE_PER_S_PER_VEL_UNIT, float(u.PWM_FULL_SCALE)
-        floor = math.floor
-        started = self._started
-        # (the int sign and counts as floats: the same products, without int-float conversions per tick)
-        sign_off = fsign * enc_off
-        wrap_f, homing_f = float(wrap), float(homing)
-        # encoder before noise (:meth:`_encoder_pulse`: the same arithmetic), then after each tick
-        x = fsign * (th / gear / rad_per_pulse + enc_off)
-        for ran in range(1, n + 1):
-            raw = floor(x + self.rng.normal(0.0, noise)) if noise else floor(x)
-            if not started:
-                vf.reset(raw)
-                fy, fdy = vf.y, vf.dy
-                self._started = started = True
-            if switched and rewrap_on_switch:
-                self._rewrap(raw)       # Present Position re-wrapped to one turn (+ Homing Offset)
-                wrap = self._wrap_pulse
-                wrap_f = float(wrap)
-            present = raw - wrap + homing
-            fy, fdy = fa00 * fy + fa01 * fdy + fb0 * raw, fa10 * fy + fa11 * fdy + fb1 * raw
-            if measure_filtered:
-                v_meas = fdy / pulse_per_vel_unit
-            else:                       # ideal estimator: the true speed (README: placement choice)
-                v_meas = fsign * (w / gear) / radps_per_vel_unit
-            if switched:
-                integral = 0.0
-                hold = None
-                pacc, pongoing = 0.0, False
-                if position_mode:
-                    ppos, pvel = float(present), 0.0
-                    rf.reset(float(present))
-                else:
-                    ppos, pvel = 0.0, v_meas if torque else 0.0
-                    rf.reset(v_meas if torque else 0.0)
-            voltage = None
-            if firmware_mode:           # the firmware's loops (e-Manual: operating modes)
-                w_m = fsign * w         # motor speed in the servo frame
-                i_ref = None
-                if velocity_mode:
-                    ppos, pvel, pacc, pongoing = velocity_profile_step(ppos, pvel, dt_s, v_goal, v_a_max)
-                    ref = rf.step(dt_s, pvel) if reference_filter else pvel
-                    counts, integral = pi_step(integral, ticks, ka, ref - v_meas, kp, ki, 0.0, pwm_lim)
-                elif position_mode:
-                    goal = goal_pulse = position_goal
-                    if tripped:
-                        if hold is None:
-                            hold, new_goal = float(present), True
-                        goal = goal_pulse = hold
-                    if new_goal:        # a new profile starts whenever the goal changes
-                        prof.profile_type = profile_type(ppos, goal, p_v_max, p_a_max)
-                        pongoing = True
-                    ppos, pvel, pacc, pongoing = position_profile_step(ppos, pvel, pongoing, dt_s, goal,
-                                                                       p_v_max, p_a_max)
-                    ref = rf.step(dt_s, ppos) if reference_filter else ppos
-                    if d_or_ff:
-                        v_traj = pvel * tick                   # pulse per tick
-                        a_traj = pacc * tick * tick            # pulse per tick²
-                        v_err = v_traj - v_meas * pulse_per_vel_unit * tick
-                        extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
-                    else:   # kd = ff1 = ff2 = 0: that sum is ±0.0, and kp e + I + ±0.0 equals kp e + I + 0.0
-                        extra = 0.0     # (the integral is never -0.0, so kp e + I is not either)
-                    counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
-                    if current_position:
-                        goal_i = plan.position_current_limit
-                        i_ref = max(-goal_i, min(goal_i, counts))
-                elif pwm_mode:
-                    counts = plan.pwm_counts
-                else:
-                    i_ref = plan.current_ref
-                if i_ref is not None:   # inner current loop: ideal inverse model + P on the error
-                    i_a = i_ref * u.AMP_PER_CURRENT_UNIT
-                    v = r_arm * i_a + ke * w_m + l_over_tc * (i_a - fsign * i_a_)
-                    counts = max(-pwm_lim, min(pwm_lim, v / supply * pwm_full_scale))
-                v = counts / pwm_full_scale * supply
-                # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
-                # (max(lo, min(hi, v)) written out: the same result, without two calls)
-                emf = ke * w_m
-                hi = emf + margin
-                v = v if v < hi else hi
-                lo = emf - margin
-                v = v if v > lo else lo
-                v = v if v < supply else supply
-                v = v if v > neg_supply else neg_supply
-                duty = v / supply
-                voltage = fsign * v
-            else:
-                integral = 0.0
-                duty = 0.0
-                ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
-            if not linear:              # gearbox friction or a held shaft: the motor's own step
-                motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
-                motor.step(dt_s, voltage)
-                i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
-            elif voltage is None:       # bridge open (:meth:`GearedMotor._step_linear`)
-                i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
-            else:
-                i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01_tau,
-                               a10 * i_a_ + a11 * w + b10 * voltage + b11_tau,
-                               a20 * i_a_ + a21 * w + th + b20 * voltage + b21_tau)
-            x = fsign * (th / gear / rad_per_pulse + enc_off)
-            # winding temperature: first order towards ambient + R_th * I² R
-            steady = ambient + r_th * (i_a_ ** 2 * r_arm)
-            temp = steady + (temp - steady) * decay
-            switched = new_goal = False
-            if speeds is not None:
-                speeds.append(fsign * (w / gear))
-            if positions is not None:
-                positions.append((x - wrap_f + homing_f) - sign_off)
-            if protection is not None:
-                bits = protection.update(dt_s, i_a_, temp, supply, table)
-                if bits:
-                    self.pending_hardware_error |= bits
-                    break
-        motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
-        vf.y, vf.dy = fy, fdy
-        prof.position, prof.velocity, prof.acceleration, prof.ongoing = ppos, pvel, pacc, pongoing
-        self.loop.integral = integral
-        self.temperature_c = temp
-        self.duty = duty
+        (ran, bits, motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
+         present, v_meas) = kernel(
+            n, dt_s, plant_coef, input_coef, homing, record_speeds, speed_trace, record_positions, position_trace,
+            self.rng if noisy else None, None if linear else motor, protection,
+            None if protection is None else table,
+            motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+            prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+            self.temperature_c, self.duty, self._wrap_pulse, self._started, switched,
+            switched or plan.goal_position != self._prev_goal_position, hold is not None,
+            0.0 if hold is None else hold, self._goal_pulse, float(self.encoder_offset_pulse), self.supply_voltage_v,
+            motor.load_torque_nm)
+        if record_speeds:
+            speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
+        if record_positions:
+            positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
+        if bits:
+            self.pending_hardware_error |= bits
+        self._hold_position = hold if holding else None
         self._prev_key, self._prev_goal_position = key, plan.goal_position
-        self._hold_position, self._goal_pulse = hold, goal_pulse
-        self._last = (table, mode, torque, present, v_meas, sign)
+        self._last = (table, plan.mode, plan.torque, present, v_meas, sign)
         return ran
 
-    def _derive(self, plan: "_InputPlan", dt_s: float) -> tuple:
-        """What :meth:`run` needs besides the state, for input items ``plan`` and steps of
-        ``dt_s`` at the present load inertia, as one flat tuple (in :meth:`run`'s unpacking order):
-        plan, step and inertia (the key), then mode flags, limits, gains, and the discrete
-        filter, motor (driven, coasting) and thermal coefficients."""
+    def _derive_inputs(self, plan: "_InputPlan") -> tuple:
+        """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
+        limits, gains, goals, as ``(plan, floats, float64 array or None without the compiled kernel)``."""
+        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
+        if plan.velocity_mode:
+            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
+            kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
+        elif plan.position_mode:
+            g = plan.position_gains
+            kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
+            p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
+        flags = (plan.velocity_mode, plan.position_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
+                 plan.current_position_mode, plan.tripped, self.fw.bessel_placement == "reference",
+                 self._measure_filtered, bool(kd or ff1 or ff2), plan.torque)
+        unused = 0.0
+        coef = (*(1.0 if f else 0.0 for f in flags), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
+                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
+                unused if plan.position_goal is None else plan.position_goal,
+                unused if plan.position_current_limit is None else plan.position_current_limit,
+                unused if plan.pwm_counts is None else plan.pwm_counts,
+                unused if plan.current_ref is None else plan.current_ref)
+        return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
+
+    def _derive_plant(self, dt_s: float) -> tuple:
+        """:func:`servo_ticks`'s ``plant`` for steps of ``dt_s`` at the present load inertia: the
+        discrete filter, motor (driven, coasting) and thermal coefficients and the firmware's
+        constants, as ``(dt_s, inertia, floats, float64 array or None without the compiled kernel)``."""
         motor, fw, th = self.motor, self.fw, self.thermal
         p = motor.params
         vf = self.velocity_filter
@@ -402,23 +330,14 @@ class ServoModel:
         (((a00, a01, _), (a10, a11, _), (a20, a21, _)),
          ((b00, b01), (b10, b11), (b20, b21))) = motor.coefficients(dt_s, False)
         ((c00, c01), (c10, c11)), ((cb0,), (cb1,)) = motor.coefficients(dt_s, True)
-        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = None
-        if plan.velocity_mode:
-            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
-            kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
-        elif plan.position_mode:
-            g = plan.position_gains
-            kp, ki, kd, ff1, ff2 = g.kp, g.ki, g.kd, g.ff1, g.ff2
-            p_v_max, p_a_max = plan.position_v_max, plan.position_a_max
-        return (plan, dt_s, motor.load_inertia_kg_m2, plan.sign, plan.homing, plan.mode, plan.torque, plan.key,
-                plan.position_mode, plan.velocity_mode, plan.pwm_mode, plan.firmware_mode, plan.rewrap_on_switch,
-                plan.current_position_mode, plan.tripped, plan.position_goal, motor.gear_ratio,
-                fw.bessel_placement == "reference", self._measure_filtered, plan.pwm_lim, plan.current_margin_v,
-                p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s, self.loop.ka,
-                fa00, fa01, fa10, fa11, fb0, fb1, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21,
-                c00, c01, c10, c11, cb0, cb1, math.exp(-dt_s / th.time_constant_s), th.ambient_c,
-                th.thermal_resistance_k_per_w, v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
-                float(plan.sign), p.inductance_h / fw.current_loop_time_constant_s, bool(kd or ff1 or ff2))
+        coef = tuple(map(float, (
+            motor.gear_ratio, p.back_emf_v_s_per_rad, p.resistance_ohm, fw.gain_time_base_s, dt_s / self.loop.tick_s,
+            self.loop.ka, p.inductance_h / fw.current_loop_time_constant_s,
+            fa00, fa01, fa10, fa11, fb0, fb1, *bessel_coefficients(vf.cutoff_radps, vf.norm),
+            a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+            math.exp(-dt_s / th.time_constant_s), th.ambient_c, th.thermal_resistance_k_per_w,
+            self.sensors.position_noise_std_pulse)))
+        return dt_s, motor.load_inertia_kg_m2, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
@@ -538,6 +457,174 @@ class _InputPlan:
 def _profile_bits(profile_type: int) -> int:
     """Moving Status bits 5:4 for a profile type (0 none .. 3 trapezoidal)."""
     return (profile_type & 0x3) << 4
+
+
+@jitable
+def wrapped_pulse(raw_pulse: int) -> int:
+    """The multiple of 4096 pulses removed when Present Position is re-wrapped to one turn."""
+    return u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
+
+
+def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, motor,
+                protection, table, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
+                temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, enc_off, supply,
+                load_torque_nm):
+    """Up to ``n`` ticks of one servo (:meth:`ServoModel.run`): state in, state out, on plain numbers.
+
+    ``plant`` / ``inputs``: the constants of :meth:`ServoModel._derive_plant` /
+    :meth:`ServoModel._derive_inputs` (tuples, or float64 arrays when compiled); ``homing``:
+    Homing Offset, pulse. ``speeds`` / ``positions``: buffers of ``n``
+    entries that get the output speed (rad/s) / true position (pulse) after each tick when
+    ``record_speeds`` / ``record_positions``. ``rng`` (position noise), ``motor`` (its own step:
+    gearbox friction, a held shaft) and ``protection`` (with the raw limit items ``table``) are
+    ``None`` unless the configuration needs them; compiled, they are always ``None`` (numba
+    removes their branches). The state: motor current (A), speed and angle (motor side, rad/s,
+    rad); velocity and reference filter states; profile position, velocity, acceleration, ongoing
+    and type; PI integral; winding temperature (°C); duty; the wrap of Present Position (pulse);
+    whether the encoder was read before; whether the mode / the goal changed before this run;
+    the watchdog's held goal (``holding``, ``hold``); the goal after limits (pulse). Then the
+    encoder offset (pulse), supply (V) and load torque (output side, N·m) of the run.
+
+    Returns ``(ran, hardware_error_bits)``, the new state in the order of the arguments (without
+    ``switched`` and ``new_goal``), then the last Present Position (pulse) and measured velocity
+    (velocity units).
+    """
+    (gear, ke, r_arm, tick, ticks, ka, l_over_tc, fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0,
+     a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
+     decay, ambient, r_th, noise) = plant
+    (velocity_mode, position_mode, pwm_mode, firmware_mode, rewrap_on_switch, current_position, tripped,
+     reference_filter, measure_filtered, d_or_ff, torque, fsign, pwm_lim, margin, v_goal, v_a_max, kp, ki, kd, ff1,
+     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref) = inputs
+    neg_supply = -supply
+    tau = load_torque_nm / gear
+    # the load's terms of the motor step, the same every tick of the run
+    b01_tau, b11_tau, b21_tau, cb0_tau, cb1_tau = b01 * tau, b11 * tau, b21 * tau, cb0 * tau, cb1 * tau
+    rad_per_pulse, radps_per_vel_unit = u.RAD_PER_PULSE, u.RADPS_PER_VEL_UNIT
+    pulse_per_vel_unit, pwm_full_scale = PULSE_PER_S_PER_VEL_UNIT, float(u.PWM_FULL_SCALE)
+    # (the int sign and counts as floats: the same products, without int-float conversions per tick)
+    sign_off = fsign * enc_off
+    wrap_f, homing_f = float(wrap), float(homing)
+    # encoder before noise (:meth:`ServoModel._encoder_pulse`: the same arithmetic), then after each tick
+    x = fsign * (th / gear / rad_per_pulse + enc_off)
+    # the inner current loop runs in Current and Current-based Position modes
+    current_loop = current_position or not (velocity_mode or position_mode or pwm_mode)
+    present = bits = ran = 0
+    v_meas = voltage = i_ref = counts = 0.0
+    for ran in range(1, n + 1):
+        if rng is not None:
+            raw = math.floor(x + rng.normal(0.0, noise))
+        else:
+            raw = math.floor(x)
+        if not started:
+            fy, fdy = bessel_reset(raw, 0.0, bessel_a1, bessel_a0)
+            started = True
+        if switched and rewrap_on_switch:   # Present Position re-wrapped to one turn (+ Homing Offset)
+            wrap = wrapped_pulse(raw)
+            wrap_f = float(wrap)
+        present = raw - wrap + homing
+        fy, fdy = bessel_step(fy, fdy, raw, fa00, fa01, fa10, fa11, fb0, fb1)
+        if measure_filtered:
+            v_meas = fdy / pulse_per_vel_unit
+        else:                       # ideal estimator: the true speed (README: placement choice)
+            v_meas = fsign * (w / gear) / radps_per_vel_unit
+        if switched:
+            integral = 0.0
+            holding = False
+            pacc, pongoing = 0.0, False
+            if position_mode:
+                ppos, pvel = float(present), 0.0
+                ry, rdy = bessel_reset(float(present), 0.0, bessel_a1, bessel_a0)
+            else:
+                ppos, pvel = 0.0, v_meas if torque else 0.0
+                ry, rdy = bessel_reset(v_meas if torque else 0.0, 0.0, bessel_a1, bessel_a0)
+        if firmware_mode:           # the firmware's loops (e-Manual: operating modes); else the bridge is open
+            w_m = fsign * w         # motor speed in the servo frame
+            if velocity_mode:
+                ppos, pvel, pacc, pongoing = velocity_profile_step(ppos, pvel, dt_s, v_goal, v_a_max)
+                ref = pvel
+                if reference_filter:
+                    ry, rdy = bessel_step(ry, rdy, pvel, fa00, fa01, fa10, fa11, fb0, fb1)
+                    ref = ry
+                counts, integral = pi_step(integral, ticks, ka, ref - v_meas, kp, ki, 0.0, pwm_lim)
+            elif position_mode:
+                goal = goal_pulse = position_goal
+                if tripped:
+                    if not holding:
+                        holding, hold, new_goal = True, float(present), True
+                    goal = goal_pulse = hold
+                if new_goal:        # a new profile starts whenever the goal changes
+                    ptype = profile_type(ppos, goal, p_v_max, p_a_max)
+                    pongoing = True
+                ppos, pvel, pacc, pongoing = position_profile_step(ppos, pvel, pongoing, dt_s, goal,
+                                                                   p_v_max, p_a_max)
+                ref = ppos
+                if reference_filter:
+                    ry, rdy = bessel_step(ry, rdy, ppos, fa00, fa01, fa10, fa11, fb0, fb1)
+                    ref = ry
+                if d_or_ff:
+                    v_traj = pvel * tick                   # pulse per tick
+                    a_traj = pacc * tick * tick            # pulse per tick²
+                    v_err = v_traj - v_meas * pulse_per_vel_unit * tick
+                    extra = kd * v_err + ff1 * v_traj + ff2 * a_traj
+                else:   # kd = ff1 = ff2 = 0: that sum is ±0.0, and kp e + I + ±0.0 equals kp e + I + 0.0
+                    extra = 0.0     # (the integral is never -0.0, so kp e + I is not either)
+                counts, integral = pi_step(integral, ticks, ka, ref - present, kp, ki, extra, pwm_lim)
+                if current_position:
+                    i_ref = max(-position_current_limit, min(position_current_limit, counts))
+            elif pwm_mode:
+                counts = pwm_counts
+            else:
+                i_ref = current_ref
+            if current_loop:        # inner current loop: ideal inverse model + P on the error
+                i_a = i_ref * u.AMP_PER_CURRENT_UNIT
+                v = r_arm * i_a + ke * w_m + l_over_tc * (i_a - fsign * i_a_)
+                counts = max(-pwm_lim, min(pwm_lim, v / supply * pwm_full_scale))
+            v = counts / pwm_full_scale * supply
+            # Current Limit (38): keep |v - Ke w| <= R I_lim, the steady armature current bound.
+            # (max(lo, min(hi, v)) written out: the same result, without two calls)
+            emf = ke * w_m
+            hi = emf + margin
+            v = v if v < hi else hi
+            lo = emf - margin
+            v = v if v > lo else lo
+            v = v if v < supply else supply
+            v = v if v > neg_supply else neg_supply
+            duty = v / supply
+            voltage = fsign * v
+        else:
+            integral = 0.0
+            duty = 0.0
+            ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
+        if motor is not None:       # gearbox friction or a held shaft: the motor's own step
+            motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
+            motor.step(dt_s, voltage if firmware_mode else None)
+            i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
+        elif not firmware_mode:     # bridge open (:meth:`GearedMotor._step_linear`)
+            i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
+        else:
+            i_a_, w, th = (a00 * i_a_ + a01 * w + b00 * voltage + b01_tau,
+                           a10 * i_a_ + a11 * w + b10 * voltage + b11_tau,
+                           a20 * i_a_ + a21 * w + th + b20 * voltage + b21_tau)
+        x = fsign * (th / gear / rad_per_pulse + enc_off)
+        # winding temperature: first order towards ambient + R_th * I² R (I·I, not I ** 2: Python's
+        # ** is libm's pow, which is not always the correctly rounded I·I compiled code computes)
+        steady = ambient + r_th * (i_a_ * i_a_ * r_arm)
+        temp = steady + (temp - steady) * decay
+        switched = new_goal = False
+        if record_speeds:
+            speeds[ran - 1] = fsign * (w / gear)
+        if record_positions:
+            positions[ran - 1] = (x - wrap_f + homing_f) - sign_off
+        if protection is not None:
+            bits = protection.update(dt_s, i_a_, temp, supply, table)
+            if bits:
+                break
+    return (ran, bits, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral, temp, duty,
+            wrap, started, holding, hold, goal_pulse, present, v_meas)
+
+
+#: :func:`servo_ticks` compiled (:mod:`.jit`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
+_COMPILED_TICKS = compiled(servo_ticks, depends=(firmware.__file__, bessel.__file__, u.__file__))
 
 
 def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse: int | None = None,

@@ -5,12 +5,17 @@ Between two bus events the emulator runs each servo ``n`` ticks in one call
 recorded wheel states (:meth:`Emulator.step_many`). Here two emulators built alike get the same
 bus writes; one advances with ``emu.advance`` / the lockstep clock (batched), the other with
 ``emu.step`` once per tick (interleaved, servo after servo in every tick). Every state variable,
-every published byte and the pose must be equal (``==``, not approximately).
+every published byte and the pose must be equal (``==``, not approximately). With numba installed
+the ticks run compiled where they can (:mod:`swerve.emulator.physics.jit`); the same runs with the
+plain-Python function must give the same bits.
 """
 from __future__ import annotations
 
 import dataclasses
 import math
+import os
+import subprocess
+import sys
 
 import pytest
 
@@ -18,6 +23,7 @@ from swerve.configs import shipped
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.clock import LockstepClock
+from swerve.emulator.physics import jit, servo_model
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
@@ -36,16 +42,20 @@ TORQUE_OFF_ID = 4      # torque off at cycle 50, on again at cycle 58
 STALLED_IDS = (1, 6)   # held shafts in the bank: the overload protection trips (realistic)
 
 
-def _physics(profile: str, kinematic: bool):
+def _physics(profile: str, kinematic: bool, placement: str | None = None):
     cfg = load_config(resolve_emulator_config(profile))
     if kinematic:          # the realistic servos (friction, protection, tolerances) on the kinematic body
         cfg = dataclasses.replace(cfg, contact=ContactParams(enabled=False), supply=SupplyParams())
+    if placement is not None:
+        cfg = dataclasses.replace(cfg, firmware=dataclasses.replace(cfg.firmware, bessel_placement=placement))
     return cfg
 
 
-def _emulator(profile: str, body: bool, noise: str | None = None, kinematic: bool = False):
+def _emulator(profile: str, body: bool, noise: str | None = None, kinematic: bool = False,
+              placement: str | None = None):
     robot = load_robot_config(shipped("robot.yaml"))
-    emu = build_emulator(robot if body else None, _physics(profile, kinematic), ids=None if body else range(1, 9),
+    emu = build_emulator(robot if body else None, _physics(profile, kinematic, placement),
+                         ids=None if body else range(1, 9),
                          time_scale=0, rate_hz=RATE_HZ, noise=noise, body=body)
     modes = ROBOT_MODES if body else ALL_MODES
     for s in emu.servos:
@@ -88,6 +98,10 @@ def _commands(emu, modes, k: int) -> None:
             _write(s, Reg.GOAL_CURRENT, int(900 * math.sin(k / 4.0)))
         if s.id == TORQUE_OFF_ID and k in (50, 58):
             _write(s, Reg.TORQUE_ENABLE, int(k == 58))
+        if mode in u.POSITION_MODES and k == 25:        # the D and feed-forward terms from here on
+            _write(s, Reg.POSITION_D_GAIN, 400)
+            _write(s, Reg.FEEDFORWARD_1ST_GAIN, 80)
+            _write(s, Reg.FEEDFORWARD_2ND_GAIN, 40)
 
 
 def _model_state(m: ServoModel) -> tuple:
@@ -195,3 +209,67 @@ def test_lockstep_jump_equals_single_ticks():
     snap = _snapshot(batched[0])
     assert snap == _snapshot(stepped[0])
     assert {r[0]: r for r in snap[3:]}[WATCHDOG_ID][4] == -1       # the watchdog tripped during the jump
+
+
+def _compiled_runs(monkeypatch, **build) -> tuple[list, list, int]:
+    """The same commands on two emulators, both batched (``emu.advance``): one with the compiled
+    tick kernel, one with the plain-Python function. Returns both snapshot lists and the number
+    of compiled calls."""
+    kernel = servo_model._COMPILED_TICKS
+    calls = []
+
+    def counting(*args):
+        calls.append(args[0])
+        return kernel(*args)
+
+    counting.signatures = kernel.signatures     # loaded already: ServoModel.prepare need not load it
+
+    snaps = []
+    for compiled_kernel in (counting, None):
+        monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernel)
+        emu, modes = _emulator(**build)
+        out = []
+        for k in range(70):
+            _commands(emu, modes, k)
+            emu.advance(CYCLE_S)
+            out.append(_snapshot(emu))
+        snaps.append(out)
+    return snaps[0], snaps[1], len(calls)
+
+
+@pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
+@pytest.mark.parametrize("placement", ["velocity_feedback", "reference", "none"])
+@pytest.mark.parametrize("body", [True, False], ids=["robot", "bank"])
+def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
+    """Every mode, the watchdog's hold, torque off and on, profiles, D and feed-forward gains:
+    every state variable, published byte and the pose equal (``==``) both ways."""
+    kernel = servo_model._COMPILED_TICKS
+    compiled, python, calls = _compiled_runs(monkeypatch, profile="ideal", body=body, placement=placement)
+    assert len(kernel.signatures) == 1          # every run of every mode: one specialisation
+    # the compiled kernel ran every servo every cycle, but the bank's held shafts (Python: motor.step)
+    assert calls >= 70 * (8 if body else 8 - len(STALLED_IDS))
+    assert compiled == python
+
+
+@pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
+def test_the_emulator_loads_the_compiled_kernel_when_built():
+    """Built, the emulator has the kernel loaded (a first tick would stall the bus for its load
+    or compile); running it needs no other specialisation."""
+    code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
+            "from swerve.emulator.physics.params import load_config; "
+            "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
+            "from swerve.emulator.robot_emulator import build_emulator; "
+            "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
+            "body=True, time_scale=0, rate_hz=1000.0); print(len(k.signatures)); "
+            "emu.advance(0.016); print(len(k.signatures))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["1", "1"]
+
+
+def test_no_jit_switch_selects_the_python_function():
+    """``SWERVE_NO_JIT=1``: no compiled kernel, the ticks run as plain Python."""
+    code = ("from swerve.emulator.physics import jit, servo_model; "
+            "print(jit.ENABLED, servo_model._COMPILED_TICKS)")
+    out = subprocess.run([sys.executable, "-c", code], env={**os.environ, "SWERVE_NO_JIT": "1"},
+                         capture_output=True, text=True, check=True).stdout
+    assert out.split() == ["False", "None"]
