@@ -107,6 +107,8 @@ def run(args: argparse.Namespace) -> int:
             from swerve.emulator.robot_emulator import status
 
             def true_state() -> dict:
+                if clock is not None:
+                    clock.pose()    # answered once the emulator has run the physics up to robot time
                 with emu.lock:
                     return status(emu)
 

@@ -162,9 +162,11 @@ class LockstepClock:
         self._known, self._pose, self._asked_s = False, None, None
 
     def end_sleep(self) -> float:
-        """Wait for the advance asked by :meth:`start_sleep` (the physics then stands at ``t``);
-        with a time scale, also until the wall clock has caught up. Returns the robot time when
-        the advance was asked, s (every byte written before it served)."""
+        """Wait for the advance asked by :meth:`start_sleep`: robot time then stands at ``t``, and
+        the emulator runs the physics there before it serves anything else (read the world in
+        the emulator's process only after a request that waits for it, e.g. :meth:`pose`); with
+        a time scale, also until the wall clock has caught up. Returns the robot time when the
+        advance was asked, s (every byte written before it served)."""
         self._answer_pending()
         if self._asked_s is None:
             raise LockstepError("end_sleep() without start_sleep()")
@@ -200,7 +202,8 @@ class LockstepClock:
 
     def pose(self) -> tuple[float, float, float]:
         """True body pose ``(x_m, y_m, theta_rad)`` after every byte written so far was served
-        (the answer that came with the last :meth:`now`, if nothing was written since)."""
+        (the answer that came with the last :meth:`now`, if nothing was written since). The
+        emulator answers once its physics stands at robot time."""
         self._answer_pending()
         if self._pose is None or self._tx() != self._tx_last:
             self._ask_pose()
