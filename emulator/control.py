@@ -9,7 +9,7 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
     advance <t_s> <tx_bytes>   ->  at <now_s> <asked_s>       robot time moved to max(now, t_s)
                                                               from asked_s (after the bytes); the
                                                               physics runs after this answer, before
-                                                              any later request is served
+                                                              a pty byte or pose/fault is served
     now <tx_bytes>             ->  at <now_s>
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
     fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
