@@ -227,8 +227,9 @@ class LockstepClock:
     every whole step of ``1/rate_hz`` up to :attr:`now_s`: before an instruction executes (so a
     read sees the state at the time its instruction ended on the wire, to one step), in
     :meth:`advance_to`, and otherwise in :meth:`run` or :meth:`catch_up`. The steps replies and
-    :meth:`move_to` owe thus run after the answer is out, while the client works; nothing
-    reads the world in between. At a requested time on the step grid the physics stands
+    :meth:`move_to` owe thus run after the answer is out, while the client works; nothing the
+    bus or the control channel serves reads the world in between (a reader in the emulator's
+    own process syncs through a ``pose`` request). At a requested time on the step grid the physics stands
     exactly there. Once caught up, :meth:`run` lets the bus thread sleep until the next
     request: a client that stops asking leaves the robot paused. ``stats.achieved_scale`` is
     then the real-time factor (robot s per wall s).
