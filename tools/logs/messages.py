@@ -20,7 +20,7 @@ from typing import Sequence
 
 import numpy as np
 
-from .record import CYCLE_SIZE, CycleRecord, pack
+from .record import CYCLE_SIZE, CycleRecord, flatten
 
 _NAN4 = [float("nan")] * 4
 
@@ -68,7 +68,7 @@ class CycleMessages:
         """``(topic, numbers)`` for one cycle, ``/swerve/cycle`` first: the float64 fields each
         topic's message carries, in field order (what :meth:`build` takes); a pose topic whose
         pose is not finite (unknown) is left out."""
-        out = [("/swerve/cycle", pack(rec).tolist()),
+        out = [("/swerve/cycle", flatten(rec)),
                ("/joint_states", [*_NAN4, *rec.meas_steer_rad.tolist(), *rec.meas_drive_radps.tolist(),
                                   *_NAN4, *rec.meas_current_a.tolist()]),
                ("/trajectory", [*_NAN4, *rec.cmd_steer_rad.tolist(), *rec.cmd_drive_radps.tolist(), *_NAN4]),
