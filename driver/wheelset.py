@@ -77,7 +77,8 @@ class WheelSet:
             bus.set_model(i, self.table)
         self._vel = self.table[Reg.GOAL_VELOCITY]
         self._pos = self.table[Reg.GOAL_POSITION]
-        self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)   # plain str: see _GOAL_VELOCITY
+        # plain strings, as _GOAL_VELOCITY
+        self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)
         # per wheel, the SI factor of each present value with the direction sign in it (the
         # sign is +-1, so sign * (raw * scale) == raw * (sign * scale) exactly)
         cur, vel, pos = (self.table[r].to_si(1) for r in
