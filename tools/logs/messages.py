@@ -177,7 +177,7 @@ class CycleSerializer:
     of :meth:`CycleMessages.messages`, byte for byte, at a fraction of the cost (module docstring).
 
     Raises ``RuntimeError`` at construction if a message's bytes are not a fixed template
-    (checked on two probes per topic, one of them rosbags' own serialisation)."""
+    (checked against rosbags' serialisation of two probes per topic)."""
 
     def __init__(self, msgs: CycleMessages):
         self._msgs = msgs
