@@ -141,6 +141,12 @@ class ServoMemory:
             raise RegisterError(f"{self.table.model} has no register named {str(name)!r}") from None
         return int.from_bytes(self._bytes[a:b], "little", signed=signed)
 
+    def byte(self, address: int) -> int:
+        """The stored byte at ``address``: the raw value of an unsigned one-byte item that is
+        not published (no rules; the servo's own reads of its Return Delay Time and Hardware
+        Error Status, once per reply)."""
+        return self._bytes[address]
+
     def set(self, name: str, raw: int) -> None:
         """Store raw value ``raw`` in item ``name`` (no rules; raises if it does not fit the size)."""
         try:
@@ -160,10 +166,15 @@ class ServoMemory:
         fmt = struct.Struct("<" + "".join(STRUCT_CODES[r.size][r.signed] for r in regs))
         order = [list(names).index(r.name) for r in regs]
         start, buf = regs[0].address, self._bytes
+        if order == sorted(order):      # names given in address order: no reordering
 
-        def write(values: Sequence[int]) -> None:
+            def write(values: Sequence[int]) -> None:
+                fmt.pack_into(buf, start, *values)
+            return write
+
+        def write_reordered(values: Sequence[int]) -> None:
             fmt.pack_into(buf, start, *[values[k] for k in order])
-        return write
+        return write_reordered
 
     def _put(self, reg: Register, raw: int) -> None:
         self._bytes[reg.address:reg.address + reg.size] = reg.encode(raw)
