@@ -11,6 +11,8 @@ Run: ``.venv/bin/python bench/bench_emu_serve.py [--cycles 2000] [--emulator-con
 ``--callgrind DIR``: run the emulator under ``valgrind --tool=callgrind`` (instrumented only
 during the cycles, ``SWERVE_NO_JIT=1`` so no compiler runs under it) and print its instructions
 per cycle; the profile is ``DIR/callgrind.out.<pid>`` (``callgrind_annotate`` reads it).
+``--exclude step_many`` leaves the physics out of the count (any ``Emulator`` methods by name, or
+``ControlServer.<name>``).
 """
 from __future__ import annotations
 
@@ -46,29 +48,40 @@ def _callgrind_instructions(out: Path) -> int:
 _TOGGLE_C = "#include <valgrind/callgrind.h>\nvoid toggle_collect(void) { CALLGRIND_TOGGLE_COLLECT; }\n"
 _SITECUSTOMIZE = """\
 import ctypes, functools
+from swerve.emulator.control import ControlServer
 from swerve.emulator.server import Emulator
 _toggle = ctypes.CDLL({lib!r}).toggle_collect
-_step_many = Emulator.step_many
-@functools.wraps(_step_many)
-def step_many(self, dt_s, n):
-    _toggle()
-    try:
-        _step_many(self, dt_s, n)
-    finally:
-        _toggle()
-Emulator.step_many = step_many
+_depth = [0]
+def _excluded(method):
+    @functools.wraps(method)
+    def call(*args, **kwargs):
+        _depth[0] += 1
+        if _depth[0] == 1:
+            _toggle()
+        try:
+            return method(*args, **kwargs)
+        finally:
+            _depth[0] -= 1
+            if _depth[0] == 0:
+                _toggle()
+    return call
+for _name in {names!r}:
+    _cls, _, _method = _name.rpartition(".")
+    _cls = ControlServer if _cls == "ControlServer" else Emulator
+    setattr(_cls, _method, _excluded(getattr(_cls, _method)))
 """
 
 
-def _build_physics_toggle(hook: Path, exclude_physics: bool) -> None:
-    """With ``exclude_physics``: a ``sitecustomize`` in ``hook`` that stops callgrind collecting
-    inside :meth:`Emulator.step_many` (a client request from a small C library built here)."""
-    if not exclude_physics:
+def _build_exclusions(hook: Path, names: list[str]) -> None:
+    """A ``sitecustomize`` in ``hook`` that stops callgrind collecting inside the
+    methods ``names`` (of :class:`Emulator`, or ``ControlServer.<name>``), by client requests
+    from a small C library built here."""
+    if not names:
         return
     (hook / "toggle.c").write_text(_TOGGLE_C)
     subprocess.run(["gcc", "-shared", "-fPIC", "-O2", "-o", str(hook / "toggle.so"), str(hook / "toggle.c")],
                    check=True)
-    (hook / "sitecustomize.py").write_text(_SITECUSTOMIZE.format(lib=str(hook / "toggle.so")))
+    (hook / "sitecustomize.py").write_text(_SITECUSTOMIZE.format(lib=str(hook / "toggle.so"), names=names))
 
 
 def main() -> None:
@@ -85,15 +98,16 @@ def main() -> None:
     ap.add_argument("--warmup", type=int, default=100, help="cycles before the measurement")
     ap.add_argument("--emulator-config", default="ideal")
     ap.add_argument("--callgrind", metavar="DIR", help="run the emulator under callgrind, profile in DIR")
-    ap.add_argument("--exclude-physics", action="store_true",
-                    help="with --callgrind: count nothing inside Emulator.step_many (the physics runs)")
+    ap.add_argument("--exclude", default="", metavar="METHOD,...",
+                    help="with --callgrind: count nothing inside these Emulator methods "
+                         "(step_many: the physics runs)")
     args = ap.parse_args()
 
     if args.callgrind:
         out_dir = Path(args.callgrind).resolve()
         out_dir.mkdir(parents=True, exist_ok=True)
         hook = Path(tempfile.mkdtemp())
-        _build_physics_toggle(hook, exclude_physics=args.exclude_physics)
+        _build_exclusions(hook, [n for n in args.exclude.split(",") if n])
         wrapper = hook / "python-callgrind"
         wrapper.write_text(f"#!/bin/sh\nPYTHONPATH={hook} exec valgrind --tool=callgrind --instr-atstart=no "
                            f"--callgrind-out-file={out_dir}/callgrind.out.%p {sys.executable} \"$@\"\n")

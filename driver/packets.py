@@ -191,7 +191,8 @@ class InstructionPacket:
     def wire_length(self) -> int:
         """``len(self.encode())`` without computing the CRC: header, ID and LENGTH
         (:data:`PREFIX_BYTES`), the stuffed INST and params, 2 CRC bytes."""
-        return PREFIX_BYTES + len(stuff(bytes((self.instruction,)) + self.params)) + 2
+        body = bytes((self.instruction,)) + self.params
+        return PREFIX_BYTES + len(body) + body.count(_STUFF_PATTERN) + 2     # one FD per pattern
 
     @classmethod
     def decode(cls, frame: bytes) -> "InstructionPacket":

@@ -36,6 +36,9 @@ POSITION_MODE = OperatingMode.POSITION
 #: struct codes by item size and signedness.
 STRUCT_CODES = {1: {False: "B", True: "b"}, 2: {False: "H", True: "h"}, 4: {False: "I", True: "i"}}
 TIME_BASED_PROFILE_BIT = 0x04
+# Items the write rules name, looked up once (an Enum member costs a metaclass lookup per use)
+_TORQUE_ENABLE, _PROFILE_VELOCITY, _DRIVE_MODE, _GOAL_POSITION, _OPERATING_MODE = (
+    Reg.TORQUE_ENABLE, Reg.PROFILE_VELOCITY, Reg.DRIVE_MODE, Reg.GOAL_POSITION, Reg.OPERATING_MODE)
 
 
 class WriteRejected(Exception):
@@ -309,19 +312,20 @@ class ServoMemory:
         addresses. ``new_values`` is keyed by item name (a ``str`` hashes in C; a Register would
         call its Python ``__hash__`` on every lookup)."""
         regs = self.table.registers
-        torque_on = self.get(Reg.TORQUE_ENABLE) == 1
         for name, value in new_values.items():
-            self._check(regs[name], value, torque_on, new_values)
+            self._check(regs[name], value, new_values)
         for name, value in new_values.items():
             self._put(regs[name], value)
         for slot, v in new_slots.items():
             self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
         return list(new_values)
 
-    def _check(self, reg: Register, value: int, torque_on: bool, pending: dict[str, int]) -> None:
+    def _check(self, reg: Register, value: int, pending: dict[str, int]) -> None:
+        """One item's rules against the memory before the write (nothing is applied before
+        every item passed)."""
         if not reg.writable:
             raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is read-only")
-        if reg.eeprom and torque_on:
+        if reg.eeprom and self.get(_TORQUE_ENABLE) == 1:
             raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is in EEPROM and torque is on")
         if self.watchdog_tripped and reg.name in WATCHDOG_LOCKED:
             raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} is locked by the bus watchdog")
@@ -336,13 +340,13 @@ class ServoMemory:
 
     def _check_limits(self, reg: Register, value: int, pending: dict[str, int]) -> None:
         if reg.limit is not None:
-            if reg.name == Reg.PROFILE_VELOCITY and self.get(Reg.DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
+            if reg.name == _PROFILE_VELOCITY and self.get(_DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
                 return  # time-based profile: Profile Velocity is a time, not capped by Velocity Limit
             cap = self._limit_value(reg.limit, pending)
             if abs(value) > cap:
                 raise WriteRejected(self.limit_error, f"|{reg.name}| = {abs(value)} above {reg.limit} {cap}")
         if reg.limit_min is not None or reg.limit_max is not None:
-            if reg.name == Reg.GOAL_POSITION and self.get(Reg.OPERATING_MODE) != POSITION_MODE:
+            if reg.name == _GOAL_POSITION and self.get(_OPERATING_MODE) != POSITION_MODE:
                 return  # position limits apply only in Position Control Mode (3)
             lo = self._limit_value(reg.limit_min, pending) if reg.limit_min else None
             hi = self._limit_value(reg.limit_max, pending) if reg.limit_max else None

@@ -35,6 +35,9 @@ BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "po
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
                     "profile_acceleration", "profile_velocity")
 
+#: Items whose bus write has consequences beyond their bytes (:meth:`VirtualServo._after_write`).
+_FOLLOWED_UP = frozenset((Reg.OPERATING_MODE, Reg.BUS_WATCHDOG))
+
 
 class Dynamics(Protocol):
     """What the physics model must provide (e.g. ``emulator.physics.ServoModel``).
@@ -171,6 +174,8 @@ class VirtualServo:
         return ErrorNumber.NONE
 
     def _after_write(self, changed: list[str]) -> None:
+        if _FOLLOWED_UP.isdisjoint(changed):
+            return
         m = self.memory
         if Reg.OPERATING_MODE in changed:   # mode change resets profile and goal limits (e-Manual)
             m.set(Reg.PROFILE_VELOCITY, 0)
