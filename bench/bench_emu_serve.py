@@ -12,7 +12,7 @@ Run: ``.venv/bin/python bench/bench_emu_serve.py [--cycles 2000] [--emulator-con
 during the cycles, ``SWERVE_NO_JIT=1`` so no compiler runs under it) and print its instructions
 per cycle; the profile is ``DIR/callgrind.out.<pid>`` (``callgrind_annotate`` reads it).
 ``--exclude step_many`` leaves the physics out of the count (any ``Emulator`` methods by name, or
-``ControlServer.<name>``).
+``<Class>.<name>`` of ``ControlServer``, ``VirtualServo``, ``ServoMemory``, ``PacketParser``).
 """
 from __future__ import annotations
 
@@ -48,8 +48,13 @@ def _callgrind_instructions(out: Path) -> int:
 _TOGGLE_C = "#include <valgrind/callgrind.h>\nvoid toggle_collect(void) { CALLGRIND_TOGGLE_COLLECT; }\n"
 _SITECUSTOMIZE = """\
 import ctypes, functools
+from swerve.driver.parser import PacketParser
 from swerve.emulator.control import ControlServer
+from swerve.emulator.memory import ServoMemory
 from swerve.emulator.server import Emulator
+from swerve.emulator.servo import VirtualServo
+_classes = dict(PacketParser=PacketParser, ControlServer=ControlServer, ServoMemory=ServoMemory,
+                VirtualServo=VirtualServo)
 _toggle = ctypes.CDLL({lib!r}).toggle_collect
 _depth = [0]
 def _excluded(method):
@@ -67,14 +72,15 @@ def _excluded(method):
     return call
 for _name in {names!r}:
     _cls, _, _method = _name.rpartition(".")
-    _cls = ControlServer if _cls == "ControlServer" else Emulator
+    _cls = _classes.get(_cls, Emulator)
     setattr(_cls, _method, _excluded(getattr(_cls, _method)))
 """
 
 
 def _build_exclusions(hook: Path, names: list[str]) -> None:
     """A ``sitecustomize`` in ``hook`` that stops callgrind collecting inside the
-    methods ``names`` (of :class:`Emulator`, or ``ControlServer.<name>``), by client requests
+    methods ``names`` (of :class:`Emulator`, or ``<Class>.<name>`` of ``ControlServer``,
+    ``VirtualServo``, ``ServoMemory``, ``PacketParser``), by client requests
     from a small C library built here."""
     if not names:
         return

@@ -41,6 +41,18 @@ _TORQUE_ENABLE, _PROFILE_VELOCITY, _DRIVE_MODE, _GOAL_POSITION, _OPERATING_MODE 
     Reg.TORQUE_ENABLE, Reg.PROFILE_VELOCITY, Reg.DRIVE_MODE, Reg.GOAL_POSITION, Reg.OPERATING_MODE)
 
 
+def _reader(size: int, signed: bool) -> Callable[[bytearray, int], tuple[int]]:
+    """``read(buffer, address) -> (raw,)`` for an item of ``size`` bytes (a ``struct`` unpacker
+    where one fits: 2x faster than ``int.from_bytes`` of a slice)."""
+    codes = STRUCT_CODES.get(size)
+    if codes is not None:
+        return struct.Struct("<" + codes[signed]).unpack_from
+
+    def read(buffer: bytearray, address: int) -> tuple[int]:
+        return (int.from_bytes(buffer[address:address + size], "little", signed=signed),)
+    return read
+
+
 class WriteRejected(Exception):
     """A bus write broke a rule; ``number`` is the status error to return."""
 
@@ -74,6 +86,7 @@ class ServoMemory:
         self.size = table.size
         self._bytes = bytearray(self.size)
         self._slices = {reg.name: (reg.address, reg.address + reg.size, reg.signed) for reg in table}
+        self._readers = {reg.name: (_reader(reg.size, reg.signed), reg.address) for reg in table}
         self._owner: list[Register | None] = [None] * self.size
         for reg in table:
             for a in range(reg.address, reg.address + reg.size):
@@ -139,10 +152,10 @@ class ServoMemory:
         if self.stale and name in self.published:
             self.publish()
         try:
-            a, b, signed = self._slices[name]
+            read, address = self._readers[name]
         except KeyError:
             raise RegisterError(f"{self.table.model} has no register named {str(name)!r}") from None
-        return int.from_bytes(self._bytes[a:b], "little", signed=signed)
+        return read(self._bytes, address)[0]
 
     def byte(self, address: int) -> int:
         """The stored byte at ``address``: the raw value of an unsigned one-byte item that is
@@ -243,8 +256,12 @@ class ServoMemory:
         if address < 0 or address + len(data) > self.size:
             raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
         whole = self._whole_items(address, data)
-        if whole is not None:           # whole plain items: steps 1-2 have nothing to do
-            return self._check_and_apply(whole, {})
+        if whole is not None:           # whole plain items: steps 1-2 have nothing to do, and
+            regs = self.table.registers     # the data is the items' encoding (step 4 copies it)
+            for name, value in whole.items():
+                self._check(regs[name], value, whole)
+            self._bytes[address:address + len(data)] = data
+            return list(whole)
         # 1. resolve indirect data bytes to their targets; collect per-item byte patches
         direct: dict[int, int] = {}
         via_indirect: dict[int, int] = {}
@@ -303,7 +320,7 @@ class ServoMemory:
             reg = self._owner[a]
             if reg is None or reg.address != a or a + reg.size > end:
                 return None
-            out[reg.name] = reg.decode(data[a - address:a - address + reg.size])
+            out[reg.name] = self._readers[reg.name][0](data, a - address)[0]
             a += reg.size
         return out
 

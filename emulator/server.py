@@ -516,7 +516,6 @@ class Emulator:
         return replies, touched
 
     def _dispatch_bus(self, pkt: InstructionPacket, listening: list[VirtualServo]):
-        by_id = {s.id: s for s in listening}
         inst, p = pkt.instruction, pkt.params
         if inst in BUS_WRITES:
             if inst == Instruction.SYNC_WRITE:
@@ -532,6 +531,7 @@ class Emulator:
                     s.bus_write(address, d)
                     touched.append(s)
             return [], touched
+        by_id = {s.id: s for s in listening}
         if inst in SYNC_READS:
             address, length, ids = parse_sync_read(p)
             items = [(i, address, length) for i in ids]
