@@ -8,18 +8,24 @@ without and with ``--wire-timing`` at 1 Mbps, ``--repeat`` times. The wire-time 
 computed from the byte counts (10 bits per byte, no gaps). Per row it also records the CPU
 time per round trip of the client (this process, ``time.process_time``) and of the emulator
 process (``/proc/PID/stat``, 10 ms ticks), and the 1-minute load average when the row started.
+Every round runs on the machine as it is (``idle``); ``--pm-qos`` measures it again while
+holding a PM QoS CPU latency request of 0 us (idle CPUs poll instead of halting; needs root),
+and ``--burners N`` again beside N processes that spin in pure Python (a busy machine), both
+for the two clients alike. A polling client gains most on an idle machine, whose idle CPUs
+halt (waking one costs a hypervisor exit on a VM), and loses most on a busy one, where its
+polling takes turns on the cores with the emulator.
 
-    .venv/bin/python bench/bench_emulator.py [--seconds 3] [--repeat 3] [--no-write]
+    .venv/bin/python bench/bench_emulator.py [--seconds 3] [--repeat 3] [--pm-qos] [--burners N] [--no-write]
 
 Writes the section "## Emulator bus" of BENCHMARKS.md (other sections untouched).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import datetime as dt
 import os
 import platform
-import re
 import signal
 import statistics
 import subprocess
@@ -31,7 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchutil import cpu_model, write_section  # noqa: E402
+from benchutil import CPU_DMA_LATENCY, CpuLatencyRequest, cpu_model, write_section  # noqa: E402
 from swerve.tools.commands.emulate import parse_port_line  # noqa: E402
 
 IDS = list(range(1, 9))
@@ -99,6 +105,7 @@ class Row:
     client_cpu_us: float       # CPU of this process per round trip, us
     emulator_cpu_us: float     # CPU of the emulator process per round trip, us
     load_1min: float           # 1-minute load average when the row started
+    machine: str = "idle"      # "idle", "idle CPUs poll" (PM QoS 0 us) or "N burners"
 
 
 def _process_cpu_s(pid: int) -> float:
@@ -164,58 +171,99 @@ def bench_driver(port: str, seconds: float, emulator_pid: int) -> tuple[float, i
 
 SDK, DRIVER = "dynamixel-sdk 4.1", "driver.bus.Bus"
 LINES = (("pty, no wire timing", ()), ("--wire-timing 1 Mbps", ("--wire-timing",)))
+IDLE, POLLING = "idle", "idle CPUs poll"
 
 
-def run(seconds: float, repeat: int = 1) -> list[Row]:
-    """``repeat`` rounds; in each, per line one emulator process, the SDK then the driver."""
+@contextlib.contextmanager
+def burners(n: int):
+    """``n`` processes spinning in pure Python for the duration (a busy machine)."""
+    procs = [subprocess.Popen([sys.executable, "-c", "while True: pass"]) for _ in range(n)]
+    try:
+        yield
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
+
+
+def conditions(pm_qos: bool, n_burners: int) -> list[tuple[str, contextlib.AbstractContextManager]]:
+    """The machine states each round is measured in: ``(name, context manager factory)``."""
+    out = [(IDLE, contextlib.nullcontext)]
+    if pm_qos:
+        out.append((POLLING, lambda: CpuLatencyRequest(0)))
+    if n_burners:
+        out.append((f"{n_burners} burner{'s' if n_burners > 1 else ''}", lambda: burners(n_burners)))
+    return out
+
+
+def _round(seconds: float, machine: str) -> list[Row]:
+    """Per line one emulator process, the SDK then the driver."""
     rows = []
-    for _ in range(repeat):
-        for label, extra in LINES:
-            emu = EmulatorProcess(*extra)
-            try:
-                _zero_return_delay(emu.port)
-                for client, bench in ((SDK, bench_sdk), (DRIVER, bench_driver)):
-                    load = os.getloadavg()[0]
-                    res = bench(emu.port, seconds, emu.proc.pid)
-                    if res is not None:
-                        rows.append(Row(label, client, *res, load))
-            finally:
-                emu.close()
+    for label, extra in LINES:
+        emu = EmulatorProcess(*extra)
+        try:
+            _zero_return_delay(emu.port)
+            for client, bench in ((SDK, bench_sdk), (DRIVER, bench_driver)):
+                load = os.getloadavg()[0]
+                res = bench(emu.port, seconds, emu.proc.pid)
+                if res is not None:
+                    rows.append(Row(label, client, *res, load, machine))
+        finally:
+            emu.close()
     return rows
 
 
-def render(rows: list[Row], seconds: float, repeat: int) -> str:
+def run(seconds: float, repeat: int = 1, pm_qos: bool = False, n_burners: int = 0) -> list[Row]:
+    """``repeat`` rounds, each measured in every machine state of :func:`conditions`."""
+    rows = []
+    for _ in range(repeat):
+        for machine, state in conditions(pm_qos, n_burners):
+            with state():
+                rows += _round(seconds, machine)
+    return rows
+
+
+def render(rows: list[Row], seconds: float, repeat: int, pm_qos: bool = False, n_burners: int = 0) -> str:
     nbytes, limit = wire_limit_rtps()
+    machines = [m for m, _ in conditions(pm_qos, n_burners)]
     lines = [
         SECTION, "",
         f"{dt.datetime.now(dt.timezone.utc):%Y-%m-%d %H:%M} UTC; `nproc` = {os.cpu_count()}; "
         f"CPU {cpu_model()}; Python {platform.python_version()}; `bench/bench_emulator.py "
-        f"--seconds {seconds:g} --repeat {repeat}`.",
+        f"--seconds {seconds:g} --repeat {repeat}{' --pm-qos' if pm_qos else ''}"
+        f"{f' --burners {n_burners}' if n_burners else ''}`.",
         "",
         "8-servo Sync Read of Present Position (4 bytes, IDs 1-8), Return Delay Time 0, "
         "`swerve emulate` in its own process, client in this one; in each round the SDK and the "
         "driver take turns against the same emulator process. CPU per round trip: the client "
-        "process and the emulator process; load: 1-minute load average when the row started.",
+        "process and the emulator process; load: 1-minute load average when the row started. "
+        "Machine: `idle` is the machine as it is (its idle CPUs halt)"
+        + (f"; `idle CPUs poll` holds a PM QoS CPU latency request of 0 us (`{CPU_DMA_LATENCY}`), "
+           "so an idle CPU spins in the kernel instead of halting" if pm_qos else "")
+        + ("; `burners` runs that many processes spinning in pure Python beside the bench"
+           if n_burners else "") + ".",
         "",
-        "| round | line | client | round trips/s | failed | client CPU us/rt | emulator CPU us/rt | load |",
-        "|---:|---|---|---:|---:|---:|---:|---:|",
+        "| round | machine | line | client | round trips/s | failed | client CPU us/rt | emulator CPU us/rt | load |",
+        "|---:|---|---|---|---:|---:|---:|---:|---:|",
     ]
     per_round = max(1, len(rows) // repeat)
     for k, r in enumerate(rows):
-        lines.append(f"| {k // per_round + 1} | {r.line} | {r.client} | {r.rate_hz:.0f} | {r.fails} | "
+        lines.append(f"| {k // per_round + 1} | {r.machine} | {r.line} | {r.client} | {r.rate_hz:.0f} | {r.fails} | "
                      f"{r.client_cpu_us:.0f} | {r.emulator_cpu_us:.0f} | {r.load_1min:.2f} |")
     lines.append("")
-    for label, _ in LINES:
-        rates = {c: statistics.median(r.rate_hz for r in rows if r.line == label and r.client == c)
-                 for c in (SDK, DRIVER) if any(r.line == label and r.client == c for r in rows)}
-        cpu = {c: statistics.median(r.client_cpu_us for r in rows if r.line == label and r.client == c)
-               for c in rates}
-        if len(rates) == 2:
-            lines.append(f"- {label}, medians of {repeat}: driver {rates[DRIVER]:.0f} vs SDK {rates[SDK]:.0f} "
-                         f"round trips/s, driver / SDK = **{rates[DRIVER] / rates[SDK]:.2f}**; client CPU "
-                         f"{cpu[DRIVER]:.0f} vs {cpu[SDK]:.0f} us per round trip"
-                         + (f"; driver at **{rates[DRIVER] / limit:.0%}** of the wire limit, SDK at "
-                            f"{rates[SDK] / limit:.0%}" if label.startswith("--wire") else ""))
+    for machine in machines:
+        for label, _ in LINES:
+            mine = [r for r in rows if r.line == label and r.machine == machine]
+            rates = {c: statistics.median(r.rate_hz for r in mine if r.client == c)
+                     for c in (SDK, DRIVER) if any(r.client == c for r in mine)}
+            cpu = {c: statistics.median(r.client_cpu_us for r in mine if r.client == c) for c in rates}
+            if len(rates) == 2:
+                lines.append(f"- {label}, {machine}, medians of {repeat}: driver {rates[DRIVER]:.0f} vs "
+                             f"SDK {rates[SDK]:.0f} round trips/s, driver / SDK = "
+                             f"**{rates[DRIVER] / rates[SDK]:.2f}**; client CPU "
+                             f"{cpu[DRIVER]:.0f} vs {cpu[SDK]:.0f} us per round trip"
+                             + (f"; driver at **{rates[DRIVER] / limit:.0%}** of the wire limit, SDK at "
+                                f"{rates[SDK] / limit:.0%}" if label.startswith("--wire") else ""))
     lines += [
         "",
         f"Wire-time limit at 1 Mbps: {nbytes} bytes per round trip (22 instruction + 8 x 15 status) "
@@ -234,11 +282,22 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--seconds", type=float, default=3.0, help="measuring time per row")
     ap.add_argument("--repeat", type=int, default=3, help="rounds (each: both lines, both clients)")
+    ap.add_argument("--pm-qos", action="store_true",
+                    help="measure every round again with idle CPUs polling (PM QoS 0 us; root)")
+    ap.add_argument("--burners", type=int, default=0, metavar="N",
+                    help="measure every round again beside N processes spinning in Python")
     ap.add_argument("--no-write", action="store_true", help="print only, do not edit BENCHMARKS.md")
     args = ap.parse_args()
-    if args.repeat < 1 or not args.seconds > 0:
-        ap.error("--repeat must be >= 1 and --seconds > 0")
-    text = render(run(args.seconds, args.repeat), args.seconds, args.repeat)
+    if args.repeat < 1 or not args.seconds > 0 or args.burners < 0:
+        ap.error("--repeat must be >= 1, --seconds > 0 and --burners >= 0")
+    if args.pm_qos:
+        try:
+            with CpuLatencyRequest(0):       # fail now, not after the first half of the runs
+                pass
+        except OSError as exc:
+            ap.error(f"--pm-qos: cannot hold a CPU latency request: {exc}")
+    rows = run(args.seconds, args.repeat, args.pm_qos, args.burners)
+    text = render(rows, args.seconds, args.repeat, args.pm_qos, args.burners)
     print(text)
     if not args.no_write:
         write_section(SECTION, text)

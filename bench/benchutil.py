@@ -1,8 +1,10 @@
 """Helpers shared by the benchmark scripts: machine description and BENCHMARKS.md sections."""
 from __future__ import annotations
 
+import os
 import platform
 import re
+import struct
 from pathlib import Path
 
 BENCHMARKS = Path(__file__).resolve().parents[1] / "BENCHMARKS.md"
@@ -28,3 +30,40 @@ def write_section(section: str, text: str, path: Path = BENCHMARKS) -> None:
     if not n:
         new = old.rstrip("\n") + "\n\n" + block
     path.write_text(new.rstrip("\n") + "\n")
+
+
+#: Linux PM QoS device: while a process holds it open with a value written, idle CPUs stay in
+#: idle states whose exit latency is at most that many us (0: the kernel's polling idle loop).
+#: Documentation/power/pm_qos_interface.rst in the kernel tree; rt-tests' cyclictest holds it at 0.
+CPU_DMA_LATENCY = "/dev/cpu_dma_latency"
+
+
+class CpuLatencyRequest:
+    """Hold a PM QoS CPU latency request of ``latency_us`` while open (a context manager).
+
+    With 0 an idle CPU polls instead of halting, so a blocked thread wakes without the
+    halt exit (on a VM, a trip through the hypervisor). It needs write access to
+    :data:`CPU_DMA_LATENCY` (root); :meth:`__enter__` raises ``OSError`` otherwise. The request
+    ends when the descriptor closes (also when the process dies).
+    """
+
+    def __init__(self, latency_us: int = 0):
+        if latency_us < 0:
+            raise ValueError(f"latency must be >= 0 us, got {latency_us}")
+        self.latency_us = int(latency_us)
+        self._fd: int | None = None
+
+    def __enter__(self) -> "CpuLatencyRequest":
+        fd = os.open(CPU_DMA_LATENCY, os.O_WRONLY)
+        try:
+            os.write(fd, struct.pack("i", self.latency_us))
+        except OSError:
+            os.close(fd)
+            raise
+        self._fd = fd
+        return self
+
+    def __exit__(self, *exc) -> None:
+        if self._fd is not None:
+            os.close(self._fd)
+            self._fd = None
