@@ -9,6 +9,7 @@ plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
 from __future__ import annotations
 
 import logging
+import operator
 import struct
 from typing import Mapping, Protocol
 
@@ -80,8 +81,9 @@ class VirtualServo:
         # in address order, so the packer needs no reordering)
         self._pack_published = None
         if all(n in table for n in DYNAMICS_OUTPUTS):
-            self._outputs_in_order = tuple(sorted(DYNAMICS_OUTPUTS, key=lambda n: table[n].address))
-            self._pack_published = self.memory.packer((Reg.REALTIME_TICK, *self._outputs_in_order))
+            in_order = sorted(DYNAMICS_OUTPUTS, key=lambda n: table[n].address)
+            self._output_values = operator.itemgetter(*in_order)      # one tuple from the dict
+            self._pack_published = self.memory.packer((Reg.REALTIME_TICK, *in_order))
         self._view = self.memory.view()
         self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
         self._identity_raw = b""
@@ -430,7 +432,7 @@ class VirtualServo:
         outputs = self.dynamics.outputs() if self.dynamics is not None else {}
         if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
             try:                        # a value that is not an int raises struct.error
-                self._pack_published([int(self._tick_ms), *map(outputs.__getitem__, self._outputs_in_order)])
+                self._pack_published([int(self._tick_ms), *self._output_values(outputs)])
                 return
             except (KeyError, struct.error):
                 pass                    # item by item below: the same values, or the same error
