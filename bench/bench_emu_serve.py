@@ -105,14 +105,15 @@ def main() -> None:
     ap.add_argument("--emulator-config", default="ideal")
     ap.add_argument("--callgrind", metavar="DIR", help="run the emulator under callgrind, profile in DIR")
     ap.add_argument("--exclude", default="", metavar="METHOD,...",
-                    help="with --callgrind: count nothing inside these Emulator methods "
-                         "(step_many: the physics runs)")
+                    help="with --callgrind: count nothing inside these methods (Emulator's by name, "
+                         "or Class.name; step_many: the physics runs)")
     args = ap.parse_args()
 
     if args.callgrind:
         out_dir = Path(args.callgrind).resolve()
         out_dir.mkdir(parents=True, exist_ok=True)
-        hook = Path(tempfile.mkdtemp())
+        hook_dir = tempfile.TemporaryDirectory(prefix="bench-emu-serve-")     # removed at exit
+        hook = Path(hook_dir.name)
         _build_exclusions(hook, [n for n in args.exclude.split(",") if n])
         wrapper = hook / "python-callgrind"
         wrapper.write_text(f"#!/bin/sh\nPYTHONPATH={hook} exec valgrind --tool=callgrind --instr-atstart=no "
