@@ -104,6 +104,34 @@ def unstuff(body: bytes) -> bytes:
     return bytes(body).replace(_STUFF_PATTERN + b"\xfd", _STUFF_PATTERN)
 
 
+#: Status frame heads by (ID, error byte, data length): the bytes before the data, their CRC.
+_STATUS_HEADS: dict[tuple[int, int, int], tuple[bytes, int]] = {}
+_STATUS_HEADS_MAX = 4096
+_CRC_FIELD = struct.Struct("<H")
+
+
+def status_frame(id_: int, error: int, params: bytes) -> bytes:
+    """The wire frame of a status packet (stuffed, with CRC): :meth:`StatusPacket.encode`
+    without building the packet, for an ID of 0..252 and an error byte the caller has checked.
+
+    The head (header, ID, LENGTH, INST, ERR) and its running CRC depend only on the ID, the
+    error byte and the data length, so a servo answering the same read again reuses them and
+    only the data's CRC is computed. Data that needs stuffing (``FF FF FD``, or an error byte
+    0xFF that could start the pattern) goes the general way.
+    """
+    if error == 0xFF or params.find(_STUFF_PATTERN) >= 0:
+        return _frame(id_, bytes((_STATUS, error)) + params)
+    key = (id_, error, len(params))
+    head = _STATUS_HEADS.get(key)
+    if head is None:
+        if len(_STATUS_HEADS) >= _STATUS_HEADS_MAX:
+            _STATUS_HEADS.clear()
+        prefix = HEADER + bytes((id_,)) + _CRC_FIELD.pack(len(params) + 4) + bytes((_STATUS, error))
+        head = _STATUS_HEADS[key] = (prefix, crc16(prefix))
+    prefix, crc = head
+    return prefix + params + _CRC_FIELD.pack(crc16(params, crc))
+
+
 def _frame(id_: int, body: bytes, *, stuffed: bool = True) -> bytes:
     """Wrap ``body`` (INST [ERR] params) into a full frame with header, LENGTH and CRC."""
     if stuffed:
@@ -163,7 +191,8 @@ class InstructionPacket:
     def wire_length(self) -> int:
         """``len(self.encode())`` without computing the CRC: header, ID and LENGTH
         (:data:`PREFIX_BYTES`), the stuffed INST and params, 2 CRC bytes."""
-        return PREFIX_BYTES + len(stuff(bytes((self.instruction,)) + self.params)) + 2
+        body = bytes((self.instruction,)) + self.params
+        return PREFIX_BYTES + len(body) + body.count(_STUFF_PATTERN) + 2     # one FD per pattern
 
     @classmethod
     def decode(cls, frame: bytes) -> "InstructionPacket":
@@ -209,7 +238,7 @@ class StatusPacket:
 
     def encode(self) -> bytes:
         """The frame as sent on the wire (stuffed, with CRC)."""
-        return _frame(self.id, bytes((Instruction.STATUS, self.error)) + self.params)
+        return status_frame(self.id, self.error, self.params)
 
     @classmethod
     def decode(cls, frame: bytes) -> "StatusPacket":

@@ -123,9 +123,8 @@ class ControlServer:
         if not data:
             self._drop(fd)
             return
-        conn.buffer += data
-        while b"\n" in conn.buffer:
-            line, conn.buffer = conn.buffer.split(b"\n", 1)
+        *lines, conn.buffer = (conn.buffer + data).split(b"\n")
+        for line in lines:
             reply = self._answer(conn, line.decode("ascii", "replace").split(), bus)
             try:
                 conn.sock.sendall(reply.encode("ascii") + b"\n")

@@ -67,6 +67,7 @@ GROUP_WRITE_S = 1e-3
 SWITCH_INTERVAL_S = 2e-4
 SYNC_READS = (Instruction.SYNC_READ, Instruction.FAST_SYNC_READ)
 BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
+FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
 BUS_WRITES = (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
 BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + BUS_WRITES
 
@@ -92,7 +93,7 @@ class Stats:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
 
-@dataclass
+@dataclass(slots=True)
 class _Reply:
     frame: bytes
     delay_s: float         # wait after the previous reply (or the instruction) ends
@@ -515,7 +516,6 @@ class Emulator:
         return replies, touched
 
     def _dispatch_bus(self, pkt: InstructionPacket, listening: list[VirtualServo]):
-        by_id = {s.id: s for s in listening}
         inst, p = pkt.instruction, pkt.params
         if inst in BUS_WRITES:
             if inst == Instruction.SYNC_WRITE:
@@ -531,6 +531,7 @@ class Emulator:
                     s.bus_write(address, d)
                     touched.append(s)
             return [], touched
+        by_id = {s.id: s for s in listening}
         if inst in SYNC_READS:
             address, length, ids = parse_sync_read(p)
             items = [(i, address, length) for i in ids]
@@ -539,8 +540,33 @@ class Emulator:
             if len({i for i, _, _ in items}) != len(items):
                 log.debug("bulk read lists an ID twice; ignored")
                 return [], []
-        fast = inst in (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
-        if fast and 1 + sum(n + 4 for _, _, n in items) > MAX_LENGTH:
+        if inst in FAST_READS:
+            return self._fast_read(items, by_id)
+        # every listed servo reads (and publishes its present items) before any reply is built
+        frames: list[tuple[VirtualServo | None, bytes]] = []
+        for id_, address, length in items:
+            s = by_id.get(id_)
+            if s is None:
+                frames.append((None, b""))
+                continue
+            s.note_traffic()
+            frames.append((s, s.read_frame(address, length)))
+        present = [s for s, _ in frames if s is not None]
+        if not present:
+            return [], []
+        replies = []
+        for s, frame in frames:
+            if s is None:
+                if self.settings.sync_chain_break:
+                    break
+                continue
+            replies.append(_Reply(frame, s.return_delay_s))
+        return replies, present
+
+    def _fast_read(self, items: list[tuple[int, int, int]], by_id: dict[int, VirtualServo]):
+        """Replies and servos read of a Fast Sync/Bulk Read of ``items`` ``(id, address, length)``:
+        one combined frame, cut into each answering servo's slice."""
+        if 1 + sum(n + 4 for _, _, n in items) > MAX_LENGTH:
             raise CorruptPacketError("fast read reply would exceed the largest frame")
         statuses: list[tuple[VirtualServo | None, StatusPacket]] = []
         for id_, address, length in items:
@@ -550,29 +576,20 @@ class Emulator:
                 continue
             s.note_traffic()
             st = s.read_status(address, length)
-            if fast and len(st.params) != length:       # keep the combined frame's layout
+            if len(st.params) != length:       # keep the combined frame's layout
                 st = StatusPacket(st.id, st.error, bytes(length))
             statuses.append((s, st))
         present = [s for s, _ in statuses if s is not None]
         if not present:
             return [], []
-        if fast:
-            slices = FastStatus(tuple(st for _, st in statuses)).slices()
-            replies = []
-            for k, ((s, _), frame) in enumerate(zip(statuses, slices)):
-                if s is None:
-                    if self.settings.sync_chain_break:
-                        break
-                    continue
-                replies.append(_Reply(frame, s.return_delay_s if k == 0 else 0.0, fast=True))
-            return replies, present
+        slices = FastStatus(tuple(st for _, st in statuses)).slices()
         replies = []
-        for s, st in statuses:
+        for k, ((s, _), frame) in enumerate(zip(statuses, slices)):
             if s is None:
                 if self.settings.sync_chain_break:
                     break
                 continue
-            replies.append(_Reply(st.encode(), s.return_delay_s))
+            replies.append(_Reply(frame, s.return_delay_s if k == 0 else 0.0, fast=True))
         return replies, present
 
     @staticmethod

@@ -9,13 +9,16 @@ plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
 from __future__ import annotations
 
 import logging
+import operator
 import struct
 from typing import Mapping, Protocol
 
 from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
 from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg, baud_index
+from swerve.driver.errors import ConfigError
 from swerve.driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
-                            Instruction, InstructionPacket, StatusPacket, parse_address_length)
+                            Instruction, InstructionPacket, StatusPacket, parse_address_length,
+                            status_frame)
 
 from swerve.emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
                              WriteRejected)
@@ -32,6 +35,9 @@ DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "prese
 BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
                     "profile_acceleration", "profile_velocity")
+
+#: Items whose bus write has consequences beyond their bytes (:meth:`VirtualServo._after_write`).
+_FOLLOWED_UP = frozenset((Reg.OPERATING_MODE, Reg.BUS_WATCHDOG))
 
 
 class Dynamics(Protocol):
@@ -71,13 +77,19 @@ class VirtualServo:
         self.memory = ServoMemory(table, limit_error=limit_error)
         self.memory.publisher = self._publish
         self.memory.published = frozenset((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
-        # all published items in one write when the table holds them back to back
-        self._pack_published = (self.memory.packer((Reg.REALTIME_TICK, *DYNAMICS_OUTPUTS))
-                                if all(n in table for n in DYNAMICS_OUTPUTS) else None)
+        # all published items in one write when the table holds them back to back (the outputs
+        # in address order, so the packer needs no reordering)
+        self._pack_published = None
+        if all(n in table for n in DYNAMICS_OUTPUTS):
+            in_order = sorted(DYNAMICS_OUTPUTS, key=lambda n: table[n].address)
+            self._output_values = operator.itemgetter(*in_order)      # one tuple from the dict
+            self._pack_published = self.memory.packer((Reg.REALTIME_TICK, *in_order))
         self._view = self.memory.view()
         self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
         self._identity_raw = b""
         self._torque_address = table[Reg.TORQUE_ENABLE].address
+        self._return_delay_address = _byte_item(table, Reg.RETURN_DELAY_TIME)
+        self._hardware_error_address = _byte_item(table, Reg.HARDWARE_ERROR_STATUS)
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
         self.dynamics = dynamics
@@ -106,7 +118,7 @@ class VirtualServo:
     @property
     def return_delay_s(self) -> float:
         """Return Delay Time (9) in seconds (2 us units)."""
-        return self.memory.get(Reg.RETURN_DELAY_TIME) * 2e-6
+        return self.memory.byte(self._return_delay_address) * 2e-6
 
     @property
     def status_return_level(self) -> int:
@@ -124,7 +136,7 @@ class VirtualServo:
 
     # --- status helpers -----------------------------------------------------------------------
     def _error_byte(self, number: ErrorNumber = ErrorNumber.NONE) -> int:
-        alert = 0x80 if self.memory.get(Reg.HARDWARE_ERROR_STATUS) else 0
+        alert = 0x80 if self.memory.byte(self._hardware_error_address) else 0
         return int(number) | alert
 
     def status(self, number: ErrorNumber = ErrorNumber.NONE, params: bytes = b"",
@@ -132,13 +144,23 @@ class VirtualServo:
         """A status packet from this servo, with the Alert bit while a hardware error is latched."""
         return StatusPacket(self.id if reply_id is None else reply_id, self._error_byte(number), params)
 
-    def read_status(self, address: int, length: int) -> StatusPacket:
-        """The status a Read (or one Sync/Bulk Read entry) produces."""
+    def _read(self, address: int, length: int) -> tuple[int, bytes]:
+        """``(error byte, data)`` of the status a Read of ``length`` bytes at ``address`` produces."""
         try:
-            return self.status(params=self.memory.read(address, length))
+            data = self.memory.read(address, length)
         except WriteRejected as exc:
             log.debug("ID %d read rejected: %s", self.id, exc)
-            return self.status(exc.number)
+            return self._error_byte(exc.number), b""
+        return self._error_byte(), data
+
+    def read_status(self, address: int, length: int) -> StatusPacket:
+        """The status a Read (or one Sync/Bulk Read entry) produces."""
+        return StatusPacket(self.id, *self._read(address, length))
+
+    def read_frame(self, address: int, length: int) -> bytes:
+        """:meth:`read_status` as the frame on the wire, without building the packet (a Sync or
+        Bulk Read entry; the ID is this servo's, 0..252 by the ID item's range)."""
+        return status_frame(self.id, *self._read(address, length))
 
     def bus_write(self, address: int, data: bytes) -> ErrorNumber:
         """A Write (or Sync/Bulk Write entry) with every rule; returns the error number."""
@@ -154,6 +176,8 @@ class VirtualServo:
         return ErrorNumber.NONE
 
     def _after_write(self, changed: list[str]) -> None:
+        if _FOLLOWED_UP.isdisjoint(changed):
+            return
         m = self.memory
         if Reg.OPERATING_MODE in changed:   # mode change resets profile and goal limits (e-Manual)
             m.set(Reg.PROFILE_VELOCITY, 0)
@@ -407,8 +431,8 @@ class VirtualServo:
         m = self.memory
         outputs = self.dynamics.outputs() if self.dynamics is not None else {}
         if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
-            try:
-                self._pack_published([int(self._tick_ms), *[int(outputs[n]) for n in DYNAMICS_OUTPUTS]])
+            try:                        # a value that is not an int raises struct.error
+                self._pack_published([int(self._tick_ms), *self._output_values(outputs)])
                 return
             except (KeyError, struct.error):
                 pass                    # item by item below: the same values, or the same error
@@ -417,6 +441,14 @@ class VirtualServo:
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))
+
+
+def _byte_item(table: ControlTable, name: str) -> int:
+    """Address of item ``name``, which must be an unsigned one-byte item (X series: e-Manual)."""
+    reg = table[name]
+    if reg.size != 1 or reg.signed:
+        raise ConfigError(f"{table.model}: {name} must be an unsigned 1-byte item, not {reg.size} bytes")
+    return reg.address
 
 
 def hardware_error_bits(spec: str | int) -> int:
