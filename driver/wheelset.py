@@ -32,6 +32,9 @@ log = logging.getLogger(__name__)
 
 #: Relative slack on the configured speed/angle limits (float round-off from the controller).
 _LIMIT_TOL = 1e-9
+#: The goal items' names as plain strings: an enum member hashes in Python, a str in C, and the
+#: Bulk Write of every cycle looks them up a dozen times.
+_GOAL_VELOCITY, _GOAL_POSITION = str(Reg.GOAL_VELOCITY), str(Reg.GOAL_POSITION)
 
 
 @dataclass(frozen=True)
@@ -74,10 +77,15 @@ class WheelSet:
             bus.set_model(i, self.table)
         self._vel = self.table[Reg.GOAL_VELOCITY]
         self._pos = self.table[Reg.GOAL_POSITION]
-        self._first, self._last = Reg.PRESENT_CURRENT, Reg.PRESENT_POSITION
-        self._cur = self.table[Reg.PRESENT_CURRENT]
-        self._vel_now = self.table[Reg.PRESENT_VELOCITY]
-        self._pos_now = self.table[Reg.PRESENT_POSITION]
+        # plain strings, as _GOAL_VELOCITY
+        self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)
+        # per wheel, the SI factor of each present value with the direction sign in it (the
+        # sign is +-1, so sign * (raw * scale) == raw * (sign * scale) exactly)
+        cur, vel, pos = (self.table[r].to_si(1) for r in
+                         (Reg.PRESENT_CURRENT, Reg.PRESENT_VELOCITY, Reg.PRESENT_POSITION))
+        self._si = tuple((w.drive_direction * vel, w.drive_direction * pos, w.drive_direction * cur,
+                          w.center_pulse, w.steer_direction * pos, w.steer_direction * vel,
+                          w.steer_direction * cur) for w in config.wheels)
 
     # --- setup -------------------------------------------------------------------------------
 
@@ -159,8 +167,9 @@ class WheelSet:
         """Send all eight goals in ONE Bulk Write: Goal Velocity to the drive servos,
         Goal Position to the steering servos (wheel speeds rad/s, steering angles rad)."""
         raw = self.goal_raw(drive_radps, steer_rad)
-        items = {i: {Reg.GOAL_VELOCITY: raw[i]} for i in self.drive_ids}
-        items.update({i: {Reg.GOAL_POSITION: raw[i]} for i in self.steer_ids})
+        vel, pos = _GOAL_VELOCITY, _GOAL_POSITION
+        items = {i: {vel: raw[i]} for i in self.drive_ids}
+        items.update({i: {pos: raw[i]} for i in self.steer_ids})
         self.bus.bulk_write(items)
 
     def read_state(self) -> WheelState:
@@ -170,15 +179,14 @@ class WheelSet:
         t = time.monotonic()
         ic, iv, ip = names.index(Reg.PRESENT_CURRENT), names.index(Reg.PRESENT_VELOCITY), \
             names.index(Reg.PRESENT_POSITION)
-        cur, vel, pos = self._cur.to_si, self._vel_now.to_si, self._pos_now.to_si
         dv, dp, dc, sp, sv, sc = [], [], [], [], [], []
-        for w, d, s in zip(self.config.wheels, rows, rows[len(self.drive_ids):]):
-            dv.append(w.drive_direction * vel(d[iv]))
-            dp.append(w.drive_direction * pos(d[ip]))
-            dc.append(w.drive_direction * cur(d[ic]))
-            sp.append(w.steer_direction * pos(s[ip] - w.center_pulse))
-            sv.append(w.steer_direction * vel(s[iv]))
-            sc.append(w.steer_direction * cur(s[ic]))
+        for (kdv, kdp, kdc, center, ksp, ksv, ksc), d, s in zip(self._si, rows, rows[len(self.drive_ids):]):
+            dv.append(kdv * d[iv])
+            dp.append(kdp * d[ip])
+            dc.append(kdc * d[ic])
+            sp.append(ksp * (s[ip] - center))
+            sv.append(ksv * s[iv])
+            sc.append(ksc * s[ic])
         return WheelState(t, tuple(dv), tuple(dp), tuple(sp), tuple(sv), tuple(dc), tuple(sc))
 
     # --- shutdown ----------------------------------------------------------------------------

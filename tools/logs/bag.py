@@ -18,7 +18,7 @@ import numpy as np
 
 from swerve.driver.errors import ConfigError
 
-from .messages import CycleMessages
+from .messages import CycleMessages, CycleSerializer
 from .record import CYCLE_FIELDS, LAYOUT_VERSION, CycleRecord, unpack
 
 #: Value of ``metadata["format"]`` that marks a swerve run log.
@@ -88,7 +88,9 @@ class RunLogWriter:
         self.flush_every = int(flush_every)
         self.cycles_written = 0
         self._ts = _typestore()
-        self._msgs = CycleMessages(self._ts, joint_names(wheels))
+        # rosbags builds its serialisers lazily (~35 ms); the serializer's probes do it here,
+        # not in the first control cycle
+        self._cdr = CycleSerializer(CycleMessages(self._ts, joint_names(wheels)))
         self._bag = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._conn: dict = {}
         self._open = False
@@ -116,7 +118,6 @@ class RunLogWriter:
         self._open = True
         self._flush()  # schemas and channels reach the disk before the first cycle
         self._bag.set_custom_data("swerve_metadata", self._metadata_json)
-        self._warm_up()
 
     def close(self) -> None:
         """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
@@ -147,19 +148,13 @@ class RunLogWriter:
         ns = int(rec.stamp_ns)
         if not self.cycles_written:
             self._put_metadata(ns)
-        for topic, msg in self._msgs.messages(rec):
-            self._put(topic, ns, msg)
+        write, conn = self._bag.write, self._conn
+        for topic, data in self._cdr.serialize(rec):
+            write(conn[topic], ns, data)
         self.cycles_written += 1
         if self.cycles_written % self.flush_every == 0:
             self._flush()
 
-    def _warm_up(self) -> None:
-        """Serialise one message of every type once: rosbags builds its serialisers lazily
-        (~35 ms), which must not land in the first control cycle."""
-        z = np.zeros(3)
-        rec = CycleRecord(t_s=0.0, stamp_ns=0, cycle=0, ref_pose=z, true_pose=z, sim_pose=z)
-        for _, msg in self._msgs.messages(rec):
-            self._ts.serialize_cdr(msg, msg.__msgtype__)
 
 # -- reading ---------------------------------------------------------------------------------
 @dataclass

@@ -91,14 +91,21 @@ UNITS = {
 }
 
 
+def flatten(record: CycleRecord) -> list[float]:
+    """``record`` (without ``stamp_ns``) as ``CYCLE_SIZE`` floats in the order of :data:`CYCLE_FIELDS`."""
+    out: list[float] = []
+    for name, size in CYCLE_FIELDS:
+        value = getattr(record, name)
+        if size == 1:
+            out.append(float(value))
+        else:
+            out += value.tolist()
+    return out
+
+
 def pack(record: CycleRecord) -> np.ndarray:
     """Flatten ``record`` (without ``stamp_ns``) into a ``(CYCLE_SIZE,)`` float64 array."""
-    out = np.empty(CYCLE_SIZE)
-    i = 0
-    for name, size in CYCLE_FIELDS:
-        out[i:i + size] = getattr(record, name)
-        i += size
-    return out
+    return np.array(flatten(record), dtype=np.float64)
 
 
 def unpack(rows: np.ndarray, layout=CYCLE_FIELDS) -> dict[str, np.ndarray]:
