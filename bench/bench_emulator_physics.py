@@ -29,7 +29,6 @@ Prints a markdown section for BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import os
 import platform
@@ -347,7 +346,7 @@ def main(argv=None) -> int:
     if args.bank:
         print("\nCPU time of the calling thread per 16 ms cycle: median over the cycles (mean in brackets; "
               "neighbours on a shared machine inflate the mean)")
-        print(f"\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor (mean) |")
+        print("\n| servos | CPU per 16 ms cycle ms | per tick us | per servo-tick us | real-time factor (mean) |")
         print("|---|---|---|---|---|")
         for n in (int(x) for x in args.bank.split(",")):
             b = cost_bank(n, args.cost_seconds, args.rate)
