@@ -37,7 +37,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchutil import CPU_DMA_LATENCY, CpuLatencyRequest, cpu_model, write_section  # noqa: E402
+from benchutil import CPU_DMA_LATENCY, CpuLatencyRequest, check_cpu_latency_request, cpu_model, write_section  # noqa: E402
 from swerve.tools.commands.emulate import parse_port_line  # noqa: E402
 
 IDS = list(range(1, 9))
@@ -291,11 +291,7 @@ def main() -> int:
     if args.repeat < 1 or not args.seconds > 0 or args.burners < 0:
         ap.error("--repeat must be >= 1, --seconds > 0 and --burners >= 0")
     if args.pm_qos:
-        try:
-            with CpuLatencyRequest(0):       # fail now, not after the first half of the runs
-                pass
-        except OSError as exc:
-            ap.error(f"--pm-qos: cannot hold a CPU latency request: {exc}")
+        check_cpu_latency_request(ap)
     rows = run(args.seconds, args.repeat, args.pm_qos, args.burners)
     text = render(rows, args.seconds, args.repeat, args.pm_qos, args.burners)
     print(text)

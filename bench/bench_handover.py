@@ -27,7 +27,7 @@ import statistics
 import time
 import tty
 
-from benchutil import CPU_DMA_LATENCY, CpuLatencyRequest, cpu_model, write_section
+from benchutil import CPU_DMA_LATENCY, CpuLatencyRequest, check_cpu_latency_request, cpu_model, write_section
 
 SECTION = "## Hand-over cost"
 WAYS = (("blocking select, any core", False, False),
@@ -104,11 +104,7 @@ def main() -> None:
     if args.count < 1 or args.repeat < 1:
         ap.error("--count and --repeat must be >= 1")
     if args.pm_qos:
-        try:
-            with CpuLatencyRequest(0):       # fail now, not after the first half of the runs
-                pass
-        except OSError as exc:
-            ap.error(f"--pm-qos: cannot hold a CPU latency request: {exc}")
+        check_cpu_latency_request(ap)
     lines = [SECTION, "",
              f"{dt.date.today()}; `nproc` = {os.cpu_count()}; CPU {cpu_model()}; Python "
              f"{platform.python_version()}; load {os.getloadavg()[0]:.2f} at start; "

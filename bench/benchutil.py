@@ -67,3 +67,13 @@ class CpuLatencyRequest:
         if self._fd is not None:
             os.close(self._fd)
             self._fd = None
+
+
+def check_cpu_latency_request(ap) -> None:
+    """End the argparse ``ap`` with a one-line error unless a request can be held (check before
+    a long run, not after its first half)."""
+    try:
+        with CpuLatencyRequest(0):
+            pass
+    except OSError as exc:
+        ap.error(f"--pm-qos: cannot hold a CPU latency request: {exc}")
