@@ -20,6 +20,7 @@ import argparse
 import math
 import multiprocessing
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -108,6 +109,15 @@ def main() -> None:
                     help="with --callgrind: count nothing inside these methods (Emulator's by name, "
                          "or Class.name; step_many: the physics runs)")
     args = ap.parse_args()
+    if args.cycles < 1 or args.warmup < 0:
+        ap.error("--cycles must be >= 1 and --warmup >= 0")
+    if args.exclude and not args.callgrind:
+        ap.error("--exclude needs --callgrind")
+    if args.callgrind:
+        needed = ["valgrind", "callgrind_control"] + (["gcc"] if args.exclude else [])
+        missing = [tool for tool in needed if shutil.which(tool) is None]
+        if missing:
+            ap.error(f"--callgrind needs {', '.join(missing)} on PATH")
 
     if args.callgrind:
         out_dir = Path(args.callgrind).resolve()

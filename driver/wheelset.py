@@ -24,7 +24,7 @@ from dataclasses import dataclass
 from typing import Sequence
 
 from swerve.driver.bus import Bus
-from swerve.driver.control_table import OperatingMode, Reg
+from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, DxlError, OutOfRangeError, SwerveError, TransportError
 from swerve.driver.robot_config import RobotConfig
 
