@@ -1,5 +1,6 @@
-"""The Riccati gain schedule (and what feeds it and the law that uses it) has the same bits whichever BLAS kernel the
-CPU gets, and still equals the NumPy/LAPACK formulation of the recursion to round-off."""
+"""The Riccati gain schedule, what feeds it and the law that uses it have the same bits
+whichever BLAS kernel the CPU gets; the schedule still equals the NumPy/LAPACK recursion to
+round-off."""
 import inspect
 import json
 
