@@ -3,6 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from swerve.controller import small_linalg as sl
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import GainSchedule
 from swerve.controller.kinematics import Geometry, Limits
@@ -59,7 +60,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
                                progress=progress and method == "riccati")
     meta = dict(frames=frames, initial_error=x0.tolist())
     if method == "riccati":
-        J = float(x0 @ P[0] @ x0)
+        J = sl.dot(x0.tolist(), sl.matvec(P[0].tolist(), x0.tolist()))  # same bits on any CPU
         meta.update(J_star=J)
         K = Kr
     else:

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from swerve.controller import small_linalg as sl
 from swerve.controller.chained import chained_jacobian, to_chained, wrap_angle
 
 
@@ -41,6 +42,9 @@ def error_system(ref):
     -------
     Ad : ndarray, shape (N, 5, 5)
     Bd : ndarray, shape (N, 5, 3)
+
+    The change of frame ``T_i`` is applied in :mod:`controller.small_linalg` (fixed order), so
+    the system has the same bits whichever BLAS kernel the CPU gets.
     """
     N, tau = ref.n_steps, ref.tau_s
     xd, ud = ref.xd[:N], ref.ud[:N]
@@ -55,10 +59,11 @@ def error_system(ref):
     Bd[:, 4, 0] = tau * xd[:, 3]
     for i in np.flatnonzero(np.diff(ref.phi_rad[:N + 1]) != 0):
         s = ref.states[i + 1]
-        T = (chained_jacobian(s, ref.geom, ref.phi_rad[i + 1])
-             @ np.linalg.inv(chained_jacobian(s, ref.geom, ref.phi_rad[i])))
-        Ad[i] = T @ Ad[i]
-        Bd[i] = T @ Bd[i]
+        J_new = chained_jacobian(s, ref.geom, ref.phi_rad[i + 1])
+        J_old = chained_jacobian(s, ref.geom, ref.phi_rad[i])
+        T = sl.transpose(sl.solve(J_old.T.tolist(), J_new.T.tolist()))     # J_new J_old^-1
+        Ad[i] = sl.matmul(T, Ad[i].tolist())
+        Bd[i] = sl.matmul(T, Bd[i].tolist())
     return Ad, Bd
 
 

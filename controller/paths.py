@@ -2,6 +2,11 @@
 
 Every path has ``derivatives(t) -> ndarray shape (4, 2, len(t))``: position (m), velocity
 (m/s), acceleration (m/s^2) and jerk (m/s^3) at the times ``t`` (s), and ``t_end_s``.
+
+The fit of samples makes no BLAS or LAPACK call (``@``, ``np.linalg``; SciPy's MINPACK and
+FITPACK use none either): their kernels are picked per CPU and round differently, and the fit's
+decisions (which samples form a line or an arc) would follow those bits. Sums of products are
+written out elementwise or taken with :func:`math.fsum` (correctly rounded).
 """
 from __future__ import annotations
 
@@ -72,9 +77,24 @@ class CurvilinearPath:
             [w ** 3 * (0.5 * s1 - 4 * c2), w ** 3 * (4 * s2 - 0.5 * c1)]])
 
 
-#: Gauss-Legendre nodes and weights on [0, 1] (4 points: exact for degree 7).
-_GL_X, _GL_W = np.polynomial.legendre.leggauss(4)
-_GL_X, _GL_W = 0.5 * (_GL_X + 1.0), 0.5 * _GL_W
+def _gauss_legendre_4():
+    """4-point Gauss-Legendre nodes (4,) and weights (4 floats) on [0, 1], in closed form (exact
+    for degree 7)."""
+    a, b = (math.sqrt(3 / 7 + sg * 2 / 7 * math.sqrt(6 / 5)) for sg in (-1, 1))
+    wa, wb = (18 + math.sqrt(30)) / 36, (18 - math.sqrt(30)) / 36
+    nodes = np.array([0.5 * (1 - b), 0.5 * (1 - a), 0.5 * (1 + a), 0.5 * (1 + b)])
+    return nodes, (0.5 * wb, 0.5 * wa, 0.5 * wa, 0.5 * wb)
+
+
+_GL_X, _GL_W = _gauss_legendre_4()
+
+
+def _gl_sum(f):
+    """``sum_k f[..., k] _GL_W[k]``, added in index order, shape ``f.shape[:-1]``."""
+    out = f[..., 0] * _GL_W[0]
+    for k in range(1, len(_GL_W)):
+        out = out + f[..., k] * _GL_W[k]
+    return out
 
 
 @dataclass(frozen=True)
@@ -101,15 +121,39 @@ def _line_fits(p, tol):
     return bool(dist.max() <= tol and np.all(np.diff(along) > 0))
 
 
+def _lstsq(cols, b):
+    """Least-squares ``x`` of ``sum_k x_k cols[k] ~ b`` (columns and ``b`` arrays (n,)), by
+    modified Gram-Schmidt on ``[cols, b]`` (backward stable) with :func:`math.fsum` dot
+    products; ``None`` if the columns are linearly dependent."""
+    v = [np.asarray(c, float) for c in cols] + [np.asarray(b, float)]
+    m = len(cols)
+    R = [[0.0] * (m + 1) for _ in range(m)]
+    for k in range(m):
+        R[k][k] = math.sqrt(math.fsum((v[k] * v[k]).tolist()))
+        if R[k][k] == 0.0:
+            return None
+        v[k] = v[k] / R[k][k]
+        for j in range(k + 1, m + 1):
+            R[k][j] = math.fsum((v[k] * v[j]).tolist())
+            v[j] = v[j] - R[k][j] * v[k]
+    x = [0.0] * m
+    for i in range(m - 1, -1, -1):
+        s = R[i][m]
+        for j in range(i + 1, m):
+            s -= R[i][j] * x[j]
+        x[i] = s / R[i][i]
+    return x
+
+
 def _circle_fit(p):
     """Least-squares circle through ``p`` (n, 2) (Kasa): centre (2,), radius, max residual."""
     m = p.mean(axis=0)
     q = p - m
-    A = np.column_stack([q, np.ones(len(q))])
-    b = -(q ** 2).sum(axis=1)
-    sol, *_ = np.linalg.lstsq(A, b, rcond=None)
-    c = -0.5 * sol[:2]
-    r2 = c @ c - sol[2]
+    sol = _lstsq([q[:, 0], q[:, 1], np.ones(len(q))], -(q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]))
+    if sol is None:
+        return None
+    c = np.array([-0.5 * sol[0], -0.5 * sol[1]])
+    r2 = c[0] * c[0] + c[1] * c[1] - sol[2]
     if not r2 > 0:
         return None
     r = math.sqrt(r2)
@@ -205,7 +249,7 @@ class CurvatureFit:
         """``int_{s0}^{s0+ds} (cos, sin) theta``, arrays (n,) -> (2, n)."""
         nodes = s0[:, None] + ds[:, None] * _GL_X
         th = self.heading(nodes)
-        return np.stack([(np.cos(th) @ _GL_W) * ds, (np.sin(th) @ _GL_W) * ds])
+        return np.stack([_gl_sum(np.cos(th)) * ds, _gl_sum(np.sin(th)) * ds])
 
     def heading(self, s):
         """Heading of travel ``theta(s)``, rad (unwrapped)."""
@@ -263,6 +307,11 @@ class FitReport:
                     fit_runs=dict(lines=self.lines, arcs=self.arcs, free=self.free))
 
 
+def _dot2(a, b) -> float:
+    """``a . b`` of two 2-vectors, ``a0 b0 + a1 b1``."""
+    return float(a[0] * b[0] + a[1] * b[1])
+
+
 def _junctions(runs, p, s):
     """Arc length of the geometric junction between consecutive runs (tangent point of a line
     and an arc, or the point on the line of centres between two arcs; else the shared sample)."""
@@ -275,7 +324,7 @@ def _junctions(runs, p, s):
             c, _, _ = _circle_fit(p[ar.first:ar.last + 1])
             d = p[ln.last] - p[ln.first]
             d = d / math.hypot(*d)
-            J = p[ln.first] + ((c - p[ln.first]) @ d) * d
+            J = p[ln.first] + _dot2(c - p[ln.first], d) * d
         elif a.kind == b.kind == "arc":
             ca, ra, _ = _circle_fit(p[a.first:a.last + 1])
             cb, rb, _ = _circle_fit(p[b.first:b.last + 1])
@@ -288,7 +337,7 @@ def _junctions(runs, p, s):
             continue
         t = p[min(k + 1, len(p) - 1)] - p[max(k - 1, 0)]
         t = t / math.hypot(*t)
-        out.append(float(s[k] + (J - p[k]) @ t))
+        out.append(float(s[k] + _dot2(J - p[k], t)))
     return out
 
 
@@ -323,7 +372,7 @@ class FittedPath:
             raise ControllerError(f"samples {i + 1} and {i + 2} are at the same point: the path "
                                   "stops there, which the tracking law cannot follow")
         d = np.diff(p, axis=0)
-        back = np.einsum("ij,ij->i", d[1:], d[:-1]) <= 0
+        back = d[1:, 0] * d[:-1, 0] + d[1:, 1] * d[:-1, 1] <= 0
         if np.any(back):
             i = int(np.argmax(back)) + 1
             raise ControllerError(f"the path stops at t = {t[i]:.3f} s and turns back (a cusp): "

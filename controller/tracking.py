@@ -22,8 +22,9 @@ optional reference governor (``governor=True``) therefore slows the reference cl
 ``r = min(1, v1_max / |v1 requested|)`` after each saturated step (and scales ``ud`` by r), so
 the reference waits for the robot instead of running away.
 
-Cost: :meth:`TrackingLaw.command` runs at the loop rate, so it is float math (numpy only for
-``K_i x~``) and takes the reference from :meth:`controller.reference.Reference.sample` (a
+Cost: :meth:`TrackingLaw.command` runs at the loop rate, so it is float math (``K_i x~`` by
+:func:`controller.small_linalg.matvec`: fixed order, the same bits whichever BLAS kernel numpy
+would use) and takes the reference from :meth:`controller.reference.Reference.sample` (a
 precomputed table on the grid, a scalar evaluation of the path off it); the vectorised numpy
 functions it must agree with are pinned in tests/controller/test_tracking.py.
 """
@@ -34,6 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from swerve.controller import small_linalg as sl
 from swerve.controller.chained import wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.gains_io import GainSchedule
@@ -180,6 +182,7 @@ class TrackingLaw:
         self.governor = governor
         self.plain = reference.frames == "fixed"
         self._phi = gains.phi_rad.tolist()
+        self._K = gains.K.tolist()
         self.reset()
 
     def reset(self) -> None:
@@ -268,10 +271,9 @@ class TrackingLaw:
         self._phi_prev = phi
         d = [a - b for a, b in zip(x, xd)]
         d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
-        e = np.array(d)
         r = self._rate if self.governor else 1.0
-        u = [r * a + b for a, b in zip(ud, (self.gains.K[i] @ e).tolist())]
-        return e, u, _inverse_input_map(u, *terms)
+        u = [r * a + b for a, b in zip(ud, sl.matvec(self._K[i], d))]
+        return np.array(d), u, _inverse_input_map(u, *terms)
 
     def _advance_clock(self, t_s: float) -> None:
         """Advance the reference clock to robot time ``t_s`` (at the governor's rate)."""
