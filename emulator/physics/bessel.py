@@ -20,10 +20,10 @@ from .jit import jitable
 def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, float]:
     """Return ``(a1, a0)`` of ``H(s) = a0 / (s^2 + a1 s + a0)``, the 2nd-order analogue Bessel.
 
-    ``norm`` is :func:`scipy.signal.bessel`'s: ``"delay"``: group delay ``1 / cutoff`` at DC
-    (``3 s / cutoff`` rescaled: ``a1 = 3 wc``, ``a0 = 3 wc^2``); ``"phase"``: ``a0 = wc^2``,
-    ``a1 = √3 wc``; ``"mag"``: -3 dB at ``cutoff_radps``, ``a0 = φ wc^2`` and ``a1 = √(3 φ) wc``
-    with ``φ = (1 + √5) / 2`` (``|H(j wc)|^2 = 1/2``). Each rounded once to the nearest float.
+    ``norm`` is :func:`scipy.signal.bessel`'s, with ``wc = cutoff_radps``: ``"delay"``: group
+    delay ``1 / wc`` at DC, ``a1 = 3 wc``, ``a0 = 3 wc^2``; ``"phase"``: ``a1 = √3 wc``,
+    ``a0 = wc^2``; ``"mag"``: -3 dB at ``wc`` (``|H(j wc)|^2 = 1/2``), ``a1 = √(3 φ) wc``,
+    ``a0 = φ wc^2`` with ``φ = (1 + √5) / 2``. Each rounded once to the nearest float.
     """
     with mpmath.workdps(DIGITS):
         wc = mpmath.mpf(cutoff_radps)
