@@ -1,16 +1,18 @@
 """The paper's fixed 2nd-order Bessel low-pass filter (Table 2, ``omega_n = 32.8 rad/s``).
 
-The analogue prototype comes from :func:`scipy.signal.bessel` and is discretised exactly (ZOH,
-:func:`scipy.signal.cont2discrete`) for the physics step. The state is ``[y, dy/dt]``, so filtering
-a position also yields a filtered velocity (what the firmware uses as its velocity estimate).
+The analogue prototype is :func:`scipy.signal.bessel`'s, in closed form (the 2nd-order Bessel
+polynomial ``s^2 + 3 s + 3`` rescaled in frequency), and is discretised exactly (ZOH,
+:func:`.discrete.zoh`) for the physics step; both in 40-digit arithmetic, so the coefficients are
+the same bits on every machine. The state is ``[y, dy/dt]``, so filtering a position also yields a
+filtered velocity (what the firmware uses as its velocity estimate).
 """
 from __future__ import annotations
 
 from functools import lru_cache
 
-import numpy as np
-from scipy import signal
+import mpmath
 
+from .discrete import DIGITS, zoh
 from .jit import jitable
 
 
@@ -18,22 +20,29 @@ from .jit import jitable
 def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, float]:
     """Return ``(a1, a0)`` of ``H(s) = a0 / (s^2 + a1 s + a0)``, the 2nd-order analogue Bessel.
 
-    ``norm`` is SciPy's: ``"mag"`` puts -3 dB at ``cutoff_radps``. Cached: the design takes
-    0.5 ms, and every servo's filter is reset with it when torque or mode changes.
+    ``norm`` is :func:`scipy.signal.bessel`'s, with ``wc = cutoff_radps``: ``"delay"``: group
+    delay ``1 / wc`` at DC, ``a1 = 3 wc``, ``a0 = 3 wc^2``; ``"phase"``: ``a1 = √3 wc``,
+    ``a0 = wc^2``; ``"mag"``: -3 dB at ``wc`` (``|H(j wc)|^2 = 1/2``), ``a1 = √(3 φ) wc``,
+    ``a0 = φ wc^2`` with ``φ = (1 + √5) / 2``. Each rounded once to the nearest float.
     """
-    b, a = signal.bessel(2, cutoff_radps, btype="low", analog=True, norm=norm)
-    a = np.asarray(a, float) / a[0]
-    if not np.isclose(b[-1] / a[0], a[2]):
-        raise ValueError("unexpected Bessel prototype: DC gain is not 1")
-    return float(a[1]), float(a[2])
+    with mpmath.workdps(DIGITS):
+        wc = mpmath.mpf(cutoff_radps)
+        if norm == "delay":
+            k1, k0 = mpmath.mpf(3), mpmath.mpf(3)
+        elif norm == "phase":
+            k1, k0 = mpmath.sqrt(3), mpmath.mpf(1)
+        elif norm == "mag":
+            phi = (1 + mpmath.sqrt(5)) / 2
+            k1, k0 = mpmath.sqrt(3 * phi), phi
+        else:
+            raise ValueError(f"Bessel norm must be 'mag', 'phase' or 'delay', got {norm!r}")
+        return float(k1 * wc), float(k0 * wc * wc)
 
 
 @lru_cache(maxsize=32)
 def _discrete(cutoff_radps: float, norm: str, dt_s: float) -> tuple:
     a1, a0 = bessel_coefficients(cutoff_radps, norm)
-    a = np.array([[0.0, 1.0], [-a0, -a1]])
-    b = np.array([[0.0], [a0]])
-    ad, bd, *_ = signal.cont2discrete((a, b, np.eye(2), np.zeros((2, 1))), dt_s, method="zoh")
+    ad, bd = zoh([[0.0, 1.0], [-a0, -a1]], [[0.0], [a0]], dt_s)
     return tuple(tuple(map(float, r)) for r in ad), (float(bd[0, 0]), float(bd[1, 0]))   # Python floats: fast
 
 

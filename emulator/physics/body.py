@@ -14,6 +14,9 @@ decouple (``Σx_i = Σy_i = 0``) and give exactly the paper's model (1)–(3):
 ``vx = ½(cos δ1 + cos δ2) v1``, ``vy = ½(sin δ1 + sin δ2) v1``,
 ``ω = (x_w1 sin δ1 / (2 r1²) + x_w2 sin δ2 / (2 r2²)) v1``.
 The pose integrates the twist exactly for a twist held constant over the step.
+
+The least-squares operator comes from :func:`swerve.controller.small_linalg.pinv` and every fit
+is Python float arithmetic in a fixed order (no BLAS), so a run gives the same bits on every machine.
 """
 from __future__ import annotations
 
@@ -21,6 +24,8 @@ import math
 from math import cos, sin
 
 import numpy as np
+
+from swerve.controller import small_linalg
 
 
 def contact_matrix(wheel_xy_m: np.ndarray) -> np.ndarray:
@@ -57,12 +62,13 @@ class RobotBody:
     def __init__(self, wheel_xy_m, pose: tuple[float, float, float] = (0.0, 0.0, 0.0)):
         self.wheel_xy_m = np.asarray(wheel_xy_m, float)
         self._m = contact_matrix(self.wheel_xy_m)
-        self._pinv = np.linalg.pinv(self._m)       # (3, 2n): least-squares solution operator
+        self._m_rows = self._m.tolist()
+        pinv = small_linalg.pinv(self._m_rows)
+        self._pinv = np.array(pinv)                # (3, 2n): least-squares solution operator
         # the same as Python floats for the per-step fit: per wheel, the (vx, vy, ω) coefficients of
         # its v cos δ and of its v sin δ
-        cols = list(zip(*self._pinv.tolist()))
+        cols = list(zip(*pinv))
         self._wheel_columns = list(zip(cols[0::2], cols[1::2]))
-        self._m_rows = self._m.tolist()
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
         self._twist = (0.0, 0.0, 0.0)
         self._fit: tuple | None = None     # (wheel speeds, steering angles, twist) of the last step
@@ -75,28 +81,27 @@ class RobotBody:
         if self._fit is not None:
             vs, ds, twist = self._fit
             w = [v * f(d) for v, d in zip(vs, ds) for f in (cos, sin)]
-            r = [sum(a * t for a, t in zip(row, twist)) - wi for row, wi in zip(self._m_rows, w)]
-            self._residual_mps = np.hypot(r[0::2], r[1::2])
+            r = [small_linalg.dot(row, twist) - wi for row, wi in zip(self._m_rows, w)]
+            self._residual_mps = np.array([math.sqrt(x * x + y * y) for x, y in zip(r[0::2], r[1::2])])
             self._fit = None
         return self._residual_mps
 
     def fit_twist(self, speeds_mps, steer_rad) -> np.ndarray:
         """Least-squares body twist ``(vx m/s, vy m/s, ω rad/s)`` (body frame), shape (3,).
 
-        Also sets ``residual_mps`` (n,): each wheel's contact-velocity misfit (slip speed).
+        Also sets ``residual_mps`` (n,): each wheel's contact-velocity misfit (slip speed). The same
+        arithmetic as a step of :meth:`step_many`; the pose does not move.
         """
-        w = wheel_velocities(speeds_mps, steer_rad)
-        twist = self._pinv @ w
-        r = (self._m @ twist - w).reshape(-1, 2)
-        self._residual_mps = np.hypot(r[:, 0], r[:, 1])
-        self._fit = None
-        return twist
+        vs, ds = tuple(map(float, speeds_mps)), tuple(map(float, steer_rad))
+        twist = _fit(self._wheel_columns, vs, ds)
+        self._fit = (vs, ds, twist)
+        return np.array(twist)
 
     def step(self, dt_s: float, speeds_mps, steer_rad) -> tuple[float, float, float]:
         """Advance the pose by ``dt_s`` under the fitted twist; return ``(x, y, θ)``.
 
         Scalar arithmetic in Python floats (for four wheels NumPy's per-call overhead costs more
-        than the sums); the same fit as :meth:`fit_twist` to round-off."""
+        than the sums); the same fit as :meth:`fit_twist`, bit for bit."""
         return self.step_many(dt_s, ((speeds_mps, steer_rad),))
 
     def step_many(self, dt_s: float, steps) -> tuple[float, float, float]:
@@ -106,19 +111,8 @@ class RobotBody:
         x, y, theta = self.x_m, self.y_m, self.theta_rad
         vs = ds = twist = None
         for vs, ds in steps:
-            # twist = pinv @ [v1 cos δ1, v1 sin δ1, v2 cos δ2, ...]: each row summed term by term in
-            # that order, from 0.0 (what sum() does)
-            vx = vy = om = 0.0
-            for v, d, ((cx, cy, cw), (sx, sy, sw)) in zip(vs, ds, columns):
-                c, s = v * cos(d), v * sin(d)
-                vx += cx * c
-                vy += cy * c
-                om += cw * c
-                vx += sx * s
-                vy += sy * s
-                om += sw * s
-            twist = (vx, vy, om)
-            x, y, theta = _se2_step(x, y, theta, vx, vy, om, dt_s)
+            twist = _fit(columns, vs, ds)
+            x, y, theta = _se2_step(x, y, theta, *twist, dt_s)
         if twist is not None:
             self._twist, self._fit = twist, (tuple(vs), tuple(ds), twist)
             self.x_m, self.y_m, self.theta_rad = x, y, theta
@@ -133,6 +127,22 @@ class RobotBody:
     def pose(self) -> tuple[float, float, float]:
         """World pose ``(x_m, y_m, theta_rad)``."""
         return self.x_m, self.y_m, self.theta_rad
+
+
+def _fit(columns, vs, ds) -> tuple[float, float, float]:
+    """The least-squares twist ``pinv @ [v1 cos δ1, v1 sin δ1, v2 cos δ2, ...]`` for the per-wheel
+    ``columns`` of ``pinv`` (:class:`RobotBody`), speeds ``vs`` and angles ``ds``: each row added
+    term by term in that order from 0.0 (explicitly: the builtin ``sum`` compensates from 3.12)."""
+    vx = vy = om = 0.0
+    for v, d, ((cx, cy, cw), (sx, sy, sw)) in zip(vs, ds, columns):
+        c, s = v * cos(d), v * sin(d)
+        vx += cx * c
+        vy += cy * c
+        om += cw * c
+        vx += sx * s
+        vy += sy * s
+        om += sw * s
+    return vx, vy, om
 
 
 def se2_step(pose: tuple[float, float, float], twist, dt_s: float) -> tuple[float, float, float]:

@@ -20,12 +20,17 @@ That loop is stable while ``dt·r²·c / J_out < 2`` (``J_out`` = rotor inertia 
 wheel, 2.3e-3 kg·m²): 0.16 at 1 kHz with ``c = 300 N·s/m``, ``r = 0.033 m``
 (:func:`wheel_coupling_number`). Normal loads are static (``m·g`` shared so that the load's
 moments about the centroid vanish, least norm): no load transfer under acceleration.
+
+Everything is Python float arithmetic in a fixed order (no BLAS, no ``math.hypot``, whose
+algorithm changed in Python 3.12), so a run gives the same bits on every machine.
 """
 from __future__ import annotations
 
 import math
 
 import numpy as np
+
+from swerve.controller import small_linalg
 
 from .body import se2_step
 from .params import ContactParams
@@ -35,8 +40,8 @@ def static_normal_loads_n(wheel_xy_m: np.ndarray, mass_kg: float, gravity_mps2: 
     """Per-wheel normal load (N), shape (n,): least-norm loads with ``ΣN = m·g`` and no moment
     about the centroid (the centre of mass is assumed there)."""
     xy = np.asarray(wheel_xy_m, float)
-    a = np.vstack([np.ones(len(xy)), xy[:, 0], xy[:, 1]])
-    return np.linalg.pinv(a) @ np.array([mass_kg * gravity_mps2, 0.0, 0.0])
+    a = [[1.0] * len(xy), xy[:, 0].tolist(), xy[:, 1].tolist()]
+    return np.array(small_linalg.matvec(small_linalg.pinv(a), [float(mass_kg) * float(gravity_mps2), 0.0, 0.0]))
 
 
 def wheel_coupling_number(dt_s: float, radius_m: float, stiffness_n_s_per_m: float,
@@ -100,7 +105,7 @@ class ContactBody:
             c, s = math.cos(d), math.sin(d)
             px, py = vx - w * y, vy + w * x
             sl, st = c * px + s * py - u, -s * px + c * py
-            f0 = p.slip_stiffness_n_s_per_m * math.hypot(sl, kl * st)
+            f0 = p.slip_stiffness_n_s_per_m * _norm(sl, kl * st)
             saturated = f0 > limit
             k = p.slip_stiffness_n_s_per_m * (limit / f0 if saturated else 1.0)   # secant stiffness
             ka, kb, kd = k * (c * c + kl * s * s), k * (1.0 - kl) * c * s, k * (s * s + kl * c * c)
@@ -122,7 +127,7 @@ class ContactBody:
             px, py = vx - w * y, vy + w * x
             sl, st = c * px + s * py - u, -s * px + c * py
             fl, ft = -k * sl, -k * kl * st                     # force on the body, wheel frame
-            slip.append(math.hypot(sl, st))
+            slip.append(_norm(sl, st))
             flong.append(fl)
             fx.append(c * fl - s * ft)
             fy.append(s * fl + c * ft)
@@ -165,6 +170,11 @@ class ContactBody:
     def pose(self) -> tuple[float, float, float]:
         """World pose ``(x_m, y_m, theta_rad)``."""
         return self.x_m, self.y_m, self.theta_rad
+
+
+def _norm(x: float, y: float) -> float:
+    """``√(x² + y²)`` in three correctly rounded operations (no overflow at these magnitudes)."""
+    return math.sqrt(x * x + y * y)
 
 
 def _solve_sym3(a11, a12, a13, a22, a23, a33, b1, b2, b3) -> tuple[float, float, float]:

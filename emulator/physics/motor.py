@@ -8,8 +8,9 @@ with ``tau`` a load torque at the motor shaft::
     dθ_m/dt      = omega_m
 
 The electrical pole (``R/L`` ≈ 3 kHz) is stiff, so each step uses the exact ZOH transition
-``[Ad Bd] = expm([[A B], [0 0]] dt)`` (scipy.linalg.expm), cached per ``(dt, J)``. With the torque
-disabled the bridge is open: ``i = 0`` and only the mechanical part (friction, load) acts.
+``[Ad Bd] = expm([[A B], [0 0]] dt)`` (:func:`.discrete.zoh`: 40 digits, the same bits on every
+machine), cached per ``(dt, J)``. With the torque disabled the bridge is open: ``i = 0`` and only
+the mechanical part (friction, load) acts.
 
 Optional gearbox friction (:class:`GearFrictionParams`, output side) uses a stick/slip state
 (Karnopp): while slipping, Coulomb + Stribeck + viscous torque opposes the motion and is held over
@@ -23,8 +24,8 @@ import math
 from functools import lru_cache
 
 import numpy as np
-from scipy.linalg import expm
 
+from .discrete import zoh
 from .params import GearFrictionParams, MotorParams
 
 
@@ -36,16 +37,6 @@ def state_space(p: MotorParams, inertia_kg_m2: float) -> tuple[np.ndarray, np.nd
     a = np.array([[-r / l, -ke / l, 0.0], [km / j, -b / j, 0.0], [0.0, 1.0, 0.0]])
     bm = np.array([[1.0 / l, 0.0], [0.0, -1.0 / j], [0.0, 0.0]])
     return a, bm
-
-
-def zoh(a: np.ndarray, b: np.ndarray, dt_s: float) -> tuple[np.ndarray, np.ndarray]:
-    """Exact zero-order-hold discretisation ``(Ad, Bd)`` of ``dx/dt = A x + B u`` over ``dt_s``."""
-    n, m = b.shape
-    big = np.zeros((n + m, n + m))
-    big[:n, :n] = a
-    big[:n, n:] = b
-    e = expm(big * dt_s)
-    return e[:n, :n], e[:n, n:]
 
 
 @lru_cache(maxsize=64)

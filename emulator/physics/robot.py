@@ -169,7 +169,10 @@ class RobotPhysics:
                 s.external_load(w.drive_direction * s.frame_sign * r * f)
         sup = self.cfg.supply
         if sup.enabled:
-            current = sum(s.supply_current_a for s in self.servos.values()) + sup.idle_current_a * len(self.servos)
+            current = 0.0                   # added in servo order (the builtin sum compensates from 3.12)
+            for s in self.servos.values():
+                current += s.supply_current_a
+            current += sup.idle_current_a * len(self.servos)
             self.bus_voltage_v = self.cfg.supply_voltage_v - sup.internal_resistance_ohm * current
             for s in self.servos.values():
                 s.supply_voltage_v = self.bus_voltage_v

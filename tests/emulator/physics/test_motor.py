@@ -5,7 +5,8 @@ from scipy import signal
 from scipy.integrate import solve_ivp
 
 from swerve.emulator.physics import units as u
-from swerve.emulator.physics.motor import GearedMotor, state_space, zoh
+from swerve.emulator.physics.discrete import zoh
+from swerve.emulator.physics.motor import GearedMotor, state_space
 from swerve.emulator.physics.steptest import position_step, simulate, table, velocity_step
 
 DT = 1.0 / 2000          # physics step, s (2 kHz)
