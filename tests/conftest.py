@@ -3,6 +3,11 @@
 ``--port PORT`` runs the hardware-capable tests against a real bus (U2D2) instead of the
 emulator; ``--baud`` sets its baud rate. Without ``--port`` those tests use the emulator on a pty.
 """
+import os
+import platform
+import subprocess
+import sys
+
 import pytest
 
 
@@ -20,3 +25,28 @@ def hw_port(request):
 @pytest.fixture(scope="session")
 def hw_baud(request):
     return request.config.getoption("--baud")
+
+
+def _cpu_flags() -> set[str]:
+    """The CPU's feature flags from ``/proc/cpuinfo`` (empty where there is none)."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            return next((set(line.split(":", 1)[1].split()) for line in f if line.startswith("flags")), set())
+    except OSError:
+        return set()
+
+
+@pytest.fixture(scope="session")
+def other_cpu():
+    """``run(env, *args) -> stdout``: ``python *args`` in a subprocess whose environment adds ``env``,
+    to make NumPy take another CPU's code paths: ``OPENBLAS_CORETYPE=Nehalem`` (kernels without FMA) or
+    ``Haswell`` (with FMA), ``NPY_DISABLE_CPU_FEATURES`` (NumPy's own SIMD loops). Skips the test unless
+    the CPU is x86-64 with AVX2 and FMA, which both kernels need."""
+    if platform.machine() != "x86_64" or not {"avx2", "fma"} <= _cpu_flags():
+        pytest.skip("imitates other x86-64 CPUs (the Haswell kernels need AVX2 and FMA)")
+
+    def run(env: dict[str, str], *args: str) -> str:
+        return subprocess.run([sys.executable, *args], env={**os.environ, **env}, capture_output=True,
+                              text=True, check=True, timeout=600).stdout
+
+    return run

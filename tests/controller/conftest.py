@@ -62,35 +62,3 @@ def numpy_reference(ref, t, phi):
 def numpy_ref():
     """:func:`numpy_reference`, the slow twin of :meth:`Reference.sample`."""
     return numpy_reference
-
-
-def _cpu_flags() -> set[str]:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("flags"):
-                    return set(line.split(":", 1)[1].split())
-    except OSError:
-        pass
-    return set()
-
-
-@pytest.fixture(scope="session")
-def under_blas_kernel():
-    """A function ``run(core, code) -> stdout``: runs Python ``code`` in a subprocess with
-    ``OPENBLAS_CORETYPE=core``. Skips the test unless the CPU is x86-64 with AVX2 and FMA
-    (needed for both ``Nehalem`` and ``Haswell``, the kernels the tests compare)."""
-    import os
-    import platform
-    import subprocess
-    import sys
-
-    if platform.machine() != "x86_64" or not {"avx2", "fma"} <= _cpu_flags():
-        pytest.skip("forces OpenBLAS x86-64 kernels (Nehalem and Haswell: needs AVX2 and FMA)")
-
-    def run(core: str, code: str) -> str:
-        env = dict(os.environ, OPENBLAS_CORETYPE=core)
-        return subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                              text=True, check=True, timeout=300).stdout
-
-    return run
