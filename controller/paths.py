@@ -12,6 +12,7 @@ for them are picked per CPU (SIMD) and differ in the last bit.
 """
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,6 +29,16 @@ def elementwise(fn, *args) -> np.ndarray:
     arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
     values = map(fn, *(a.ravel().tolist() for a in arrays))
     return np.fromiter(values, float, arrays[0].size).reshape(arrays[0].shape)
+
+
+def cos_sin(angle) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` of the angles (rad, any shape): :func:`math.cos` and :func:`math.sin`'s
+    bits, in one call per element (``cmath.exp(i angle) = 1.0 cos + 1.0 i sin``)."""
+    a = np.asarray(angle, dtype=float)
+    z = np.empty(a.shape, complex)
+    z.real, z.imag = 0.0, a
+    e = np.fromiter(map(cmath.exp, z.ravel().tolist()), complex, a.size).reshape(a.shape)
+    return e.real, e.imag
 
 
 @dataclass(frozen=True)
@@ -58,7 +69,7 @@ class CirclePath:
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
         R, w = self.radius_m, 2 * math.pi / self.period_s
-        s, c = elementwise(math.sin, w * t), elementwise(math.cos, w * t)
+        c, s = cos_sin(w * t)
         w2, w3 = w * w, w * w * w
         return np.array([[R * s, R * (1 - c)],
                          [R * w * c, R * w * s],
@@ -80,8 +91,8 @@ class CurvilinearPath:
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
         w = 2 * math.pi / self.period_s
-        s1, c1 = elementwise(math.sin, w * t), elementwise(math.cos, w * t)
-        s2, c2 = elementwise(math.sin, 2 * w * t), elementwise(math.cos, 2 * w * t)
+        c1, s1 = cos_sin(w * t)
+        c2, s2 = cos_sin(2 * w * t)
         w2, w3 = w * w, w * w * w
         return np.array([
             [0.5 * c1 + 0.5 * s2 - 0.5, 0.5 * c2 + 0.5 * s1 - self.offset_m],
@@ -261,9 +272,8 @@ class CurvatureFit:
     def _integrate(self, s0, ds):
         """``int_{s0}^{s0+ds} (cos, sin) theta``, arrays (n,) -> (2, n)."""
         nodes = s0[:, None] + ds[:, None] * _GL_X
-        th = self.heading(nodes)
-        return np.stack([_gl_sum(elementwise(math.cos, th)) * ds,
-                         _gl_sum(elementwise(math.sin, th)) * ds])
+        c, s = cos_sin(self.heading(nodes))
+        return np.stack([_gl_sum(c) * ds, _gl_sum(s) * ds])
 
     def heading(self, s):
         """Heading of travel ``theta(s)``, rad (unwrapped)."""
@@ -287,10 +297,9 @@ class CurvatureFit:
         """Arc length of the points ``p`` (n, 2) nearest the curve, Newton from guesses ``s``."""
         s = np.array(s, float)
         for _ in range(3):
-            th = self.heading(s)
+            c, sn = cos_sin(self.heading(s))
             d = p.T - self.position(s)
-            s = np.clip(s + d[0] * elementwise(math.cos, th) + d[1] * elementwise(math.sin, th),
-                        0.0, self.length_m)
+            s = np.clip(s + d[0] * c + d[1] * sn, 0.0, self.length_m)
         return s
 
 
@@ -511,7 +520,7 @@ class FittedPath:
         v, a, j = (self._s_of_t(t, nu) for nu in (1, 2, 3))
         th = c.heading(s)
         k, dk = c.curvature(s), c.curvature_slope(s)
-        T = np.array([elementwise(math.cos, th), elementwise(math.sin, th)])
+        T = np.array(cos_sin(th))
         N = np.array([-T[1], T[0]])
         P = c.position(s)
         vel = v * T
@@ -644,8 +653,9 @@ def draw_primitives(segments, start=(0.0, 0.0, 0.0), spacing_m: float = 0.01):
         if k == 0.0:
             px, py = x + u * math.cos(th), y + u * math.sin(th)
         else:
-            px = x + (elementwise(math.sin, th + k * u) - math.sin(th)) / k
-            py = y - (elementwise(math.cos, th + k * u) - math.cos(th)) / k
+            cu, su = cos_sin(th + k * u)
+            px = x + (su - math.sin(th)) / k
+            py = y - (cu - math.cos(th)) / k
         out[:, sel] = [s_all[sel], px, py, np.full(u.size, k)]
         if k == 0.0:
             x, y = x + length * math.cos(th), y + length * math.sin(th)
