@@ -6,10 +6,13 @@ Every path has ``derivatives(t) -> ndarray shape (4, 2, len(t))``: position (m),
 The fit of samples makes no BLAS or LAPACK call (``@``, ``np.linalg``; SciPy's MINPACK and
 FITPACK use none either): their kernels are picked per CPU and round differently, and the fit's
 decisions (which samples form a line or an arc) would follow those bits. Sums of products are
-written out elementwise or taken with :func:`math.fsum` (correctly rounded).
+written out elementwise or taken with :func:`math.fsum` (correctly rounded). Sines, cosines and
+arc tangents are :mod:`math`'s, mapped over the arrays (:func:`elementwise`): NumPy's own loops
+for them are picked per CPU (SIMD) and differ in the last bit.
 """
 from __future__ import annotations
 
+import cmath
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +20,25 @@ from pathlib import Path
 import numpy as np
 
 from swerve.controller.errors import ControllerError
+
+
+def elementwise(fn, *args) -> np.ndarray:
+    """``fn`` of floats (a :mod:`math` function) on each element of the broadcast ``args``, as a
+    float array of their shape. Unlike NumPy's ``sin``, ``arctan2``, ``power``, ... it gives
+    the same bits whichever SIMD loops NumPy picks for the CPU."""
+    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
+    values = map(fn, *(a.ravel().tolist() for a in arrays))
+    return np.fromiter(values, float, arrays[0].size).reshape(arrays[0].shape)
+
+
+def cos_sin(angle) -> tuple[np.ndarray, np.ndarray]:
+    """``(cos, sin)`` of the angles (rad, any shape): :func:`math.cos` and :func:`math.sin`'s
+    bits, in one call per element (``cmath.exp(i angle) = 1.0 cos + 1.0 i sin``)."""
+    a = np.asarray(angle, dtype=float)
+    z = np.empty(a.shape, complex)
+    z.real, z.imag = 0.0, a
+    e = np.fromiter(map(cmath.exp, z.ravel().tolist()), complex, a.size).reshape(a.shape)
+    return e.real, e.imag
 
 
 @dataclass(frozen=True)
@@ -46,12 +68,13 @@ class CirclePath:
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        R, w = self.radius_m, 2 * np.pi / self.period_s
-        s, c = np.sin(w * t), np.cos(w * t)
+        R, w = self.radius_m, 2 * math.pi / self.period_s
+        c, s = cos_sin(w * t)
+        w2, w3 = w * w, w * w * w
         return np.array([[R * s, R * (1 - c)],
                          [R * w * c, R * w * s],
-                         [-R * w ** 2 * s, R * w ** 2 * c],
-                         [-R * w ** 3 * c, -R * w ** 3 * s]])
+                         [-R * w2 * s, R * w2 * c],
+                         [-R * w3 * c, -R * w3 * s]])
 
 
 @dataclass(frozen=True)
@@ -67,14 +90,15 @@ class CurvilinearPath:
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
-        w = 2 * np.pi / self.period_s
-        s1, c1 = np.sin(w * t), np.cos(w * t)
-        s2, c2 = np.sin(2 * w * t), np.cos(2 * w * t)
+        w = 2 * math.pi / self.period_s
+        c1, s1 = cos_sin(w * t)
+        c2, s2 = cos_sin(2 * w * t)
+        w2, w3 = w * w, w * w * w
         return np.array([
             [0.5 * c1 + 0.5 * s2 - 0.5, 0.5 * c2 + 0.5 * s1 - self.offset_m],
             [w * (-0.5 * s1 + c2), w * (-s2 + 0.5 * c1)],
-            [w ** 2 * (-0.5 * c1 - 2 * s2), w ** 2 * (-2 * c2 - 0.5 * s1)],
-            [w ** 3 * (0.5 * s1 - 4 * c2), w ** 3 * (4 * s2 - 0.5 * c1)]])
+            [w2 * (-0.5 * c1 - 2 * s2), w2 * (-2 * c2 - 0.5 * s1)],
+            [w3 * (0.5 * s1 - 4 * c2), w3 * (4 * s2 - 0.5 * c1)]])
 
 
 def _gauss_legendre_4():
@@ -248,8 +272,8 @@ class CurvatureFit:
     def _integrate(self, s0, ds):
         """``int_{s0}^{s0+ds} (cos, sin) theta``, arrays (n,) -> (2, n)."""
         nodes = s0[:, None] + ds[:, None] * _GL_X
-        th = self.heading(nodes)
-        return np.stack([_gl_sum(np.cos(th)) * ds, _gl_sum(np.sin(th)) * ds])
+        c, s = cos_sin(self.heading(nodes))
+        return np.stack([_gl_sum(c) * ds, _gl_sum(s) * ds])
 
     def heading(self, s):
         """Heading of travel ``theta(s)``, rad (unwrapped)."""
@@ -273,9 +297,9 @@ class CurvatureFit:
         """Arc length of the points ``p`` (n, 2) nearest the curve, Newton from guesses ``s``."""
         s = np.array(s, float)
         for _ in range(3):
-            th = self.heading(s)
+            c, sn = cos_sin(self.heading(s))
             d = p.T - self.position(s)
-            s = np.clip(s + d[0] * np.cos(th) + d[1] * np.sin(th), 0.0, self.length_m)
+            s = np.clip(s + d[0] * c + d[1] * sn, 0.0, self.length_m)
         return s
 
 
@@ -451,7 +475,8 @@ class FittedPath:
         self.sample_arc_m = s_fit
         self.t_end_s = float(t[-1])
         n = len(t)
-        self._s_of_t = UnivariateSpline(t, s_fit, k=5, s=n * (0.1 * self.tolerance_m) ** 2)
+        rms = 0.1 * self.tolerance_m
+        self._s_of_t = UnivariateSpline(t, s_fit, k=5, s=n * (rms * rms))
         self.samples = (t, p)
         self.report = self._report(p, s_fit, junc)
 
@@ -460,7 +485,7 @@ class FittedPath:
         d = p.T - c.position(s_fit)
         pos = float(np.hypot(*d).max())
         chord = np.diff(p, axis=0)
-        hd = np.arctan2(chord[:, 1], chord[:, 0])
+        hd = elementwise(math.atan2, chord[:, 1], chord[:, 0])
         mid = 0.5 * (s_fit[1:] + s_fit[:-1])
         dev = (c.heading(mid) - hd + np.pi) % (2 * np.pi) - np.pi
         head = float(np.abs(dev).max())
@@ -495,12 +520,13 @@ class FittedPath:
         v, a, j = (self._s_of_t(t, nu) for nu in (1, 2, 3))
         th = c.heading(s)
         k, dk = c.curvature(s), c.curvature_slope(s)
-        T = np.array([np.cos(th), np.sin(th)])
+        T = np.array(cos_sin(th))
         N = np.array([-T[1], T[0]])
         P = c.position(s)
         vel = v * T
         acc = a * T + v * v * k * N
-        jerk = (j - v ** 3 * k * k) * T + (3 * v * a * k + v ** 3 * dk) * N
+        v3 = v * v * v
+        jerk = (j - v3 * k * k) * T + (3 * v * a * k + v3 * dk) * N
         return np.array([P, vel, acc, jerk])
 
 
@@ -627,8 +653,9 @@ def draw_primitives(segments, start=(0.0, 0.0, 0.0), spacing_m: float = 0.01):
         if k == 0.0:
             px, py = x + u * math.cos(th), y + u * math.sin(th)
         else:
-            px = x + (np.sin(th + k * u) - math.sin(th)) / k
-            py = y - (np.cos(th + k * u) - math.cos(th)) / k
+            cu, su = cos_sin(th + k * u)
+            px = x + (su - math.sin(th)) / k
+            py = y - (cu - math.cos(th)) / k
         out[:, sel] = [s_all[sel], px, py, np.full(u.size, k)]
         if k == 0.0:
             x, y = x + length * math.cos(th), y + length * math.sin(th)

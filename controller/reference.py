@@ -5,6 +5,10 @@ A :class:`Trajectory` is a path plus the paper's problem data (``tf``, ``N``, ``
 ``t,x,y`` CSV file. :func:`build_reference` samples it on ``t_i = i tau`` (``i = 0..N``) with the
 body aligned with the path (``theta_d = atan2(y', x')``, unwrapped) and symmetric steering,
 and assigns each step a chained-form frame angle ``phi_i`` (see :func:`frame_schedule`).
+
+Only ``+ - * /``, ``sqrt`` and :mod:`math`'s functions (mapped over arrays by
+:func:`controller.paths.elementwise`) enter the numbers: NumPy's ``sin``, ``arctan2``, ``power``, ...
+take SIMD loops picked per CPU, which differ in the last bit.
 """
 from __future__ import annotations
 
@@ -17,11 +21,11 @@ import numpy as np
 
 from swerve.configs import shipped
 from swerve.configs.loader import Section, read_yaml
-from swerve.controller.chained import to_chained, wrap_angle
+from swerve.controller.chained import wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, fit_samples,
-                                     read_csv_path, read_csv_samples)
+from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, elementwise,
+                                     fit_samples, read_csv_path, read_csv_samples)
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = shipped("trajectories")
@@ -219,22 +223,24 @@ def desired_states(path, t, geom: Geometry = Geometry(), direction: int = 1):
     """
     der = path.derivatives(t)
     p, v, a, j = der
-    V2 = v[0] ** 2 + v[1] ** 2
+    V2 = v[0] * v[0] + v[1] * v[1]
     V = np.sqrt(V2)
+    V3 = V2 * V
     cross = v[0] * a[1] - v[1] * a[0]
     dot = v[0] * a[0] + v[1] * a[1]
     with np.errstate(divide="ignore", invalid="ignore"):
-        kappa = cross / V ** 3
-        kappa_dot = (v[0] * j[1] - v[1] * j[0]) / V ** 3 - 3 * cross * dot / V ** 5
+        kappa = cross / V3
+        kappa_dot = (v[0] * j[1] - v[1] * j[0]) / V3 - 3 * cross * dot / (V3 * V2)
         th_rate = cross / V2
-        th_acc = (v[0] * j[1] - v[1] * j[0]) / V2 - 2 * cross * dot / V2 ** 2
-    theta = np.unwrap(np.arctan2(v[1], v[0]))
+        th_acc = (v[0] * j[1] - v[1] * j[0]) / V2 - 2 * cross * dot / (V2 * V2)
+    theta = np.unwrap(elementwise(math.atan2, v[1], v[0]))
     if direction < 0:
-        theta = theta + np.pi
+        theta = theta + math.pi
     q = geom.r2_m2 / geom.a_m
-    delta = direction * np.arctan(q * kappa)
-    delta_rate = direction * q * kappa_dot / (1 + (q * kappa) ** 2)
-    v1 = direction * V / np.cos(delta)
+    qk = q * kappa
+    delta = direction * elementwise(math.atan, qk)
+    delta_rate = direction * q * kappa_dot / (1 + qk * qk)
+    v1 = direction * V / elementwise(math.cos, delta)
     states = np.stack([p[0], p[1], theta, delta, -delta], axis=-1)
     inputs = np.stack([v1, delta_rate, -delta_rate], axis=-1)
     extra = dict(speed_mps=V, curvature_1pm=kappa, theta_rate_radps=th_rate,
@@ -249,20 +255,20 @@ def chained_desired(states, extra, phi, geom: Geometry = Geometry()):
     ``ud2 = d/dt xd2``, ``ud3 = d/dt xd4``. Returns ``xd`` (n, 5) and ``ud`` (n, 3).
     """
     _, v, a, _ = extra["derivatives"]
-    c, s = np.cos(phi), np.sin(phi)
+    c, s = elementwise(math.cos, phi), elementwise(math.sin, phi)
     vx, vy = c * v[0] + s * v[1], -s * v[0] + c * v[1]
     ax, ay = c * a[0] + s * a[1], -s * a[0] + c * a[1]
-    xd = to_chained(states, geom, phi)
+    # controller.chained.to_chained of the states, in math's functions
+    px, py, th, d1, d2 = np.asarray(states, dtype=float).T
+    th = th - phi
+    D = geom.a_m * (elementwise(math.sin, d1) - elementwise(math.sin, d2)) / geom.r2_m2
+    C = elementwise(math.cos, d1 + th) + elementwise(math.cos, d2 + th)
+    xd = np.stack([c * px + s * py, D / C, th, elementwise(math.tan, 0.5 * (d1 + d2) + th),
+                   -s * px + c * py], axis=-1)
     thr, tha = extra["theta_rate_radps"], extra["theta_acc_radps2"]
-    ud = np.stack([vx, (tha * vx - thr * ax) / vx ** 2, (ay * vx - vy * ax) / vx ** 2], axis=-1)
+    vx2 = vx * vx
+    ud = np.stack([vx, (tha * vx - thr * ax) / vx2, (ay * vx - vy * ax) / vx2], axis=-1)
     return xd, ud
-
-
-def _np(ufunc, *args) -> float:
-    """``ufunc`` of floats as a float. numpy's SIMD tan, arctan, arctan2 and power differ from
-    libm's (:mod:`math`) by an ulp on some inputs; calling numpy's kernels keeps the scalar
-    path equal to the vectorised one bit for bit."""
-    return float(ufunc(*args))
 
 
 def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry(),
@@ -291,35 +297,34 @@ def sample_at(der, theta_near: float, phi: float, geom: Geometry = Geometry(),
         Where those return inf/NaN (the path stops, or travels along the frame's y-axis).
     """
     px, py, vx, vy, ax, ay, jx, jy = der
-    # desired_states (numpy's array ** 2 is x * x, its ** 3 and ** 5 are np.power)
+    # desired_states
     V2 = vx * vx + vy * vy
     V = math.sqrt(V2)
+    V3 = V2 * V
     cross = vx * ay - vy * ax
     dot = vx * ax + vy * ay
-    V3 = _np(np.power, V, 3)
     kappa = cross / V3
-    kappa_dot = (vx * jy - vy * jx) / V3 - 3 * cross * dot / _np(np.power, V, 5)
+    kappa_dot = (vx * jy - vy * jx) / V3 - 3 * cross * dot / (V3 * V2)
     th_rate = cross / V2
     th_acc = (vx * jy - vy * jx) / V2 - 2 * cross * dot / (V2 * V2)
-    heading = _np(np.arctan2, vy, vx)
+    heading = math.atan2(vy, vx)
     if direction < 0:
         heading = heading + math.pi
     theta = theta_near + ((heading - theta_near + math.pi) % (2 * math.pi) - math.pi)
     q = geom.r2_m2 / geom.a_m
     qk = q * kappa
-    delta = direction * _np(np.arctan, qk)
+    delta = direction * math.atan(qk)
     delta_rate = direction * q * kappa_dot / (1 + qk * qk)
     state = (px, py, theta, delta, -delta)
     inputs = (direction * V / math.cos(delta), delta_rate, -delta_rate)
-    # chained_desired, with to_chained of the state (delta2 = -delta)
+    # chained_desired (delta2 = -delta)
     c, s = math.cos(phi), math.sin(phi)
     vxr, vyr = c * vx + s * vy, -s * vx + c * vy
     axr, ayr = c * ax + s * ay, -s * ax + c * ay
     thr = theta - phi
     D = geom.a_m * (math.sin(delta) - math.sin(-delta)) / geom.r2_m2
     C = math.cos(delta + thr) + math.cos(-delta + thr)
-    xd = (c * px + s * py, D / C, thr, _np(np.tan, 0.5 * (delta + -delta) + thr),
-          -s * px + c * py)
+    xd = (c * px + s * py, D / C, thr, math.tan(0.5 * (delta + -delta) + thr), -s * px + c * py)
     vx2 = vxr * vxr
     ud = (vxr, (th_acc * vxr - th_rate * axr) / vx2, (ayr * vxr - vyr * axr) / vx2)
     return state, inputs, xd, ud
@@ -430,7 +435,8 @@ class Reference:
         N = self.n_steps
         v = self.extra["derivatives"][1]
         states = self.states.copy()
-        heading = np.arctan2(v[1], v[0]) + (np.pi if self.trajectory.direction < 0 else 0.0)
+        heading = (elementwise(math.atan2, v[1], v[0])
+                   + (math.pi if self.trajectory.direction < 0 else 0.0))
         states[:, 2] += wrap_angle(heading - states[:, 2])  # as sample_at does
         xd, ud = chained_desired(states, self.extra, self.phi_rad, self.geom)
         rows = zip(*(map(tuple, a[:N].tolist()) for a in (states, self.inputs, xd, ud)))
@@ -480,7 +486,7 @@ def build_reference(traj: Trajectory, geom: Geometry = Geometry(), limits: Limit
             f"trajectory {name!r} needs steering rate {inputs[i, 1]:.2f} rad/s at "
             f"t = {t[i]:.2f} s, above the servo's {limits.steer_rate_max_radps} rad/s")
     phi = frame_schedule(states[:, 2], frames)
-    margin = np.abs(np.cos(states[:, 2] - phi))
+    margin = np.abs(elementwise(math.cos, states[:, 2] - phi))
     if frames == "fixed" and margin.min() < FIXED_FRAME_MIN_MARGIN:
         i = int(np.argmin(margin))
         raise SingularityError(

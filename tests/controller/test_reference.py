@@ -1,4 +1,5 @@
 import dataclasses
+import json
 
 import numpy as np
 import pytest
@@ -213,8 +214,7 @@ def test_grid_table_is_the_scalar_evaluation_at_grid_times(robot):
         assert row is ref.sample(ref.times_s[i], ref.phi_rad[i])      # a table lookup
         want = sample_at(der[:, :, i].reshape(8).tolist(), ref.states[i, 2], ref.phi_rad[i],
                          ref.geom)
-        np.testing.assert_allclose(np.concatenate(row), np.concatenate(want), rtol=1e-14,
-                                   atol=1e-16)
+        assert row == want                                              # bit for bit
     assert ref.sample(ref.times_s[5] + 1e-12) is not ref.sample(ref.times_s[5])  # off the grid
 
 
@@ -226,3 +226,38 @@ def test_sample_refuses_an_undefined_reference(robot):
     ref = dataclasses.replace(ref, trajectory=stopped)
     with pytest.raises(ControllerError, match="reference is undefined at t = 1.001 s"):
         ref.sample(1.001)
+
+
+_SIMD_PROBE = """
+import hashlib, json, numpy as np
+from swerve.controller.kinematics import Geometry, Limits
+from swerve.controller.ltv import error_system
+from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.riccati import finite_horizon_lqr
+
+def h(*arrays):
+    d = hashlib.sha256()
+    for a in arrays:
+        d.update(np.ascontiguousarray(a, dtype=float).tobytes())
+    return d.hexdigest()
+
+x = np.random.default_rng(1).uniform(-10.0, 10.0, (2, 10000))
+out = {"numpy arctan2": h(np.arctan2(x[0], x[1]))}
+geom, limits = Geometry(), Limits()
+for name in ("circle", TRAJECTORY_DIR / "s_curve.csv"):
+    traj = load_trajectory(name, geom)
+    ref = build_reference(traj, geom, limits)
+    K, _ = finite_horizon_lqr(*error_system(ref), traj.Q, traj.R, traj.tau_s)
+    out[traj.name] = h(ref.xd, ref.ud, K)
+print(json.dumps(out))
+"""
+
+
+def test_same_bits_without_numpys_simd_loops(other_cpu):
+    """xd, ud and K of the circle and a CSV path are the same whichever SIMD loops NumPy
+    picks (here: those of a CPU without AVX-512 and AVX2)."""
+    envs = {"native": {}, "no AVX2": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL X86_V3"}}
+    out = {k: json.loads(other_cpu(env, "-c", _SIMD_PROBE)) for k, env in envs.items()}
+    # the probe can tell the loops apart: NumPy's own arctan2 differs
+    assert out["native"].pop("numpy arctan2") != out["no AVX2"].pop("numpy arctan2")
+    assert out["native"] == out["no AVX2"]
