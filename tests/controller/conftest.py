@@ -62,3 +62,25 @@ def numpy_reference(ref, t, phi):
 def numpy_ref():
     """:func:`numpy_reference`, the slow twin of :meth:`Reference.sample`."""
     return numpy_reference
+
+
+_PROBE_PRELUDE = """
+import hashlib, json, numpy as np
+from swerve.controller.kinematics import Geometry, Limits
+from swerve.controller.ltv import error_system
+from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.riccati import finite_horizon_lqr
+
+def h(*arrays):
+    d = hashlib.sha256()
+    for a in arrays:
+        d.update(np.ascontiguousarray(a, dtype=float).tobytes())
+    return d.hexdigest()
+"""
+
+
+@pytest.fixture(scope="session")
+def probe_prelude():
+    """Start of a probe run by the ``other_cpu`` fixture: the controller imports and ``h(*arrays)``,
+    a sha256 of the arrays' float64 bytes."""
+    return _PROBE_PRELUDE

@@ -229,17 +229,6 @@ def test_sample_refuses_an_undefined_reference(robot):
 
 
 _SIMD_PROBE = """
-import hashlib, json, numpy as np
-from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.ltv import error_system
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
-from swerve.controller.riccati import finite_horizon_lqr
-
-def h(*arrays):
-    d = hashlib.sha256()
-    for a in arrays:
-        d.update(np.ascontiguousarray(a, dtype=float).tobytes())
-    return d.hexdigest()
 
 x = np.random.default_rng(1).uniform(-10.0, 10.0, (2, 10000))
 out = {"numpy arctan2": h(np.arctan2(x[0], x[1]))}
@@ -253,11 +242,11 @@ print(json.dumps(out))
 """
 
 
-def test_same_bits_without_numpys_simd_loops(other_cpu):
+def test_same_bits_without_numpys_simd_loops(other_cpu, probe_prelude):
     """xd, ud and K of the circle and a CSV path are the same whichever SIMD loops NumPy
     picks (here: those of a CPU without AVX-512 and AVX2)."""
     envs = {"native": {}, "no AVX2": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL X86_V3"}}
-    out = {k: json.loads(other_cpu(env, "-c", _SIMD_PROBE)) for k, env in envs.items()}
+    out = {k: json.loads(other_cpu(env, "-c", probe_prelude + _SIMD_PROBE)) for k, env in envs.items()}
     # the probe can tell the loops apart: NumPy's own arctan2 differs
     assert out["native"].pop("numpy arctan2") != out["no AVX2"].pop("numpy arctan2")
     assert out["native"] == out["no AVX2"]

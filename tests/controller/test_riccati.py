@@ -67,19 +67,8 @@ def test_reanchored_frames_agree_with_numpy(switching_reference):
 
 
 _PROBE = """
-import hashlib, json, numpy as np
-from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.ltv import error_system
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
-from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.gains_io import GainSchedule
-
-def h(*arrays):
-    d = hashlib.sha256()
-    for a in arrays:
-        d.update(np.ascontiguousarray(a, dtype=float).tobytes())
-    return d.hexdigest()
 
 geom, limits = Geometry(), Limits()
 out = {}
@@ -101,8 +90,8 @@ print(json.dumps(out))
 """
 
 
-def test_same_bits_under_different_blas_kernels(other_cpu):
-    code = _PROBE.replace("def h(", inspect.getsource(numpy_lqr) + "\ndef h(", 1)
+def test_same_bits_under_different_blas_kernels(other_cpu, probe_prelude):
+    code = probe_prelude + inspect.getsource(numpy_lqr) + _PROBE
     out = {core: json.loads(other_cpu({"OPENBLAS_CORETYPE": core}, "-c", code)) for core in ("Nehalem", "Haswell")}
     # the probe can tell the kernels apart: the same recursion in NumPy/LAPACK differs
     assert out["Nehalem"].pop("numpy K") != out["Haswell"].pop("numpy K")
