@@ -19,7 +19,6 @@ import time
 import numpy as np
 
 from swerve.tools.live import LivePublisher
-from swerve.tools.logs.record import CycleRecord
 
 PERIOD_S = 0.016
 

@@ -1,11 +1,10 @@
 """CSV export, plots and the two CLI commands, including their user errors."""
 import csv
 
-import numpy as np
 import pytest
 
 from swerve.tools.cli import main
-from swerve.tools.logs import CycleRecord, RunLogWriter, export_csv, plot_run, read_log
+from swerve.tools.logs import RunLogWriter, export_csv, plot_run, read_log
 from swerve.tools.logs.record import CYCLE_SIZE
 
 

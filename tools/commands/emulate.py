@@ -21,7 +21,7 @@ from swerve.configs.options import parse_ids
 from swerve.driver.control_table import ID_MAX
 from swerve.driver.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
-from swerve.tools.argtypes import baud_rate, finite_float, positive_float
+from swerve.tools.argtypes import baud_rate, finite_float
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
