@@ -13,13 +13,18 @@ With ``ci = cos(delta_i + theta')``, ``si = sin(...)``, ``Di = xwi sin(delta_i) 
 
 The form is singular where ``c1 + c2 = 0``: ``sigma' = +-pi/2``, travel parallel to the frame's
 y-axis. Functions here compute whatever numpy computes there; callers check
-:func:`singularity_margin` first.
+:func:`singularity_margin` first. The frame rotation and :func:`to_chained` (which the reference and
+the frame changes go through) use :mod:`math`'s functions (:mod:`controller.mathmap`), so their bits
+do not depend on NumPy's SIMD loops.
 """
 from __future__ import annotations
+
+import math
 
 import numpy as np
 
 from swerve.controller.kinematics import Geometry
+from swerve.controller.mathmap import cos_sin, elementwise
 
 
 def wrap_angle(angle):
@@ -29,7 +34,7 @@ def wrap_angle(angle):
 
 def _rotated(state, phi):
     s = np.asarray(state, dtype=float)
-    c, sn = np.cos(phi), np.sin(phi)
+    c, sn = cos_sin(phi)
     xr = c * s[..., 0] + sn * s[..., 1]
     yr = -sn * s[..., 0] + c * s[..., 1]
     return xr, yr, s[..., 2] - phi, s[..., 3], s[..., 4]
@@ -65,8 +70,9 @@ def to_chained(state, geom: Geometry = Geometry(), phi=0.0) -> np.ndarray:
     ndarray, shape (..., 5)
     """
     xr, yr, th, d1, d2 = _rotated(state, phi)
-    c1, c2, _, _, D, _, _ = _terms(th, d1, d2, geom)
-    return np.stack([xr, D / (c1 + c2), th, np.tan(0.5 * (d1 + d2) + th), yr], axis=-1)
+    D = geom.a_m * (elementwise(math.sin, d1) - elementwise(math.sin, d2)) / geom.r2_m2  # D1 + D2
+    c = elementwise(math.cos, d1 + th) + elementwise(math.cos, d2 + th)
+    return np.stack([xr, D / c, th, elementwise(math.tan, 0.5 * (d1 + d2) + th), yr], axis=-1)
 
 
 def from_chained(chained, geom: Geometry = Geometry(), phi=0.0) -> np.ndarray:

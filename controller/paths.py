@@ -7,38 +7,20 @@ The fit of samples makes no BLAS or LAPACK call (``@``, ``np.linalg``; SciPy's M
 FITPACK use none either): their kernels are picked per CPU and round differently, and the fit's
 decisions (which samples form a line or an arc) would follow those bits. Sums of products are
 written out elementwise or taken with :func:`math.fsum` (correctly rounded). Sines, cosines and
-arc tangents are :mod:`math`'s, mapped over the arrays (:func:`elementwise`): NumPy's own loops
+arc tangents are :mod:`math`'s, mapped over the arrays (:mod:`controller.mathmap`): NumPy's own loops
 for them are picked per CPU (SIMD) and differ in the last bit.
 """
 from __future__ import annotations
 
-import cmath
 import math
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from swerve.controller import small_linalg as sl
 from swerve.controller.errors import ControllerError
-
-
-def elementwise(fn, *args) -> np.ndarray:
-    """``fn`` of floats (a :mod:`math` function) on each element of the broadcast ``args``, as a
-    float array of their shape. Unlike NumPy's ``sin``, ``arctan2``, ``power``, ... it gives
-    the same bits whichever SIMD loops NumPy picks for the CPU."""
-    arrays = np.broadcast_arrays(*(np.asarray(a, dtype=float) for a in args))
-    values = map(fn, *(a.ravel().tolist() for a in arrays))
-    return np.fromiter(values, float, arrays[0].size).reshape(arrays[0].shape)
-
-
-def cos_sin(angle) -> tuple[np.ndarray, np.ndarray]:
-    """``(cos, sin)`` of the angles (rad, any shape): :func:`math.cos` and :func:`math.sin`'s
-    bits, in one call per element (``cmath.exp(i angle) = 1.0 cos + 1.0 i sin``)."""
-    a = np.asarray(angle, dtype=float)
-    z = np.empty(a.shape, complex)
-    z.real, z.imag = 0.0, a
-    e = np.fromiter(map(cmath.exp, z.ravel().tolist()), complex, a.size).reshape(a.shape)
-    return e.real, e.imag
+from swerve.controller.mathmap import cos_sin, elementwise
 
 
 @dataclass(frozen=True)
@@ -331,11 +313,6 @@ class FitReport:
                     fit_runs=dict(lines=self.lines, arcs=self.arcs, free=self.free))
 
 
-def _dot2(a, b) -> float:
-    """``a . b`` of two 2-vectors, ``a0 b0 + a1 b1``."""
-    return float(a[0] * b[0] + a[1] * b[1])
-
-
 def _junctions(runs, p, s):
     """Arc length of the geometric junction between consecutive runs (tangent point of a line
     and an arc, or the point on the line of centres between two arcs; else the shared sample)."""
@@ -348,7 +325,7 @@ def _junctions(runs, p, s):
             c, _, _ = _circle_fit(p[ar.first:ar.last + 1])
             d = p[ln.last] - p[ln.first]
             d = d / math.hypot(*d)
-            J = p[ln.first] + _dot2(c - p[ln.first], d) * d
+            J = p[ln.first] + sl.dot(c - p[ln.first], d) * d
         elif a.kind == b.kind == "arc":
             ca, ra, _ = _circle_fit(p[a.first:a.last + 1])
             cb, rb, _ = _circle_fit(p[b.first:b.last + 1])
@@ -361,7 +338,7 @@ def _junctions(runs, p, s):
             continue
         t = p[min(k + 1, len(p) - 1)] - p[max(k - 1, 0)]
         t = t / math.hypot(*t)
-        out.append(float(s[k] + _dot2(J - p[k], t)))
+        out.append(float(s[k] + sl.dot(J - p[k], t)))
     return out
 
 

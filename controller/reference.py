@@ -7,7 +7,7 @@ body aligned with the path (``theta_d = atan2(y', x')``, unwrapped) and symmetri
 and assigns each step a chained-form frame angle ``phi_i`` (see :func:`frame_schedule`).
 
 Only ``+ - * /``, ``sqrt`` and :mod:`math`'s functions (mapped over arrays by
-:func:`controller.paths.elementwise`) enter the numbers: NumPy's ``sin``, ``arctan2``, ``power``, ...
+:func:`controller.mathmap.elementwise`) enter the numbers: NumPy's ``sin``, ``arctan2``, ``power``, ...
 take SIMD loops picked per CPU, which differ in the last bit.
 """
 from __future__ import annotations
@@ -21,11 +21,12 @@ import numpy as np
 
 from swerve.configs import shipped
 from swerve.configs.loader import Section, read_yaml
-from swerve.controller.chained import wrap_angle
+from swerve.controller.chained import to_chained, wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, elementwise,
-                                     fit_samples, read_csv_path, read_csv_samples)
+from swerve.controller.mathmap import elementwise
+from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, fit_samples,
+                                     read_csv_path, read_csv_samples)
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = shipped("trajectories")
@@ -258,13 +259,7 @@ def chained_desired(states, extra, phi, geom: Geometry = Geometry()):
     c, s = elementwise(math.cos, phi), elementwise(math.sin, phi)
     vx, vy = c * v[0] + s * v[1], -s * v[0] + c * v[1]
     ax, ay = c * a[0] + s * a[1], -s * a[0] + c * a[1]
-    # controller.chained.to_chained of the states, in math's functions
-    px, py, th, d1, d2 = np.asarray(states, dtype=float).T
-    th = th - phi
-    D = geom.a_m * (elementwise(math.sin, d1) - elementwise(math.sin, d2)) / geom.r2_m2
-    C = elementwise(math.cos, d1 + th) + elementwise(math.cos, d2 + th)
-    xd = np.stack([c * px + s * py, D / C, th, elementwise(math.tan, 0.5 * (d1 + d2) + th),
-                   -s * px + c * py], axis=-1)
+    xd = to_chained(states, geom, phi)
     thr, tha = extra["theta_rate_radps"], extra["theta_acc_radps2"]
     vx2 = vx * vx
     ud = np.stack([vx, (tha * vx - thr * ax) / vx2, (ay * vx - vy * ax) / vx2], axis=-1)

@@ -39,15 +39,6 @@ def contact_matrix(wheel_xy_m: np.ndarray) -> np.ndarray:
     return m
 
 
-def wheel_velocities(speeds_mps: np.ndarray, steer_rad: np.ndarray) -> np.ndarray:
-    """Stacked wheel contact velocities ``[v_i cos δ_i, v_i sin δ_i, ...]``, shape (2n,)."""
-    v, d = np.asarray(speeds_mps, float), np.asarray(steer_rad, float)
-    out = np.empty(2 * len(v))
-    out[0::2] = v * np.cos(d)
-    out[1::2] = v * np.sin(d)
-    return out
-
-
 class RobotBody:
     """Least-squares rigid-body fit of the wheels and pose integration.
 

@@ -6,11 +6,20 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from swerve.emulator.physics.body import RobotBody, contact_matrix, paper_model_rates, wheel_velocities
+from swerve.emulator.physics.body import RobotBody, contact_matrix, paper_model_rates
 
 A = B = 0.1125
 CORNERS = [(A, B), (-A, B), (-A, -B), (A, -B)]     # robot.yaml order: FL, RL, RR, FR
 angles = st.floats(-1.4, 1.4)
+
+
+def wheel_velocities(speeds_mps: np.ndarray, steer_rad: np.ndarray) -> np.ndarray:
+    """Stacked wheel contact velocities ``[v_i cos δ_i, v_i sin δ_i, ...]``, shape (2n,)."""
+    v, d = np.asarray(speeds_mps, float), np.asarray(steer_rad, float)
+    out = np.empty(2 * len(v))
+    out[0::2] = v * np.cos(d)
+    out[1::2] = v * np.sin(d)
+    return out
 
 
 @settings(max_examples=200, deadline=None)
