@@ -15,12 +15,11 @@ from swerve.tools.cli import COMMANDS
 ROOT = Path(__file__).resolve().parents[1]
 README = ROOT / "README.md"
 BENCHMARKS = ROOT / "BENCHMARKS.md"
-#: Markdown files whose relative links must resolve: the top-level pages, docs/ and every part's README.
+#: The top-level pages, docs/ and every part's README: their relative links must resolve, and each
+#: path of the tree they name in backticks (`driver/bus.py`) must exist.
 PAGES = sorted({README, BENCHMARKS, *(ROOT / "docs").rglob("*.md"),
                 *(p for d in ("driver", "emulator", "controller", "tools", "configs", "testing", "bench")
                   for p in (ROOT / d).rglob("README.md"))})
-#: Pages that name files of the tree in backticks (`driver/bus.py`): each such path must exist.
-PATH_PAGES = sorted({README, *(ROOT / "docs").rglob("*.md")})
 TOP_FOLDERS = ("driver", "emulator", "controller", "tools", "configs", "testing", "tests", "bench", "docs")
 
 LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
@@ -54,7 +53,7 @@ def test_relative_links_point_to_files(page):
     assert not missing, f"{_rel(page)} links to missing files: {missing}"
 
 
-@pytest.mark.parametrize("page", PATH_PAGES, ids=_rel)
+@pytest.mark.parametrize("page", PAGES, ids=_rel)
 def test_named_paths_exist(page):
     """A path of the tree written in backticks names a file or folder that is there."""
     missing = sorted({p for p in CODE_PATH.findall(page.read_text(encoding="utf-8"))
