@@ -17,7 +17,7 @@ thousands of steps); :func:`conjugate_gradient_continuation` runs the same metho
 growing horizon (64, 128, ... N steps) and reaches 1.01 J* on the line case in about a
 second.
 
-The gradient is the exact adjoint recursion (see ``shared/reference/paper-equations.md`` §5;
+The gradient is the exact adjoint recursion (see ``docs/reference/paper.md`` §5;
 the paper's printed (55)-(59) has an index typo and drops the ``B K`` term)::
 
     lambda_N = 0,  lambda_i = 2 tau (Q + K_i'R K_i) x_i + M_i' lambda_{i+1}
@@ -130,7 +130,7 @@ def cost_and_gradient(K, Ad, Bd, Q, R, tau, X0, starts=None):
         J = tau sum_i tr((Q + K_i'R K_i) S_i)
         dJ/dK_i = 2 (tau R K_i + Bd_i' P_{i+1} M_i) S_i
 
-    the adjoint recursion of ``shared/reference/paper-equations.md`` §5 summed over the
+    the adjoint recursion of ``docs/reference/paper.md`` §5 summed over the
     errors (``lambda_i = 2 P_i x(i)``). Two 5x5 recursions: the cost does not grow with the
     number of errors.
 

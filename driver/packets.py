@@ -2,7 +2,7 @@
 
 Pure code, no I/O; the driver and the emulator share it. Facts: ROBOTIS e-Manual,
 "Protocol 2.0" (https://emanual.robotis.com/docs/en/dxl/protocol2/), summarised in
-``shared/reference/dynamixel-protocol2.md`` §1–2.
+``docs/reference/protocol.md`` §1–2.
 
 Frame: ``FF FF FD 00 | ID | LEN_L LEN_H | INST | PARAM… | CRC_L CRC_H`` where LEN counts
 INST + params (+ ERR for a status) + 2 CRC bytes *after* stuffing, and the CRC-16

@@ -3,7 +3,7 @@
 Pure data, imported by both :mod:`swerve.driver.packets` (the codec) and
 :mod:`swerve.driver.errors` (whose messages name instructions and error numbers).
 Facts: ROBOTIS e-Manual, "Protocol 2.0" (https://emanual.robotis.com/docs/en/dxl/protocol2/),
-summarised in ``shared/reference/dynamixel-protocol2.md``.
+summarised in ``docs/reference/protocol.md``.
 """
 from __future__ import annotations
 

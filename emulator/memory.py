@@ -2,7 +2,7 @@
 
 The layout, defaults, ranges and limits come from the same ``configs/models/*.yaml`` files the
 driver loads (:func:`driver.control_table.table_for`). Rules enforced on bus writes
-(e-Manual "Control Table", fact sheet §3 and §6):
+(e-Manual "Control Table", docs/reference/protocol.md §3 and §6):
 
 * EEPROM items (address < 64) are writable only while Torque Enable = 0 -> Access Error;
 * read-only items and undefined addresses -> Access Error;

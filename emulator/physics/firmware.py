@@ -1,4 +1,4 @@
-"""The servo firmware's loops as the e-Manual describes them (dynamixel-protocol2.md §5).
+"""The servo firmware's loops as the e-Manual describes them (docs/reference/protocol.md §5).
 
 The controllers work in the firmware's own units, because that is what the control-table gains
 are defined in: errors in encoder units (pulse, 0.229 rpm velocity unit), outputs in PWM counts

@@ -18,7 +18,7 @@ from swerve.driver.control_table import HardwareError
 
 from .params import ProtectionParams
 
-#: Control-table defaults of the X series (dynamixel-protocol2.md, control table), raw units.
+#: Control-table defaults of the X series (docs/reference/protocol.md §3), raw units.
 DEFAULT_LIMITS = {"temperature_limit": 80, "max_voltage_limit": 160, "min_voltage_limit": 95}
 
 

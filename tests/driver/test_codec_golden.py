@@ -1,4 +1,4 @@
-"""Golden vectors from the e-Manual (shared/reference/dynamixel-protocol2.md §1-2), both directions.
+"""Golden vectors from the e-Manual (docs/reference/protocol.md §1-2), both directions.
 
 Decoding goes through :class:`PacketParser`, the path the bus and the emulator use
 (parser -> ``decode_frame`` -> the ``decode`` of the packet's kind).
@@ -40,7 +40,7 @@ INSTRUCTIONS = [
     ("reboot", P.reboot(1), "FF FF FD 00 01 03 00 08 2F 4E"),
     ("clear", P.clear(1), "FF FF FD 00 01 08 00 10 01 44 58 4C 22 B1 DC"),
     ("backup_store", P.control_table_backup(1), "FF FF FD 00 01 08 00 20 01 43 54 52 4C 16 F5"),
-    # the e-Manual prints 92 F5; the correct CRC is 9E F5 (fact sheet erratum)
+    # the e-Manual prints 92 F5; the correct CRC is 9E F5 (docs/reference/protocol.md §1)
     ("backup_restore", P.control_table_backup(1, restore=True),
      "FF FF FD 00 01 08 00 20 02 43 54 52 4C 9E F5"),
     ("sync_read", P.sync_read(132, 4, [1, 2]), "FF FF FD 00 FE 09 00 82 84 00 04 00 01 02 CE FA"),

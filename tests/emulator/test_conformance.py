@@ -2,7 +2,7 @@
 
 Every test runs twice: with the unmodified dynamixel-sdk 4.1 and with the project's
 :class:`driver.bus.Bus` (fixture ``client`` in conftest.py). Expected values come from the
-e-Manual (fact sheet ``shared/reference/dynamixel-protocol2.md``), not from the emulator.
+e-Manual (fact sheet ``docs/reference/protocol.md``), not from the emulator.
 """
 from __future__ import annotations
 
