@@ -32,7 +32,9 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
 from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
                            RegisterError, ServoError)
-from swerve.driver.packets import BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket
+from swerve.driver.packets import (BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket,
+                                   fast_status_bytes)
+from swerve.driver.span_codec import span_decoder, span_values
 from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
@@ -46,38 +48,6 @@ RegLike = str | Reg
 _CHAINED_READS = frozenset((Instruction.SYNC_READ, Instruction.BULK_READ))
 #: Encoded Sync Read requests kept for reuse (the control loop repeats one request).
 _REQUEST_CACHE_SIZE = 32
-#: struct codes of little-endian raw items by (size, signed), as :meth:`Register.decode` reads them.
-_STRUCT_CODES = {(1, False): "B", (1, True): "b", (2, False): "H", (2, True): "h",
-                 (4, False): "I", (4, True): "i"}
-
-
-def _span_values(table: ControlTable, address: int, length: int):
-    """``(names, values)`` for the registers wholly inside ``length`` bytes at ``address``:
-    their names in address order and ``values(data) -> (raw, ...)`` in that order.
-
-    One precompiled little-endian :class:`struct.Struct` unpack (gaps skipped) does what
-    :meth:`Register.decode` does for each item; spans with items ``struct`` has no code for, or
-    overlapping items, decode item by item with :meth:`Register.decode`.
-    """
-    regs = table.within(address, length)
-    names = tuple(r.name for r in regs)
-    fmt, pos = ["<"], address
-    for r in regs:
-        code = _STRUCT_CODES.get((r.size, r.signed))
-        if code is None or r.address < pos:
-            return names, lambda data: tuple(r.decode(data[r.address - address:r.address - address + r.size])
-                                             for r in regs)
-        fmt.append("x" * (r.address - pos) + code)
-        pos = r.address + r.size
-    fmt.append("x" * (address + length - pos))
-    return names, struct.Struct("".join(fmt)).unpack
-
-
-def _span_decoder(table: ControlTable, address: int, length: int):
-    """``data -> {register name: raw}`` for the registers wholly inside ``length`` bytes at
-    ``address`` (:func:`_span_values` as a dict)."""
-    names, values = _span_values(table, address, length)
-    return lambda data: dict(zip(names, values(data)))
 
 
 @dataclass(frozen=True)
@@ -460,7 +430,7 @@ class Bus:
 
     @staticmethod
     def _decode_span(table: ControlTable, address: int, data: bytes) -> dict[str, int]:
-        return _span_decoder(table, address, len(data))(data)
+        return span_decoder(table, address, len(data))(data)
 
     def sync_read(self, ids: Sequence[int], first: RegLike, last: RegLike | None = None,
                   fast: bool = False) -> dict[int, dict[str, int]]:
@@ -484,7 +454,7 @@ class Bus:
         if plan is None:
             t = self._group_table(ids)
             address, length = t.span(first, last if last is not None else first)
-            plan = (address, length) + _span_values(t, address, length)
+            plan = (address, length) + span_values(t, address, length)
             if len(self._plans) >= _REQUEST_CACHE_SIZE:
                 self._plans.clear()
             self._plans[key] = plan
@@ -522,7 +492,7 @@ class Bus:
         entry, in the order of ``items``."""
         ids = [i for i, _ in items]
         lengths = [n for _, n in items]
-        reply_bytes = 10 + sum(n + 4 for n in lengths)
+        reply_bytes = fast_status_bytes(lengths)
         try:
             got = self._exchange(pkt, [BROADCAST_ID], reply_bytes, check=False, frame=frame,
                                  fast_lengths=lengths)

@@ -231,9 +231,9 @@ class ControlTable:
     model: str
     model_number: int
     gear_ratio: float
+    pulses_per_rev: int         # encoder pulses per output turn
     registers: dict[str, Register]
     indirect: tuple[IndirectBlock, ...] = ()
-    pulses_per_rev: int = 4096
 
     def __getitem__(self, name: str | Reg) -> Register:
         try:
@@ -324,6 +324,7 @@ def load_table(path: str | Path) -> ControlTable:
             lim = getattr(r, key)
             if lim is not None and lim not in regs:
                 sec.fail(f"{r.name} names unknown limit item {lim!r}", key)
+    _check_overlaps(regs, Path(path))
     blocks = []
     for sec in top.items("indirect", None) if "indirect" in top else ():
         blocks.append(IndirectBlock(**{k: sec.integer(k, min=0) for k in
@@ -333,14 +334,13 @@ def load_table(path: str | Path) -> ControlTable:
         model=top.string("model"), model_number=top.integer("model_number", min=0, max=0xFFFF),
         gear_ratio=top.number("gear_ratio", positive=True, max=1e4), registers=regs,
         indirect=tuple(blocks),
-        pulses_per_rev=top.integer("encoder_pulses_per_rev", 4096, min=1))
+        pulses_per_rev=top.integer("encoder_pulses_per_rev", min=1))
     top.check_unknown()
-    _check_overlaps(table, Path(path))
     return table
 
 
-def _check_overlaps(table: ControlTable, path: Path) -> None:
-    spans = sorted((r.address, r.address + r.size, r.name) for r in table.registers.values())
+def _check_overlaps(registers: dict[str, Register], path: Path) -> None:
+    spans = sorted((r.address, r.address + r.size, r.name) for r in registers.values())
     for (a0, a1, n0), (b0, _, n1) in zip(spans, spans[1:]):
         if b0 < a1:
             raise ConfigError(f"{path}: registers {n0} and {n1} overlap")

@@ -14,7 +14,7 @@ import array
 import struct
 import sys
 from dataclasses import dataclass
-from typing import Iterable, Mapping, Sequence
+from typing import Iterable, Iterator, Mapping, Sequence
 
 from swerve.driver.errors import ChecksumError, CorruptPacketError
 from swerve.driver.protocol import (ALERT_BIT, BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, HEADER, MAX_ID,
@@ -278,7 +278,7 @@ class FastStatus:
 
     def encode(self) -> bytes:
         """Build the full combined frame."""
-        length = 1 + sum(len(e.params) + 4 for e in self.entries)
+        length = fast_status_length([len(e.params) for e in self.entries])
         frame = bytearray(HEADER + bytes((BROADCAST_ID,)) + struct.pack("<H", length)
                           + bytes((Instruction.STATUS,)))
         if not self.entries:
@@ -293,7 +293,7 @@ class FastStatus:
         whole = self.encode()
         out, pos = [], 8
         for i, e in enumerate(self.entries):
-            end = pos + 2 + len(e.params) + 2
+            end = pos + FAST_ENTRY_OVERHEAD + len(e.params)
             out.append(whole[:end] if i == 0 else whole[pos:end])
             pos = end
         return out
@@ -305,17 +305,15 @@ class FastStatus:
         expect = fast_status_length(lengths)
         if len(frame) != PREFIX_BYTES + expect:
             raise CorruptPacketError(
-                f"fast read reply is {len(frame)} bytes, expected {PREFIX_BYTES + expect} "
+                f"fast read reply is {len(frame)} bytes, expected {fast_status_bytes(lengths)} "
                 f"for lengths {list(lengths)}")
         if not frame.startswith(HEADER) or (frame[5] | frame[6] << 8) != expect:
             raise CorruptPacketError(f"bad header or LENGTH in fast read reply {frame[:7].hex(' ')}")
         if frame[4] != BROADCAST_ID or frame[PREFIX_BYTES] != _STATUS:
             raise CorruptPacketError("not a fast sync/bulk read reply (ID must be 0xFE, instruction 0x55)")
         # the running CRC after the last entry is the frame's CRC: one pass checks both
-        entries, pos, crc = [], PREFIX_BYTES + 1, crc16(frame[:PREFIX_BYTES + 1])
-        for n in lengths:
-            end = pos + 2 + n
-            crc = crc16(frame[pos:end], crc)   # running CRC up to this entry's data
+        entries = []
+        for pos, end, crc in fast_entries(frame, lengths):
             crc_k = frame[end] | frame[end + 1] << 8
             if crc_k != crc:
                 raise ChecksumError(crc, crc_k, frame)
@@ -323,15 +321,43 @@ class FastStatus:
             if sid > MAX_ID:
                 raise CorruptPacketError(f"invalid ID {sid} inside fast read reply")
             entries.append(StatusPacket._checked(sid, frame[pos], frame[pos + 2:end]))
-            crc = crc16(frame[end:end + 2], crc)
-            pos = end + 2
         return cls(tuple(entries))
+
+
+#: Bytes of one entry of a combined fast read reply besides its data: ERR, ID, CRC (2).
+FAST_ENTRY_OVERHEAD = 4
 
 
 def fast_status_length(lengths: Sequence[int]) -> int:
     """LENGTH field of a combined fast read reply with data ``lengths`` (INST + per entry
     ERR, ID, data, CRC)."""
-    return 1 + sum(n + 4 for n in lengths)
+    return 1 + sum(lengths) + FAST_ENTRY_OVERHEAD * len(lengths)
+
+
+def fast_status_bytes(lengths: Sequence[int]) -> int:
+    """Bytes on the wire of a combined fast read reply with data ``lengths`` (header, ID,
+    LENGTH and the :func:`fast_status_length` bytes it counts)."""
+    return PREFIX_BYTES + fast_status_length(lengths)
+
+
+def fast_entries(buf: bytes | bytearray, lengths: Sequence[int]) -> Iterator[tuple[int, int, int]]:
+    """Walk the entries of a combined fast read reply at the start of ``buf``.
+
+    Yields ``(pos, end, crc)`` for each entry whose bytes are all in ``buf``, in order:
+    ``buf[pos]`` is its ERR byte, ``buf[pos + 1]`` its ID, ``buf[pos + 2:end]`` its data and
+    ``buf[end:end + 2]`` its CRC field, which must hold ``crc``, the running CRC-16 of the frame
+    up to the end of that data. Stops at the first entry cut short; checks nothing itself.
+    """
+    pos = PREFIX_BYTES + 1
+    crc = crc16(buf[:pos])
+    for n in lengths:
+        end = pos + 2 + n
+        if end + 2 > len(buf):
+            return
+        crc = crc16(buf[pos:end], crc)
+        yield pos, end, crc
+        crc = crc16(buf[end:end + 2], crc)
+        pos = end + 2
 
 
 Packet = InstructionPacket | StatusPacket
@@ -421,14 +447,22 @@ def sync_write(address: int, length: int, data: Mapping[int, bytes]) -> Instruct
     return InstructionPacket(BROADCAST_ID, Instruction.SYNC_WRITE, params)
 
 
-def bulk_read(items: Iterable[tuple[int, int, int]], fast: bool = False) -> InstructionPacket:
-    """``items``: ``(id, address, length)`` per servo; an ID may appear only once."""
-    params, seen = bytearray(), set()
-    for id_, address, length in items:
+def _bulk_entries(items: Iterable[tuple], what: str) -> Iterator[tuple]:
+    """``items`` of a bulk instruction, each checked: an ID of 0..252, listed once."""
+    seen = set()
+    for item in items:
+        id_ = item[0]
         _check_id(id_, allow_broadcast=False)
         if id_ in seen:
-            raise ValueError(f"ID {id_} appears twice in a bulk read")
+            raise ValueError(f"ID {id_} appears twice in a {what}")
         seen.add(id_)
+        yield item
+
+
+def bulk_read(items: Iterable[tuple[int, int, int]], fast: bool = False) -> InstructionPacket:
+    """``items``: ``(id, address, length)`` per servo; an ID may appear only once."""
+    params = bytearray()
+    for id_, address, length in _bulk_entries(items, "bulk read"):
         params += _ID_ADDRESS_LENGTH.pack(id_, address, length)
     inst = Instruction.FAST_BULK_READ if fast else Instruction.BULK_READ
     return InstructionPacket(BROADCAST_ID, inst, params)
@@ -436,12 +470,8 @@ def bulk_read(items: Iterable[tuple[int, int, int]], fast: bool = False) -> Inst
 
 def bulk_write(items: Iterable[tuple[int, int, bytes]]) -> InstructionPacket:
     """``items``: ``(id, address, data)`` per servo; an ID may appear only once."""
-    params, seen = bytearray(), set()
-    for id_, address, data in items:
-        _check_id(id_, allow_broadcast=False)
-        if id_ in seen:
-            raise ValueError(f"ID {id_} appears twice in a bulk write")
-        seen.add(id_)
+    params = bytearray()
+    for id_, address, data in _bulk_entries(items, "bulk write"):
         data = bytes(data)
         params += _ID_ADDRESS_LENGTH.pack(id_, address, len(data)) + data
     return InstructionPacket(BROADCAST_ID, Instruction.BULK_WRITE, params)

@@ -19,7 +19,7 @@ from collections import deque
 from typing import Sequence
 
 from swerve.driver.errors import CorruptPacketError
-from swerve.driver.packets import FastStatus, Packet, crc16, decode_frame, fast_status_length
+from swerve.driver.packets import FastStatus, Packet, decode_frame, fast_entries, fast_status_length
 from swerve.driver.protocol import BROADCAST_ID, HEADER, MAX_ID, MAX_LENGTH, PREFIX_BYTES, Instruction
 
 _STATUS = int(Instruction.STATUS)
@@ -105,17 +105,11 @@ class PacketParser:
         if (lengths is None or len(buf) <= PREFIX_BYTES or not buf.startswith(HEADER)
                 or buf[4] != BROADCAST_ID or buf[PREFIX_BYTES] != _STATUS):
             return
-        k, pos = 0, PREFIX_BYTES + 1
-        crc = crc16(buf[:pos])
-        for n in lengths:
-            end = pos + 2 + n
-            if end + 2 > len(buf):
-                break
-            crc = crc16(buf[pos:end], crc)
+        k = 0
+        for _, end, crc in fast_entries(buf, lengths):
             if crc != buf[end] | buf[end + 1] << 8:
                 break
-            crc = crc16(buf[end:end + 2], crc)
-            k, pos = k + 1, end + 2
+            k += 1
         self.fast_entries_received = k
 
     def _drop(self, n: int) -> None:

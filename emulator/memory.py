@@ -4,7 +4,7 @@ The layout, defaults, ranges and limits come from the same ``configs/models/*.ya
 driver loads (:func:`driver.control_table.table_for`). Rules enforced on bus writes
 (e-Manual "Control Table", docs/reference/protocol.md §3 and §6):
 
-* EEPROM items (address < 64) are writable only while Torque Enable = 0 -> Access Error;
+* EEPROM items (``area: EEPROM`` in the table) are writable only while Torque Enable = 0 -> Access Error;
 * read-only items and undefined addresses -> Access Error;
 * a write that covers an item only partly -> Data Length Error;
 * a value outside the item's fixed range or allowed set -> Data Range Error;
@@ -15,7 +15,6 @@ A write is checked completely before any byte changes (all or nothing).
 """
 from __future__ import annotations
 
-import struct
 from dataclasses import dataclass
 from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
@@ -23,18 +22,21 @@ from swerve.driver.control_table import ControlTable, Reg, Register
 from swerve.driver.errors import RegisterError
 from swerve.driver.control_table import OperatingMode
 from swerve.driver.packets import ErrorNumber, ResetOption
+from swerve.driver.span_codec import STRUCT_CODES as _SPAN_CODES
+from swerve.driver.span_codec import item_struct, items_struct
 
 #: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
 INDIRECT_TARGET_MIN = 64
 INDIRECT_TARGET_MAX = 661
-EEPROM_END = 64
 #: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
 WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION)
 #: Factory Reset options: which items survive.
 RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
 POSITION_MODE = OperatingMode.POSITION
-#: struct codes by item size and signedness.
-STRUCT_CODES = {1: {False: "B", True: "b"}, 2: {False: "H", True: "h"}, 4: {False: "I", True: "i"}}
+#: ``struct`` codes by item size, then signedness: the nested view of
+#: :data:`swerve.driver.span_codec.STRUCT_CODES` that ``robot_emulator``'s input decoder indexes.
+STRUCT_CODES = {size: {signed: code for (n, signed), code in _SPAN_CODES.items() if n == size}
+                for size in sorted({n for n, _ in _SPAN_CODES})}
 TIME_BASED_PROFILE_BIT = 0x04
 # Items the write rules name, looked up once (an Enum member costs a metaclass lookup per use)
 _TORQUE_ENABLE, _PROFILE_VELOCITY, _DRIVE_MODE, _GOAL_POSITION, _OPERATING_MODE = (
@@ -44,9 +46,9 @@ _TORQUE_ENABLE, _PROFILE_VELOCITY, _DRIVE_MODE, _GOAL_POSITION, _OPERATING_MODE 
 def _reader(size: int, signed: bool) -> Callable[[bytearray, int], tuple[int]]:
     """``read(buffer, address) -> (raw,)`` for an item of ``size`` bytes (a ``struct`` unpacker
     where one fits: 2x faster than ``int.from_bytes`` of a slice)."""
-    codes = STRUCT_CODES.get(size)
-    if codes is not None:
-        return struct.Struct("<" + codes[signed]).unpack_from
+    fmt = item_struct(size, signed)
+    if fmt is not None:
+        return fmt.unpack_from
 
     def read(buffer: bytearray, address: int) -> tuple[int]:
         return (int.from_bytes(buffer[address:address + size], "little", signed=signed),)
@@ -84,6 +86,8 @@ class ServoMemory:
         self.table = table
         self.limit_error = ErrorNumber(limit_error)
         self.size = table.size
+        #: One past the last EEPROM item's byte: what Control Table Backup stores.
+        self.eeprom_end = max(r.address + r.size for r in table if r.eeprom)
         self._bytes = bytearray(self.size)
         self._slices = {reg.name: (reg.address, reg.address + reg.size, reg.signed) for reg in table}
         self._readers = {reg.name: (_reader(reg.size, reg.signed), reg.address) for reg in table}
@@ -175,13 +179,12 @@ class ServoMemory:
         """A writer of raw values for the items ``names`` (values in that order) with one
         ``struct.pack_into``, if the items lie back to back; ``None`` if not. A value that does not
         fit raises :class:`struct.error` (items before it in address order may be written)."""
-        regs = sorted((self.table[n] for n in names), key=lambda r: r.address)
-        if any(r.size not in STRUCT_CODES for r in regs) or any(
-                b.address != a.address + a.size for a, b in zip(regs, regs[1:])):
+        start = min(self.table[n].address for n in names)
+        ordered, fmt = items_struct(self.table, names, start)
+        if fmt is None or fmt.size != sum(self.table[n].size for n in names):     # a gap or overlap
             return None
-        fmt = struct.Struct("<" + "".join(STRUCT_CODES[r.size][r.signed] for r in regs))
-        order = [list(names).index(r.name) for r in regs]
-        start, buf = regs[0].address, self._bytes
+        order = [list(names).index(n) for n in ordered]
+        buf = self._bytes
         if order == sorted(order):      # names given in address order: no reordering
 
             def write(values: Sequence[int]) -> None:
@@ -216,10 +219,10 @@ class ServoMemory:
         return other
 
     def eeprom_bytes(self) -> bytes:
-        return bytes(self._bytes[:EEPROM_END])
+        return bytes(self._bytes[:self.eeprom_end])
 
     def restore_eeprom(self, data: bytes) -> None:
-        self._bytes[:EEPROM_END] = data
+        self._bytes[:self.eeprom_end] = data
 
     # --- bus read ---------------------------------------------------------------------------------
     def read(self, address: int, length: int) -> bytes:

@@ -3,7 +3,7 @@ import random
 
 import pytest
 
-from swerve.driver.bus import _span_decoder
+from swerve.driver.span_codec import span_decoder as _span_decoder
 from swerve.driver.control_table import models
 
 
