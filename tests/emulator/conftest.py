@@ -11,7 +11,7 @@ import sys
 
 import pytest
 
-from swerve.driver.control_table import table_for
+from swerve.driver.control_table import models, table_for
 from swerve.emulator.robot_emulator import build_emulator
 
 TIMEOUT = "timeout"
@@ -253,3 +253,16 @@ def sdk_client(emulator):
     c = SdkClient(emulator.port)
     yield c
     c.close()
+
+
+@pytest.fixture(params=sorted(models()))
+def model_emulator(request):
+    """A running register-only bus of four servos (IDs 1-4) of one shipped model at 1 Mbps,
+    once per file in ``configs/models``."""
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
+    try:
+        with build_emulator(ids=range(1, 5), model=request.param, baud=1_000_000) as emu:
+            yield emu
+    finally:
+        sys.setswitchinterval(previous)
