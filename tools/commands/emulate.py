@@ -169,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
         if args.live:
             from swerve.tools.live import LivePublisher, PosePump, parse_live
 
-            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator"))
+            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator",
+                                                      topics=("/true_pose",)))
             stack.callback(PosePump(live, lambda: emu.pose).start().close)
             print(f"LIVE {live.url}", file=sys.stderr, flush=True)
         freeze_startup_heap()
