@@ -3,15 +3,19 @@
 Every test runs twice: with the unmodified dynamixel-sdk 4.1 and with the project's
 :class:`driver.bus.Bus` (fixture ``client`` in conftest.py). Expected values come from the
 e-Manual (fact sheet ``shared/reference/dynamixel-protocol2.md``), not from the emulator.
+The tests named ``test_model_*`` run once per file in ``configs/models`` through the SDK (the
+same models through rustypot: test_rustypot.py).
 """
 from __future__ import annotations
 
+import sys
 import time
 
 import pytest
 
 from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
+from swerve.emulator.robot_emulator import build_emulator
 
 from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient
 
@@ -433,3 +437,17 @@ def test_model_sync_write_sync_read_and_fast_sync_read(model_emulator, model_sdk
     for i in MODEL_IDS:
         model_emulator.servo(i).write(Reg.PRESENT_POSITION, 9 * i)
     assert model_sdk.sync_read(MODEL_IDS, pos.address, 4, fast=True) == {i: 9 * i for i in MODEL_IDS}
+
+
+def test_swerve_scan_names_a_model_by_its_ping_number():
+    import subprocess
+    from pathlib import Path
+
+    with build_emulator(ids=[3, 4], model="xl330-m077", baud=1_000_000) as emu:
+        proc = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "scan", "--port", emu.port,
+                               "--ids", "0-6", "--timeout-margin-ms", "100"],
+                              cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True,
+                              timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = [ln.split() for ln in proc.stdout.splitlines() if "XL330-M077" in ln]
+    assert [(r[0], r[2]) for r in rows] == [("3", "1190"), ("4", "1190")], proc.stdout
