@@ -8,7 +8,8 @@ that never reads loses bytes (like an overflowing USB buffer) instead of stallin
 The master runs in packet mode (``TIOCPKT``, Linux ``tty_ioctl(4)``): every read starts with a
 control byte, ``TIOCPKT_DATA`` (0) before data, or status bits alone. ``TIOCPKT_FLUSHWRITE``
 says the client called ``tcflush(fd, TCOFLUSH)``, which on a pty discards the bytes it wrote
-that the master had not read yet (a U2D2 has already sent them). The kernel does not say how
+that are still in the kernel's pty buffer, not yet passed to the master (a U2D2 has already
+sent them). The kernel does not say how
 many bytes went; :class:`PtyLink` reports each such flush to ``on_output_flush``.
 """
 from __future__ import annotations

@@ -3,6 +3,7 @@ seen through the pty's packet mode, counted, and said once on stderr."""
 from __future__ import annotations
 
 import os
+import select
 import termios
 import tty
 
@@ -23,6 +24,12 @@ def _open_client(path: str) -> int:
     return fd
 
 
+def _read_ready(link: PtyLink) -> bytes:
+    """The next read of the master once it has something (a generous bound, not a timing check)."""
+    assert select.select([link.master], [], [], 10.0)[0]
+    return link.read()
+
+
 def _round_trip(fd: int, frame: bytes) -> StatusPacket:
     """Write ``frame`` and block until one status packet comes back."""
     os.write(fd, frame)
@@ -33,18 +40,20 @@ def _round_trip(fd: int, frame: bytes) -> StatusPacket:
             return packets[0]
 
 
-def test_flushed_bytes_never_reach_the_master_and_the_flush_is_counted():
+def test_a_flush_is_counted_and_later_bytes_arrive_whole():
     seen = []
     link = PtyLink(on_output_flush=lambda: seen.append(link.output_flushes))
     fd = _open_client(link.path)
     try:
         os.write(fd, PING_1)                         # nobody reads the master yet
         termios.tcflush(fd, termios.TCOFLUSH)        # what pypot does before each packet
-        assert link.read() == b""                     # the status read: no data
+        assert _read_ready(link) == b""               # the status read: no data
         assert (link.output_flushes, seen) == (1, [1])
-        assert link.read() == b""                     # the ping was discarded by the kernel
+        # the kernel discards what is still in the pty's buffer; bytes its worker has already
+        # handed to the master's line discipline survive (so a flushed ping may or may not come)
+        assert link.read() in (b"", PING_1)
         os.write(fd, PING_1)
-        assert link.read() == PING_1                  # later bytes arrive whole, without the prefix
+        assert _read_ready(link) == PING_1            # later bytes arrive whole, without the prefix
         assert link.output_flushes == 1
     finally:
         os.close(fd)
