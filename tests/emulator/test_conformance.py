@@ -17,26 +17,11 @@ from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
 from swerve.emulator.robot_emulator import build_emulator
 
-from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient
+from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient, check_reads_match, valid_value
 
 IDS = list(range(1, 9))
 XH430_W210 = 1010
 ALERT = 0x80
-
-
-def _value_for(reg, servo) -> int:
-    """A valid raw value for ``reg`` different from its default where possible."""
-    special = {Reg.TORQUE_ENABLE: 1, Reg.LED: 1, Reg.STATUS_RETURN_LEVEL: 2, Reg.BUS_WATCHDOG: 0}
-    if reg.name in special:
-        return special[reg.name]
-    lo, hi = reg.raw_bounds()
-    v = lo + (hi - lo) // 3
-    if reg.limit:
-        cap = servo.read(reg.limit)
-        v = max(-cap, min(cap, v))
-    if reg.limit_min:
-        v = max(servo.read(reg.limit_min), min(servo.read(reg.limit_max), v))
-    return v
 
 
 def test_ping_every_id(client):
@@ -77,7 +62,7 @@ def test_write_every_ram_item(client, emulator):
     ram = [r for r in TABLE if r.writable and not r.eeprom]
     assert len(ram) > 15
     for reg in ram:
-        value = _value_for(reg, servo)
+        value = valid_value(reg, servo)
         assert client.write(2, reg.address, reg.encode(value)) == 0, reg.name
         data, err = client.read(2, reg.address, reg.size)
         assert (reg.decode(data), err) == (value, 0), reg.name
@@ -406,13 +391,9 @@ def test_model_answers_ping_with_its_number(model_emulator, model_sdk):
 
 def test_model_reads_and_writes_every_item(model_emulator, model_sdk):
     table, servo = model_emulator.table, model_emulator.servo(3)
-    for reg in table:
-        data, err = model_sdk.read(3, reg.address, reg.size)
-        assert err == 0, reg.name
-        if reg.name != Reg.REALTIME_TICK:
-            assert reg.decode(data) == servo.read(reg.name), reg.name
+    check_reads_match(lambda reg: model_sdk.read(3, reg.address, reg.size), table, servo)
     for reg in (r for r in table if r.writable and not r.eeprom):
-        value = _value_for(reg, servo)
+        value = valid_value(reg, servo)
         assert model_sdk.write(3, reg.address, reg.encode(value)) == 0, reg.name
         assert model_sdk.read(3, reg.address, reg.size) == (reg.encode(value), 0), reg.name
 

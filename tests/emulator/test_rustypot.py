@@ -11,6 +11,8 @@ import pytest
 
 from swerve.driver.control_table import Reg, models
 
+from .conftest import check_reads_match, valid_value
+
 rustypot = pytest.importorskip("rustypot")
 
 IDS = [1, 2, 3, 4]
@@ -39,20 +41,9 @@ def test_ping_and_model_number(model_emulator, pot):
 
 def test_read_and_write_every_item(model_emulator, pot):
     table, servo = model_emulator.table, model_emulator.servo(2)
-    for reg in table:
-        data, err = pot.read_raw_data_with_error(2, reg.address, reg.size)
-        assert err == 0, reg.name
-        if reg.name != Reg.REALTIME_TICK:
-            assert reg.decode(bytes(data)) == servo.read(reg.name), reg.name
-    for reg in (r for r in table if r.writable and not r.eeprom and r.name != Reg.BUS_WATCHDOG):
-        lo, hi = reg.raw_bounds()
-        value = lo + (hi - lo) // 3
-        if reg.limit:
-            value = max(-servo.read(reg.limit), min(servo.read(reg.limit), value))
-        if reg.limit_min:
-            value = max(servo.read(reg.limit_min), min(servo.read(reg.limit_max), value))
-        if reg.name == Reg.STATUS_RETURN_LEVEL:
-            value = 2
+    check_reads_match(lambda reg: pot.read_raw_data_with_error(2, reg.address, reg.size), table, servo)
+    for reg in (r for r in table if r.writable and not r.eeprom):
+        value = valid_value(reg, servo)
         assert pot.write_raw_data_with_error(2, reg.address, list(reg.encode(value))) == 0, reg.name
         assert servo.read(reg.name) == value, reg.name
 
