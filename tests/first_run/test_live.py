@@ -212,3 +212,8 @@ def test_emulate_physics_streams_the_true_pose(tmp_path):
 
     msg = get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(got["/true_pose"][-1], "geometry_msgs/msg/PoseStamped")
     assert msg.pose.position.x == pytest.approx(0.0, abs=1e-6) and msg.pose.orientation.w == pytest.approx(1.0)
+
+
+def test_unknown_live_topics_are_refused():
+    with pytest.raises(ConfigError, match="unknown topics /nope"):
+        live.LivePublisher("127.0.0.1", 0, topics=("/joint_states", "/nope"))
