@@ -51,6 +51,7 @@ class Reg(StrEnum):
     EXTERNAL_PORT_MODE_2 = "external_port_mode_2"
     EXTERNAL_PORT_MODE_3 = "external_port_mode_3"
     STARTUP_CONFIGURATION = "startup_configuration"
+    PWM_SLOPE = "pwm_slope"
     SHUTDOWN = "shutdown"
     TORQUE_ENABLE = "torque_enable"
     LED = "led"
@@ -76,6 +77,7 @@ class Reg(StrEnum):
     MOVING_STATUS = "moving_status"
     PRESENT_PWM = "present_pwm"
     PRESENT_CURRENT = "present_current"
+    PRESENT_LOAD = "present_load"
     PRESENT_VELOCITY = "present_velocity"
     PRESENT_POSITION = "present_position"
     VELOCITY_TRAJECTORY = "velocity_trajectory"
@@ -216,12 +218,15 @@ class Register:
 
 @dataclass(frozen=True)
 class IndirectBlock:
-    """``count`` Indirect Address items (2 bytes each) and their Indirect Data bytes."""
+    """``count`` Indirect Address items (2 bytes each) and their Indirect Data bytes; an
+    Indirect Address may name bytes ``target_min .. target_max``."""
 
     address_start: int
     data_start: int
     count: int
     first: int
+    target_min: int
+    target_max: int
 
 
 @dataclass(frozen=True)
@@ -328,7 +333,8 @@ def load_table(path: str | Path) -> ControlTable:
     blocks = []
     for sec in top.items("indirect", None) if "indirect" in top else ():
         blocks.append(IndirectBlock(**{k: sec.integer(k, min=0) for k in
-                                       ("address_start", "data_start", "count", "first")}))
+                                       ("address_start", "data_start", "count", "first",
+                                        "target_min", "target_max")}))
         sec.check_unknown()
     table = ControlTable(
         model=top.string("model"), model_number=top.integer("model_number", min=0, max=0xFFFF),
@@ -380,19 +386,23 @@ REFERENCE_MODEL = "xh430-w210"
 
 
 def _baud_rates_bps() -> tuple[int, ...]:
-    """Baud Rate (8) value -> bps, from ``values_bps`` of the model files (all must agree).
+    """Baud Rate (8) value -> bps, from ``values_bps`` of the model files.
 
     e-Manual, XH430-W210 "Baud Rate(8)": 0 = 9,600, 1 = 57,600 (factory default), 2 = 115,200,
-    3 = 1M, 4 = 2M, 5 = 3M, 6 = 4M, 7 = 4.5M bps.
+    3 = 1M, 4 = 2M, 5 = 3M, 6 = 4M, 7 = 4.5M bps. The X series shares the numbering; a model
+    may stop short of the top rate (XL330: up to 6 = 4M), so each model's list must begin the
+    reference model's and hold ``max + 1`` rates.
     """
     tables = models()
     ref = tables[REFERENCE_MODEL][Reg.BAUD_RATE]
     values = tuple(int(v) for v in ref.extra.get("values_bps", ()))
-    if len(values) != ref.max + 1:
-        raise ConfigError(f"{REFERENCE_MODEL}: baud_rate.values_bps must list {ref.max + 1} rates")
     for t in tables.values():
-        if tuple(t[Reg.BAUD_RATE].extra.get("values_bps", ())) != values:
-            raise ConfigError(f"{t.model}: baud_rate.values_bps differs from {REFERENCE_MODEL}'s")
+        reg = t[Reg.BAUD_RATE]
+        own = tuple(int(v) for v in reg.extra.get("values_bps", ()))
+        if len(own) != reg.max + 1:
+            raise ConfigError(f"{t.model}: baud_rate.values_bps must list {reg.max + 1} rates")
+        if own != values[:len(own)]:
+            raise ConfigError(f"{t.model}: baud_rate.values_bps does not begin {REFERENCE_MODEL}'s")
     return values
 
 

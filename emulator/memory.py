@@ -25,9 +25,6 @@ from swerve.driver.packets import ErrorNumber, ResetOption
 from swerve.driver.span_codec import STRUCT_CODES as _SPAN_CODES
 from swerve.driver.span_codec import item_struct, items_struct
 
-#: Lowest and highest byte an Indirect Address may point to (RAM items, e-Manual).
-INDIRECT_TARGET_MIN = 64
-INDIRECT_TARGET_MAX = 661
 #: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
 WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_POSITION)
 #: Factory Reset options: which items survive.
@@ -69,6 +66,8 @@ class _Slot:
 
     address: int
     data: int
+    target_min: int
+    target_max: int
 
 
 class ServoMemory:
@@ -99,7 +98,7 @@ class ServoMemory:
         self._addr_slot: dict[int, _Slot] = {}
         for block in table.indirect:
             for k in range(block.count):
-                slot = _Slot(block.address_start + 2 * k, block.data_start + k)
+                slot = _Slot(block.address_start + 2 * k, block.data_start + k, block.target_min, block.target_max)
                 self._addr_slot[slot.address] = slot
                 self._addr_slot[slot.address + 1] = slot
                 self._data_slot[slot.data] = slot
@@ -299,8 +298,9 @@ class ServoMemory:
             if slot.address not in slot_writes or slot.address + 1 not in slot_writes:
                 raise WriteRejected(ErrorNumber.DATA_LENGTH, f"indirect address {slot.address} needs 2 bytes")
             v = slot_writes[slot.address] | (slot_writes[slot.address + 1] << 8)
-            if not INDIRECT_TARGET_MIN <= v <= INDIRECT_TARGET_MAX:
-                raise WriteRejected(ErrorNumber.DATA_RANGE, f"indirect address {v} outside 64..661")
+            if not slot.target_min <= v <= slot.target_max:
+                raise WriteRejected(ErrorNumber.DATA_RANGE,
+                                    f"indirect address {v} outside {slot.target_min}..{slot.target_max}")
             new_slots[slot] = v
         # 3. item rules, against the memory as it will be after the whole write
         new_values: dict[str, int] = {}

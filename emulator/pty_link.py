@@ -4,6 +4,13 @@ The client (SDK, driver, any serial tool) opens the slave path like a U2D2 port;
 reads and writes the master. The slave fd stays open here, so a client closing and reopening
 the port never makes the master report EIO. The master is non-blocking for writes: a client
 that never reads loses bytes (like an overflowing USB buffer) instead of stalling the emulator.
+
+The master runs in packet mode (``TIOCPKT``, Linux ``tty_ioctl(4)``): every read starts with a
+control byte, ``TIOCPKT_DATA`` (0) before data, or status bits alone. ``TIOCPKT_FLUSHWRITE``
+says the client called ``tcflush(fd, TCOFLUSH)``, which on a pty discards the bytes it wrote
+that are still in the kernel's pty buffer, not yet passed to the master (a U2D2 has already
+sent them). The kernel does not say how
+many bytes went; :class:`PtyLink` reports each such flush to ``on_output_flush``.
 """
 from __future__ import annotations
 
@@ -17,6 +24,7 @@ import termios
 import threading
 import tty
 from pathlib import Path
+from typing import Callable
 
 #: Linux ``TCGETS2`` (struct termios2, 44 bytes: c_ispeed/c_ospeed at offsets 36/40).
 _TCGETS2 = 0x802C542A
@@ -29,6 +37,9 @@ _PR_SET_TIMERSLACK = 29
 #: Timer slack asked for by :func:`precise_timers`, ns (the Linux default is 50 000).
 TIMER_SLACK_NS = 1000
 _precise = threading.local()
+#: Packet-mode control byte before data, and the status bit of a client's output flush.
+_PKT_DATA = termios.TIOCPKT_DATA
+_PKT_FLUSHWRITE = termios.TIOCPKT_FLUSHWRITE
 
 
 def precise_timers() -> None:
@@ -53,15 +64,22 @@ class PtyLink:
     """A raw pty pair; ``path`` is the slave device the client opens.
 
     ``link`` optionally names a symlink created to the slave (removed on :meth:`close`).
+    ``on_output_flush`` is called (in the reading thread) each time a read finds that the client
+    flushed its output queue; :attr:`output_flushes` counts those flushes.
     """
 
-    def __init__(self, baud_bps: int = 1_000_000, link: str | os.PathLike | None = None):
+    def __init__(self, baud_bps: int = 1_000_000, link: str | os.PathLike | None = None,
+                 on_output_flush: Callable[[], None] | None = None):
         self.master, self.slave = os.openpty()
         tty.setraw(self.slave)
         self.path = os.ttyname(self.slave)
         self._set_speed(baud_bps)
         flags = fcntl.fcntl(self.master, fcntl.F_GETFL)
         fcntl.fcntl(self.master, fcntl.F_SETFL, flags | os.O_NONBLOCK)
+        fcntl.ioctl(self.master, termios.TIOCPKT, struct.pack("i", 1))
+        self.on_output_flush = on_output_flush
+        #: Client output flushes seen (``TIOCPKT_FLUSHWRITE`` status reads).
+        self.output_flushes = 0
         self.link: Path | None = None
         if link is not None:
             try:                        # fails if anything exists there: nothing is replaced
@@ -97,15 +115,25 @@ class PtyLink:
             return 0
 
     def read(self, n: int = 4096) -> bytes:
-        """Bytes the client sent (b"" if none are waiting)."""
+        """Up to ``n`` bytes the client sent (b"" if none are waiting, or if this read found a
+        status change instead: an output flush is counted and reported, see the class)."""
         try:
-            return os.read(self.master, n)
+            data = os.read(self.master, n + 1)
         except BlockingIOError:
             return b""
         except OSError as exc:
             if exc.errno == errno.EIO:
                 return b""
             raise
+        if not data:
+            return b""
+        if data[0] == _PKT_DATA:
+            return data[1:]
+        if data[0] & _PKT_FLUSHWRITE:
+            self.output_flushes += 1
+            if self.on_output_flush is not None:
+                self.on_output_flush()
+        return b""
 
     def write(self, data: bytes) -> int:
         """Send ``data`` to the client; returns bytes accepted (the rest is lost if the buffer is full)."""

@@ -70,6 +70,11 @@ BULK_READS = (Instruction.BULK_READ, Instruction.FAST_BULK_READ)
 FAST_READS = (Instruction.FAST_SYNC_READ, Instruction.FAST_BULK_READ)
 BUS_WRITES = (Instruction.SYNC_WRITE, Instruction.BULK_WRITE)
 BUS_INSTRUCTIONS = SYNC_READS + BULK_READS + BUS_WRITES
+#: Said once per emulator on stderr when a client first flushes its output queue.
+OUTPUT_FLUSH_NOTICE = ("swerve emulator: the client flushed its output (tcflush TCOFLUSH) on the pty; "
+                       "whatever it had written that the emulator had not yet read was discarded and never "
+                       "reached the servos (on a U2D2 they would have been sent). Counted in "
+                       "stats.client_output_flushes; the number of bytes lost cannot be known.")
 
 
 @dataclass
@@ -87,6 +92,8 @@ class Stats:
     dispatch_errors: int = 0       # unexpected exceptions caught while handling one packet
     wrong_baud_packets: int = 0    # no servo listens at the client's line speed
     tx_overflow_bytes: int = 0     # reply bytes the pty would not take (client not reading)
+    client_output_flushes: int = 0  # client tcflush(TCOFLUSH) calls seen (pty packet mode); each
+                                    # discards what the emulator had not read: how much is unknown
     clock_ticks: int = 0           # physics steps (clock and advance)
 
     def as_dict(self) -> dict[str, int]:
@@ -223,7 +230,7 @@ class Emulator:
         """Open the pty and start serving (idempotent)."""
         if self._pty is not None:
             return self
-        self._pty = PtyLink(self.baud, self.settings.path)
+        self._pty = PtyLink(self.baud, self.settings.path, on_output_flush=self._output_flushed)
         self._wake_r, self._wake_w = os.pipe()
         self._stop.clear()
         if self.observers:
@@ -356,6 +363,16 @@ class Emulator:
         for pkt in packets:
             self._handle(pkt, self._first_byte_t, now)
             self._first_byte_t = now
+
+    def _output_flushed(self) -> None:
+        """The client flushed its output queue (``tcflush(TCOFLUSH)``): bytes it wrote that were
+        not read yet are gone. Count it, drop the partial frame they belonged to, say so once."""
+        self.stats.client_output_flushes += 1
+        if self._parser.pending:
+            self._parser.reset()
+            self._count_parser_errors()
+        if self.stats.client_output_flushes == 1:
+            print(OUTPUT_FLUSH_NOTICE, file=sys.stderr, flush=True)
 
     def _abandon_partial(self) -> None:
         packets = self._parser.flush()

@@ -183,7 +183,8 @@ class VirtualServo:
             m.set(Reg.PROFILE_VELOCITY, 0)
             m.set(Reg.PROFILE_ACCELERATION, 0)
             m.set(Reg.GOAL_PWM, m.get(Reg.PWM_LIMIT))
-            m.set(Reg.GOAL_CURRENT, m.get(Reg.CURRENT_LIMIT))
+            if Reg.GOAL_CURRENT in self.table:     # models without a current sensor lack both
+                m.set(Reg.GOAL_CURRENT, m.get(Reg.CURRENT_LIMIT))
         if Reg.BUS_WATCHDOG in changed:
             m.watchdog_tripped = False
             self._since_traffic_s = 0.0

@@ -7,8 +7,12 @@ from swerve.driver.control_table import Reg, load_table, models, table_for
 from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
 
+# model numbers and gear ratios: e-Manual control table and Specifications of each model
 @pytest.mark.parametrize("name,number,gear", [("xh430-w210", 1010, 212.6), ("xh430-w350", 1000, 353.5),
-                                              ("xh540-w150", 1110, 152.3)])
+                                              ("xh540-w150", 1110, 152.3), ("xl430-w250", 1060, 258.5),
+                                              ("xl330-m288", 1200, 288.4), ("xl330-m077", 1190, 77.5),
+                                              ("xm430-w210", 1030, 212.6), ("xm430-w350", 1020, 353.5),
+                                              ("xm540-w270", 1120, 272.5)])
 def test_models_load_with_their_numbers(name, number, gear):
     t = table_for(name)
     assert t.model_number == number and t.gear_ratio == gear
@@ -29,6 +33,32 @@ def test_model_specific_defaults():
     assert table_for("xh540-w150")[Reg.CURRENT_LIMIT].max == 2047
     assert Reg.EXTERNAL_PORT_DATA_1 in table_for("xh540-w150")
     assert Reg.EXTERNAL_PORT_DATA_1 not in table_for("xh430-w210")
+    assert Reg.EXTERNAL_PORT_DATA_1 in table_for("xm540-w270")
+
+
+def test_xl330_and_xl430_differ_from_the_xh_table():
+    xl330, xl430 = table_for("xl330-m288"), table_for("xl430-w250")
+    assert xl330[Reg.PRESENT_CURRENT].scale == pytest.approx(1e-3)          # 1 mA, not 2.69 mA
+    assert xl330[Reg.BAUD_RATE].max == 6 and xl330[Reg.PWM_SLOPE].address == 62
+    assert (xl330.indirect[0].data_start, xl330.indirect[0].target_max) == (208, 227)
+    assert Reg.PRESENT_CURRENT not in xl430 and xl430[Reg.PRESENT_LOAD].address == 126
+    assert Reg.GOAL_CURRENT not in xl430 and xl430[Reg.OPERATING_MODE].allowed == (1, 3, 4, 16)
+
+
+def test_baud_lists_must_begin_the_reference_list(tmp_path, monkeypatch):
+    import yaml
+
+    from swerve.driver import control_table as ct
+
+    doc = yaml.safe_load(ct.MODELS_DIR.joinpath("xl330-m288.yaml").read_text())
+    baud = next(r for r in doc["registers"] if r["name"] == "baud_rate")
+    baud["values_bps"] = [9600, 57600, 115200, 1000000, 2000000, 3000000, 4500000]
+    bad = tmp_path / "xl330-bad.yaml"
+    bad.write_text(yaml.safe_dump(doc))
+    tables = {**ct.models(), "xl330-bad": load_table(bad)}
+    monkeypatch.setattr(ct, "models", lambda: tables)
+    with pytest.raises(ConfigError, match="does not begin"):
+        ct._baud_rates_bps()
 
 
 def test_si_conversion_round_trip_and_signs():

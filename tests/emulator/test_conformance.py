@@ -3,36 +3,25 @@
 Every test runs twice: with the unmodified dynamixel-sdk 4.1 and with the project's
 :class:`driver.bus.Bus` (fixture ``client`` in conftest.py). Expected values come from the
 e-Manual (fact sheet ``docs/reference/protocol.md``), not from the emulator.
+The tests named ``test_model_*`` run once per file in ``configs/models`` through the SDK (the
+same models through rustypot: test_rustypot.py).
 """
 from __future__ import annotations
 
+import sys
 import time
 
 import pytest
 
 from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
+from swerve.emulator.robot_emulator import build_emulator
 
-from .conftest import TABLE, TIMEOUT
+from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient, check_reads_match, valid_value
 
 IDS = list(range(1, 9))
 XH430_W210 = 1010
 ALERT = 0x80
-
-
-def _value_for(reg, servo) -> int:
-    """A valid raw value for ``reg`` different from its default where possible."""
-    special = {Reg.TORQUE_ENABLE: 1, Reg.LED: 1, Reg.STATUS_RETURN_LEVEL: 2, Reg.BUS_WATCHDOG: 0}
-    if reg.name in special:
-        return special[reg.name]
-    lo, hi = reg.raw_bounds()
-    v = lo + (hi - lo) // 3
-    if reg.limit:
-        cap = servo.read(reg.limit)
-        v = max(-cap, min(cap, v))
-    if reg.limit_min:
-        v = max(servo.read(reg.limit_min), min(servo.read(reg.limit_max), v))
-    return v
 
 
 def test_ping_every_id(client):
@@ -73,7 +62,7 @@ def test_write_every_ram_item(client, emulator):
     ram = [r for r in TABLE if r.writable and not r.eeprom]
     assert len(ram) > 15
     for reg in ram:
-        value = _value_for(reg, servo)
+        value = valid_value(reg, servo)
         assert client.write(2, reg.address, reg.encode(value)) == 0, reg.name
         data, err = client.read(2, reg.address, reg.size)
         assert (reg.decode(data), err) == (value, 0), reg.name
@@ -353,3 +342,93 @@ def test_swerve_scan_finds_all_eight(emulator):
     assert proc.returncode == 0, proc.stderr
     lines = [ln for ln in proc.stdout.splitlines() if "XH430-W210" in ln]
     assert len(lines) == 8, proc.stdout
+
+
+# --- every shipped model, through dynamixel-sdk ------------------------------------------------
+#: e-Manual facts per model (Control Table pages, emanual.robotis.com/docs/en/dxl/x/<model>/):
+#: model number, Velocity Limit default, Current Limit default (None: no such item), top Baud Rate value.
+MODEL_FACTS = {
+    "XH430-W210": (1010, 210, 648, 7), "XH430-W350": (1000, 130, 648, 7),
+    "XH540-W150": (1110, 300, 2047, 7), "XL430-W250": (1060, 265, None, 7),
+    "XL330-M288": (1200, 445, 1750, 6), "XL330-M077": (1190, 1620, 1750, 6),
+    "XM430-W210": (1030, 330, 1193, 7), "XM430-W350": (1020, 200, 1193, 7),
+    "XM540-W270": (1120, 128, 2047, 7),
+}
+MODEL_IDS = [1, 2, 3, 4]
+
+
+@pytest.fixture
+def model_sdk(model_emulator):
+    c = SdkClient(model_emulator.port)
+    yield c
+    c.close()
+
+
+def test_every_model_has_its_facts_checked(model_emulator):
+    assert model_emulator.model in MODEL_FACTS, "add the e-Manual facts of the new model file"
+
+
+def test_model_answers_ping_with_its_number(model_emulator, model_sdk):
+    from swerve.driver.bus import Bus
+
+    number, velocity_limit, current_limit, top_baud = MODEL_FACTS[model_emulator.model]
+    assert all(model_sdk.ping(i) == (number, 0) for i in MODEL_IDS)
+    assert model_sdk.broadcast_ping() == {i: number for i in MODEL_IDS}
+    table = model_emulator.table
+    assert model_sdk.read(2, table[Reg.VELOCITY_LIMIT].address, 4) == (velocity_limit.to_bytes(4, "little"), 0)
+    if current_limit is None:
+        assert Reg.CURRENT_LIMIT not in table and Reg.GOAL_CURRENT not in table
+        assert model_sdk.write(2, 38, b"\x10\x00") == ErrorNumber.ACCESS     # reserved there
+    else:
+        assert model_sdk.read(2, table[Reg.CURRENT_LIMIT].address, 2) == (current_limit.to_bytes(2, "little"), 0)
+    baud = table[Reg.BAUD_RATE].address
+    assert model_sdk.write(3, baud, bytes((top_baud + 1,))) == ErrorNumber.DATA_RANGE
+    model_sdk.close()
+    with Bus(model_emulator.port, 1_000_000, timeout_margin_s=DRIVER_MARGIN_S) as bus:
+        found = bus.ping(1)                 # the driver names the model from the number alone
+    assert (found.model_number, found.model) == (number, model_emulator.model)
+
+
+def test_model_reads_and_writes_every_item(model_emulator, model_sdk):
+    table, servo = model_emulator.table, model_emulator.servo(3)
+    check_reads_match(lambda reg: model_sdk.read(3, reg.address, reg.size), table, servo)
+    for reg in (r for r in table if r.writable and not r.eeprom):
+        value = valid_value(reg, servo)
+        assert model_sdk.write(3, reg.address, reg.encode(value)) == 0, reg.name
+        assert model_sdk.read(3, reg.address, reg.size) == (reg.encode(value), 0), reg.name
+
+
+def test_model_operating_modes_and_indirect_range(model_emulator, model_sdk):
+    table = model_emulator.table
+    mode = table[Reg.OPERATING_MODE]
+    for value in range(17):
+        expect = 0 if value in mode.allowed else ErrorNumber.DATA_RANGE
+        assert model_sdk.write(4, mode.address, bytes((value,))) == expect, value
+    block = table.indirect[0]
+    assert model_sdk.write(4, block.address_start, block.target_max.to_bytes(2, "little")) == 0
+    assert (model_sdk.write(4, block.address_start, (block.target_max + 1).to_bytes(2, "little"))
+            == ErrorNumber.DATA_RANGE)
+
+
+def test_model_sync_write_sync_read_and_fast_sync_read(model_emulator, model_sdk):
+    gp, pos = model_emulator.table[Reg.GOAL_POSITION], model_emulator.table[Reg.PRESENT_POSITION]
+    model_sdk.sync_write(gp.address, 4, {i: gp.encode(50 * i) for i in MODEL_IDS})
+    model_sdk.ping(1)
+    assert model_sdk.sync_read(MODEL_IDS, gp.address, 4) == {i: 50 * i for i in MODEL_IDS}
+    for i in MODEL_IDS:
+        model_emulator.servo(i).write(Reg.PRESENT_POSITION, 9 * i)
+    assert model_sdk.sync_read(MODEL_IDS, pos.address, 4, fast=True) == {i: 9 * i for i in MODEL_IDS}
+
+
+def test_swerve_scan_names_a_model_by_its_ping_number():
+    import subprocess
+    from pathlib import Path
+
+    with build_emulator(ids=[3, 4], model="xl330-m077", baud=1_000_000) as emu:
+        proc = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "scan", "--port", emu.port,
+                               "--ids", "0-6", "--timeout-margin-ms", "100"],
+                              cwd=Path(__file__).resolve().parents[2], capture_output=True, text=True,
+                              timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    rows = [ln.split() for ln in proc.stdout.splitlines() if "XL330-M077" in ln]
+    assert [(r[0], r[2]) for r in rows] == [("3", "1190"), ("4", "1190")], proc.stdout

@@ -136,3 +136,27 @@ def test_frozen_emulate_servos_stay_put():
         proc.wait(timeout=20)
     assert _elapsed_ms(samples) >= 500
     assert {v for _, v in samples} == {0}
+
+
+@pytest.mark.parametrize("model, number", [("xl330-m288", 1200), ("xm540-w270", 1120)])
+def test_a_model_without_motor_data_is_served_register_only_with_a_notice(model, number):
+    proc = _start("--model", model, "--ids", "1-2")
+    try:
+        port, baud, ids = parse_port_line(proc.stdout.readline())
+        notice = proc.stderr.readline()
+        with Bus(port, baud) as bus:
+            found = bus.ping(2)
+    finally:
+        proc.send_signal(signal.SIGTERM)
+        proc.wait(timeout=20)
+    assert proc.returncode == 0 and ids == [1, 2]
+    assert notice.startswith(f"{model.upper()}: no motor data") and "control table only" in notice
+    assert (found.model_number, found.model) == (number, model.upper())
+
+
+def test_a_model_without_motor_data_refuses_the_robot_body(tmp_path):
+    status = tmp_path / "status.json"
+    proc = _start("--model", "xl430-w250", "--status-file", str(status))
+    out, err = proc.communicate(timeout=30)
+    assert proc.returncode == 2 and out == "" and not status.exists()
+    assert len(err.strip().splitlines()) == 1 and "XL430-W250 has no motor data" in err

@@ -18,7 +18,7 @@ import sys
 import threading
 
 from swerve.configs.options import parse_ids
-from swerve.driver.control_table import ID_MAX
+from swerve.driver.control_table import ID_MAX, table_for
 from swerve.driver.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import baud_rate, finite_float
@@ -135,6 +135,14 @@ def run(args: argparse.Namespace) -> int:
             lockstep["reply_latency_s"] = args.reply_latency_us * 1e-6
     robot = load_robot_config(locate_robot_file(args.config).path)
     physics = None if args.frozen else load_config(resolve_emulator_config(args.emulator_config or "ideal"))
+    table = table_for(args.model or robot.model)          # an unknown model fails here, named
+    if physics is not None and table.model.lower() not in physics.gear_ratios:
+        if args.physics or args.status_file or args.noise or args.live:
+            raise ConfigError(f"{table.model} has no motor data in the emulator config (it covers "
+                              f"{', '.join(sorted(physics.gear_ratios))}): it can be served register-only")
+        print(f"{table.model}: no motor data (the emulator config covers {', '.join(sorted(physics.gear_ratios))}); "
+              "serving its control table only, Present* items stay put", file=sys.stderr, flush=True)
+        physics = None
     try:
         emu = build_emulator(robot, physics, ids=ids, model=args.model, baud=args.baud,
                              body=True if args.physics else None, time_scale=args.time_scale,
@@ -161,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
         if args.live:
             from swerve.tools.live import LivePublisher, PosePump, parse_live
 
-            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator"))
+            live = stack.enter_context(LivePublisher(*parse_live(args.live), name="swerve emulator",
+                                                      topics=("/true_pose",)))
             stack.callback(PosePump(live, lambda: emu.pose).start().close)
             print(f"LIVE {live.url}", file=sys.stderr, flush=True)
         freeze_startup_heap()

@@ -204,9 +204,11 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
         live = None
         if req.live is not None:
-            from swerve.tools.live import LivePublisher, parse_live
+            from swerve.tools.live import RUN_TOPICS, LivePublisher, parse_live
 
-            live = stack.enter_context(LivePublisher(*parse_live(req.live), wheels=[w.name for w in cfg.wheels]))
+            topics = RUN_TOPICS + (("/true_pose",) if req.emulate else ())   # what the cycles carry
+            live = stack.enter_context(LivePublisher(*parse_live(req.live), wheels=[w.name for w in cfg.wheels],
+                                                     topics=topics))
             log.warning("live view on %s", live.url)
             callbacks.append(live.on_cycle)
         if on_cycle is not None:
