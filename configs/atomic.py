@@ -3,16 +3,25 @@
 Every output swerve writes (gain schedules, CSV, plots, config edits, the emulator's status
 file, summaries) goes through :func:`atomic_write`: the bytes go to a temporary file created by
 :func:`tempfile.mkstemp` in the target's own folder (an unpredictable name, opened with
-``O_EXCL``, so no symlink is followed), are flushed to disk, and the file is renamed over the
-target with :func:`os.replace` (atomic on POSIX within one file system). A crash, a full disk or
-an exception inside the ``with`` block leaves the old file untouched and removes the temporary.
+``O_EXCL``, so the temporary itself is never a symlink), are flushed to disk, and the file is
+renamed over the target with :func:`os.replace` (atomic on POSIX within one file system). A
+crash, a full disk or an exception inside the ``with`` block leaves the old file untouched and
+removes the temporary; the error names the file and the reason (``No space left on device``).
+
+A path that is a symlink is written through: the file the link names is replaced (in its own
+folder, keeping its permission bits) and the link stays a link, as ``open(path, "w")`` would.
+A file with no write permission is refused, never replaced. :func:`check_writable` makes the
+same checks (and creates and removes a probe file beside the target) without writing, so a
+command can refuse a read-only target before it does any work.
 
 It lives below every layer so that the controller, the emulator and the tools can all use it.
 """
 from __future__ import annotations
 
 import contextlib
+import errno
 import os
+import stat
 import tempfile
 from collections.abc import Iterator
 from pathlib import Path
@@ -32,6 +41,58 @@ def _umask_mode() -> int:
     return 0o666 & ~mask
 
 
+def resolve_target(path: str | os.PathLike) -> Path:
+    """The file a write to ``path`` replaces: ``path`` itself, or the file its symlinks name.
+
+    Raises :class:`OutputError` for a symlink loop.
+    """
+    target = Path(path)
+    if not target.is_symlink():
+        return target
+    real = Path(os.path.realpath(target))
+    if real.is_symlink():
+        raise OutputError(f"cannot write {target}: symlink loop")
+    return real
+
+
+def _refuse_read_only(target: Path, shown: Path) -> None:
+    """Raise :class:`OutputError` when ``target`` exists without write permission."""
+    try:
+        st = target.stat()
+    except OSError:         # absent (or unreachable: the write itself then says why)
+        return
+    if stat.S_ISDIR(st.st_mode):
+        raise OutputError(f"cannot write {shown}: Is a directory")
+    if not st.st_mode & 0o222 or not os.access(target, os.W_OK):
+        via = "" if target == shown else f" (the link's target {target})"
+        raise OutputError(f"cannot write {shown}{via}: the file is read-only "
+                          f"(mode {stat.S_IMODE(st.st_mode):04o})")
+
+
+def check_writable(path: str | os.PathLike, *, mkdir: bool = True) -> Path:
+    """Check, without changing anything, that :func:`atomic_write` could replace ``path`` now.
+
+    Follows symlinks, refuses a read-only file, and creates and removes a probe file in the
+    target's folder (or its nearest existing ancestor when ``mkdir``), which catches a read-only
+    folder or mount. Returns the file that would be replaced; raises :class:`OutputError`.
+    """
+    shown = Path(path)
+    target = resolve_target(shown)
+    _refuse_read_only(target, shown)
+    folder = target.parent
+    while mkdir and not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    try:
+        if not folder.is_dir():
+            raise NotADirectoryError(errno.ENOTDIR, f"{folder} is not a directory")
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.", suffix=".probe")
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OutputError(f"cannot write {shown}: {exc.strerror or exc}") from None
+    return target
+
+
 @contextlib.contextmanager
 def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | None = None,
                  newline: str | None = None, fsync: bool = True, mkdir: bool = True) -> Iterator[IO]:
@@ -40,12 +101,15 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | No
     ``mode``: ``"w"`` (text, UTF-8 unless ``encoding``) or ``"wb"``. ``fsync``: flush the data
     to disk before the rename (off for files rewritten many times a second). ``mkdir``: create
     missing parent folders. The new file keeps the permission bits of the file it replaces
-    (a new file gets the umask's). Raises :class:`OutputError` (one line: file and reason) when
+    (a new file gets the umask's); a symlink is written through (see the module notes), and a
+    read-only file is refused. Raises :class:`OutputError` (one line: file and reason) when
     the folder or the file cannot be written; any exception leaves ``path`` as it was.
     """
     if mode not in ("w", "wb"):
         raise ValueError(f"atomic_write mode must be 'w' or 'wb', got {mode!r}")
-    target = Path(path)
+    shown = Path(path)
+    target = resolve_target(shown)
+    _refuse_read_only(target, shown)
     try:
         if mkdir:
             for folder in (target.parent, *target.parent.parents):
@@ -56,7 +120,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | No
             raise IsADirectoryError(21, "Is a directory")
         fd, tmp = tempfile.mkstemp(dir=target.parent, prefix=f".{target.name}.", suffix=".tmp")
     except OSError as exc:
-        raise OutputError(f"cannot write {target}: {exc.strerror or exc}") from None
+        raise OutputError(f"cannot write {shown}: {exc.strerror or exc}") from None
     try:
         kw = {} if mode == "wb" else {"encoding": encoding or "utf-8", "newline": newline}
         with os.fdopen(fd, mode, **kw) as fh:
@@ -74,7 +138,7 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | No
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         if isinstance(exc, OSError) and not isinstance(exc, OutputError):
-            raise OutputError(f"cannot write {target}: {exc.strerror or exc}") from None
+            raise OutputError(f"cannot write {shown}: {exc.strerror or exc}") from None
         raise
 
 
@@ -100,4 +164,4 @@ def save_figure(fig, path: str | os.PathLike, **savefig_kw) -> Path:
     return p
 
 
-__all__ = ["OutputError", "atomic_write", "save_figure", "write_bytes", "write_text"]
+__all__ = ["OutputError", "atomic_write", "check_writable", "resolve_target", "save_figure", "write_bytes", "write_text"]

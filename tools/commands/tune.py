@@ -80,6 +80,10 @@ def run(args: argparse.Namespace) -> int:
     emulator_file = resolve_emulator_config(args.emulator_config or "ideal")
     print(f"config: {choice.describe()}")
     rc = load_robot_config(robot_file)
+    if args.write_config:   # a read-only robot file, folder or mount is refused before the servo moves
+        from swerve.configs.atomic import check_writable
+
+        check_writable(robot_file, mkdir=False)
     prior_cfg = load_config(resolve_emulator_config(args.prior or "ideal"))
     if not 0.0 < args.pwm <= 1.0:
         raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
