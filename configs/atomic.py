@@ -21,6 +21,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import shutil
 import stat
 import tempfile
 from collections.abc import Iterator
@@ -142,6 +143,49 @@ def atomic_write(path: str | os.PathLike, mode: str = "w", *, encoding: str | No
         raise
 
 
+@contextlib.contextmanager
+def files_into(folder: str | os.PathLike) -> Iterator[Path]:
+    """A temporary folder whose files join ``folder`` only when the ``with`` block succeeds.
+
+    The temporary folder is made beside ``folder`` (same file system); on a clean exit its files
+    are renamed into ``folder`` (created by renaming the temporary folder itself when absent),
+    replacing files of the same names. On any exception (a full disk while writing, ...) the
+    temporary folder is removed and ``folder`` is as it was: no partial folder is left, and an
+    :class:`OutputError` names the file under ``folder``, not the temporary one.
+    """
+    folder = Path(folder)
+    if folder.exists() and not folder.is_dir():
+        raise OutputError(f"cannot write into {folder}: not a directory")
+    base = folder.parent
+    while not base.exists() and base != base.parent:
+        base = base.parent
+    try:
+        tmp = Path(tempfile.mkdtemp(dir=base, prefix=f".{folder.name}."))
+    except OSError as exc:
+        raise OutputError(f"cannot write into {folder}: {exc.strerror or exc}") from None
+    try:
+        try:
+            yield tmp
+        except OutputError as exc:
+            raise OutputError(str(exc).replace(str(tmp), str(folder))) from None
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        if not folder.exists():
+            os.rename(tmp, folder)
+            return
+        for item in sorted(tmp.iterdir()):
+            if item.is_dir():
+                raise OutputError(f"cannot write into {folder}: {item.name} is a folder")
+            os.replace(item, folder / item.name)
+        os.rmdir(tmp)
+    except OSError as exc:
+        if isinstance(exc, OutputError):
+            raise
+        raise OutputError(f"cannot write into {folder}: {exc.strerror or exc}") from None
+    finally:
+        if tmp.exists():
+            shutil.rmtree(tmp, ignore_errors=True)
+
+
 def write_text(path: str | os.PathLike, text: str, **kw) -> Path:
     """Write ``text`` to ``path`` atomically (see :func:`atomic_write`); returns the path."""
     with atomic_write(path, "w", **kw) as fh:
@@ -164,4 +208,4 @@ def save_figure(fig, path: str | os.PathLike, **savefig_kw) -> Path:
     return p
 
 
-__all__ = ["OutputError", "atomic_write", "check_writable", "resolve_target", "save_figure", "write_bytes", "write_text"]
+__all__ = ["OutputError", "atomic_write", "check_writable", "files_into", "resolve_target", "save_figure", "write_bytes", "write_text"]
