@@ -35,11 +35,19 @@ class OutputError(SwerveError, OSError):
     """An output file could not be written; the message names the file and the OS reason."""
 
 
-def _umask_mode() -> int:
-    """Permission bits a plain ``open(path, "w")`` would give a new file (0o666 minus the umask)."""
+def _umask() -> int:
     mask = os.umask(0)
     os.umask(mask)
-    return 0o666 & ~mask
+    return mask
+
+
+def _umask_mode() -> int:
+    """Permission bits a plain ``open(path, "w")`` would give a new file (0o666 minus the umask)."""
+    return 0o666 & ~_umask()
+
+
+#: Free space :func:`check_writable` asks for beyond the size of the file it will replace, bytes.
+SPACE_MARGIN_BYTES = 64 * 1024
 
 
 def resolve_target(path: str | os.PathLike) -> Path:
@@ -64,18 +72,22 @@ def _refuse_read_only(target: Path, shown: Path) -> None:
         return
     if stat.S_ISDIR(st.st_mode):
         raise OutputError(f"cannot write {shown}: Is a directory")
-    if not st.st_mode & 0o222 or not os.access(target, os.W_OK):
-        via = "" if target == shown else f" (the link's target {target})"
+    via = "" if target == shown else f" (the link's target {target})"
+    if not st.st_mode & 0o222:
         raise OutputError(f"cannot write {shown}{via}: the file is read-only "
                           f"(mode {stat.S_IMODE(st.st_mode):04o})")
+    if not os.access(target, os.W_OK):
+        code = errno.EROFS if os.statvfs(target).f_flag & os.ST_RDONLY else errno.EACCES
+        raise OutputError(f"cannot write {shown}{via}: {os.strerror(code)}")
 
 
 def check_writable(path: str | os.PathLike, *, mkdir: bool = True) -> Path:
     """Check, without changing anything, that :func:`atomic_write` could replace ``path`` now.
 
-    Follows symlinks, refuses a read-only file, and creates and removes a probe file in the
-    target's folder (or its nearest existing ancestor when ``mkdir``), which catches a read-only
-    folder or mount. Returns the file that would be replaced; raises :class:`OutputError`.
+    Follows symlinks, refuses a read-only file, creates and removes a probe file in the target's
+    folder (or its nearest existing ancestor when ``mkdir``), which catches a read-only folder or
+    mount, and asks for the file's present size plus :data:`SPACE_MARGIN_BYTES` of free space.
+    Returns the file that would be replaced; raises :class:`OutputError`.
     """
     shown = Path(path)
     target = resolve_target(shown)
@@ -89,6 +101,13 @@ def check_writable(path: str | os.PathLike, *, mkdir: bool = True) -> Path:
         fd, probe = tempfile.mkstemp(dir=folder, prefix=f".{target.name}.", suffix=".probe")
         os.close(fd)
         os.unlink(probe)
+        fs = os.statvfs(folder)
+        try:
+            size = target.stat().st_size
+        except OSError:
+            size = 0
+        if fs.f_bavail * fs.f_frsize < size + SPACE_MARGIN_BYTES:
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
     except OSError as exc:
         raise OutputError(f"cannot write {shown}: {exc.strerror or exc}") from None
     return target
@@ -170,6 +189,7 @@ def files_into(folder: str | os.PathLike) -> Iterator[Path]:
             raise OutputError(str(exc).replace(str(tmp), str(folder))) from None
         folder.parent.mkdir(parents=True, exist_ok=True)
         if not folder.exists():
+            os.chmod(tmp, 0o777 & ~_umask())
             os.rename(tmp, folder)
             return
         for item in sorted(tmp.iterdir()):

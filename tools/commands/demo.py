@@ -41,6 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swerve.configs.atomic import check_writable
     from swerve.controller.reference import load_trajectory
     from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 
@@ -61,6 +62,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--trajectories {args.trajectories!r} names no trajectory "
                           f"(e.g. {','.join(TRAJECTORIES)})")
     trajectories = {name: load_trajectory(name, geom) for name in names}     # all valid before any output
+    check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
     created = _missing_folder(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
