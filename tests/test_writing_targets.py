@@ -59,6 +59,7 @@ COMMANDS = {
                   "robot.yaml"),
     "tune": (["tune", "--emulate", "--id", "1", "--write-config", "--config", "{out}", "--out", "{side}",
               "--no-progress"], "robot", "robot.yaml"),
+    "tune-report": (["tune", "--emulate", "--id", "1", "--out", "{out}", "--no-progress"], "folder", "tune"),
     "run": (["run", "--trajectory", "line", "--emulate", "--lockstep", "--log", "{out}"], "folder", "log"),
     "demo": (["demo", "--trajectories", "line", "--out", "{out}"], "folder", "demo"),
     "emulate-status": (["emulate", "--physics", "--status-file", "{out}"], "file", "status.json"),
