@@ -127,16 +127,23 @@ def _setup(kind: str, name: str):
     return setup
 
 
+def _existing_output(name: str, folder: Path, mode: int) -> Path:
+    """The output file of command ``name`` in a new ``folder``, already there with ``mode``."""
+    what, target_name = COMMANDS[name][1:]
+    path = folder / target_name
+    folder.mkdir()
+    if what == "robot":
+        shutil.copy(ROBOT, path)
+    else:
+        path.write_bytes(b"old")
+    path.chmod(mode)
+    return path
+
+
 @pytest.mark.parametrize("name", SYMLINKED)
 def test_a_symlinked_output_is_written_through(name, tmp_path, log_dir):
-    what, target_name = COMMANDS[name][1:]
-    real = tmp_path / "real" / target_name
-    real.parent.mkdir()
-    if what == "robot":
-        shutil.copy(ROBOT, real)
-    else:
-        real.write_bytes(b"old")
-    real.chmod(0o640)
+    target_name = COMMANDS[name][2]
+    real = _existing_output(name, tmp_path / "real", 0o640)
     before = real.read_bytes()
     link = tmp_path / f"link-{target_name}"
     link.symlink_to(real)
@@ -150,14 +157,7 @@ def test_a_symlinked_output_is_written_through(name, tmp_path, log_dir):
 
 @pytest.mark.parametrize("name", [n for n, c in COMMANDS.items() if c[1] in ("file", "robot")])
 def test_a_read_only_output_file_is_refused(name, tmp_path, log_dir):
-    what, target_name = COMMANDS[name][1:]
-    out = tmp_path / "out" / target_name
-    out.parent.mkdir()
-    if what == "robot":
-        shutil.copy(ROBOT, out)
-    else:
-        out.write_bytes(b"old")
-    out.chmod(0o444)
+    out = _existing_output(name, tmp_path / "out", 0o444)
     before = _tree(out.parent)
     proc = _swerve(_argv(name, out, log_dir, tmp_path / "side"), tmp_path)
     _one_line(proc, str(out), "read-only")
