@@ -17,7 +17,8 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
     info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> body <0|1>
     (anything else)            ->  error <text>
 
-Limits: a request line is ASCII and at most :data:`MAX_LINE_BYTES` long; ``advance`` moves robot
+Limits: at most :data:`MAX_CLIENTS` connections; a request line is ASCII and at most
+:data:`MAX_LINE_BYTES` long; ``advance`` moves robot
 time by at most :data:`MAX_ADVANCE_S`; ``tx_bytes`` is at most :data:`MAX_TX_BYTES`. A request
 outside them is answered with ``error``; a client whose line overruns the cap, or that does not
 read its replies (its socket buffer fills), is disconnected. The bus is never stopped by a client.
@@ -51,6 +52,8 @@ log = logging.getLogger(__name__)
 BARRIER_TIMEOUT_S = 10.0
 #: Longest request line, bytes (the longest valid one is under 100); a longer one drops the client.
 MAX_LINE_BYTES = 1024
+#: Most control connections open at once; a further one is told so and closed.
+MAX_CLIENTS = 16
 #: Bytes read from a client per wakeup of the bus thread.
 RECV_CHUNK = 4096
 #: Largest robot time one ``advance`` may move, s: the bus thread runs the physics over it
@@ -145,6 +148,13 @@ class ControlServer:
             except (BlockingIOError, ConnectionAbortedError):
                 return
             sock.setblocking(False)
+            if len(self._conns) >= MAX_CLIENTS:
+                try:
+                    sock.send(f"error more than {MAX_CLIENTS} control clients; disconnected\n".encode("ascii"))
+                except OSError:
+                    pass
+                sock.close()
+                return
             self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes)
             self._fds = (self._listener.fileno(), *self._conns)
             return

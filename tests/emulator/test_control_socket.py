@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 from swerve.configs import shipped
 from swerve.driver.bus import Bus
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator.control import MAX_ADVANCE_S, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
+from swerve.emulator.control import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
@@ -37,9 +37,10 @@ def lockstep_robot():
 
 
 def _connect(path: str) -> socket.socket:
+    """A client connection (waits while the listener's backlog is full)."""
     s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    s.connect(path)                 # blocking: returns once the bus thread has room for it
     s.settimeout(REPLY_WAIT_S)
-    s.connect(path)
     return s
 
 
@@ -142,6 +143,21 @@ def test_an_overlong_line_drops_only_that_client(lockstep_robot):
         assert c.recv(1) == b""                          # disconnected
         bystander.sendall(b"now 0\n")
         assert _lines(bystander, 1)[0].startswith("at ")
+    _assert_alive(emu, bus)
+
+
+def test_a_flood_of_connections_is_capped(lockstep_robot):
+    emu, bus = lockstep_robot
+    socks = [_connect(emu.control.path) for _ in range(MAX_CLIENTS + 4)]
+    try:
+        for s in socks:                     # every connection is served in turn, or told it is one too many
+            s.sendall(b"now 0\n")
+        replies = [(_lines(s, 1) or ["(closed)"])[0] for s in socks]
+    finally:
+        for s in socks:
+            s.close()
+    assert sum(r.startswith("at ") for r in replies) >= MAX_CLIENTS - 1      # the fixture's own may hold one
+    assert all(r.startswith(("at ", "error more than")) or r == "(closed)" for r in replies), replies
     _assert_alive(emu, bus)
 
 
