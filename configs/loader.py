@@ -11,7 +11,8 @@ Unknown keys are a **warning**, not an error: :meth:`Section.check_unknown` emit
 :class:`ConfigWarning` (``FILE:LINE: KEY: unknown key, ignored``) for every key the parser did
 not read, so a file written for a newer version still loads, while a typo is still reported.
 A key given twice in one mapping is an error. Numbers must be finite (``.nan`` and ``.inf`` are
-refused); bounds are given per key.
+refused); bounds are given per key, either inline (``min=``/``max=``) or as a :class:`Bound`
+from a table of the file's keys (:meth:`Section.bounded`).
 """
 from __future__ import annotations
 
@@ -31,6 +32,32 @@ from swerve.configs.errors import ConfigError
 _SafeLoader = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 #: Largest YAML file read, bytes (configs and trajectories are a few kB).
 YAML_MAX_BYTES = 16 * 2**20
+
+
+@dataclass(frozen=True)
+class Bound:
+    """The accepted values of one number in a config file.
+
+    ``lo``..``hi`` inclusive, in ``unit``; ``integer``: an integer is required; ``allowed``: the
+    value must be one of these instead (``lo``/``hi`` then span them); ``step``: a multiple of it;
+    ``why``: where the range comes from (shown in the docs, not in errors).
+    """
+
+    lo: float
+    hi: float
+    unit: str = ""
+    why: str = ""
+    integer: bool = False
+    allowed: tuple[float, ...] | None = None
+    step: float | None = None
+
+    def describe(self) -> str:
+        """The range as text: ``[0.005, 1] m``, ``one of 1, -1``, ``[0, 508] us, a multiple of 2``."""
+        unit = f" {self.unit}" if self.unit else ""
+        if self.allowed is not None:
+            return f"one of {', '.join(_show(v) for v in self.allowed)}{unit}"
+        text = f"[{self.lo:g}, {self.hi:g}]{unit}"
+        return text + (f", a multiple of {self.step:g}" if self.step else "")
 
 
 class ConfigWarning(UserWarning):
@@ -128,6 +155,8 @@ def parse_yaml_text(text: str, file: str, error: type[ConfigError] = ConfigError
     except yaml.YAMLError as exc:
         line, problem = _yaml_problem(exc)
         raise config_error(file, line, None, problem, error) from None
+    except ValueError as exc:       # an integer of more digits than Python converts
+        raise config_error(file, None, None, f"not a usable YAML value: {exc}", error) from None
     finally:
         loader.dispose()
     lines: dict[_Path, int] = {}
@@ -337,6 +366,31 @@ class Section:
             self.fail(f"{value} is outside [{_bound(min, '-inf')}, {_bound(max, 'inf')}]", key)
         return value
 
+    def bounded(self, key: str | int, bound: Bound, default: Any = REQUIRED) -> float | int:
+        """A number within ``bound`` (an int when ``bound.integer``); ``default`` when absent.
+
+        Every failure names the accepted range: ``FILE:LINE: KEY: 1e-300 is outside [0.005, 1] m``.
+        """
+        if bound.integer:
+            value = self.integer(key, default)
+        else:
+            value = self.value[key] if isinstance(key, int) else self.raw(key, default)
+            if value is not None:
+                value = self._number_value(value, key, positive=False, nonneg=False, min=None, max=None)
+        if value is None:
+            return None
+        if bound.allowed is not None:
+            if value not in bound.allowed:
+                self.fail(f"expected {bound.describe()}, got {_show(value)}", key)
+        elif not bound.lo <= value <= bound.hi or (bound.step and value % bound.step):
+            self.fail(f"{_show(value)} is outside {bound.describe()}", key)
+        return value
+
+    def bounded_list(self, key: str, length: int, bound: Bound) -> tuple:
+        """A list of ``length`` numbers, each within ``bound``."""
+        lst = self._list(key, length, REQUIRED, "integers" if bound.integer else "numbers")
+        return tuple(lst.bounded(i, bound) for i in range(len(lst.value)))
+
     def boolean(self, key: str, default: Any = REQUIRED) -> bool:
         """``true`` or ``false``."""
         value = self.raw(key, default)
@@ -397,9 +451,17 @@ class Section:
         return out
 
 
+def _show(value: float | int) -> str:
+    """A number for a message: ``%g`` for floats, digits for ints (shortened past 20)."""
+    if isinstance(value, int):
+        text = str(value) if abs(value) < 10**20 else f"{str(value)[:8]}...({len(str(abs(value)))} digits)"
+        return text
+    return f"{value:g}"
+
+
 def _bound(b: float | None, none: str) -> str:
     return none if b is None else f"{b:g}"
 
 
-__all__ = ["ConfigWarning", "Document", "REQUIRED", "Section", "config_error", "document", "dotted",
+__all__ = ["Bound", "ConfigWarning", "Document", "REQUIRED", "Section", "config_error", "document", "dotted",
            "parse_yaml_text", "read_yaml"]

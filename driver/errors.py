@@ -8,6 +8,7 @@ instead of showing a traceback. Errors carry their facts as fields::
     ├── ConfigError (ValueError)
     └── DxlError
         ├── TransportError (IOError)
+        │   └── PortInUseError                   port
         ├── DxlTimeoutError (TimeoutError)      ids, first_missing, instruction, timeout_s
         ├── CorruptPacketError (ValueError)
         │   └── ChecksumError                    expected, actual, frame
@@ -20,7 +21,8 @@ from __future__ import annotations
 from swerve.configs.errors import ConfigError, SwerveError
 from swerve.driver.protocol import ErrorNumber, StatusError, instruction_name
 
-__all__ = ["SwerveError", "ConfigError", "DxlError", "TransportError", "DxlTimeoutError",
+__all__ = ["SwerveError", "ConfigError", "DxlError", "TransportError", "PortInUseError",
+           "DxlTimeoutError",
            "CorruptPacketError", "ChecksumError", "ServoError", "RegisterError", "OutOfRangeError"]
 
 
@@ -30,6 +32,14 @@ class DxlError(SwerveError):
 
 class TransportError(DxlError, IOError):
     """The serial port could not be opened, written or read."""
+
+
+class PortInUseError(TransportError):
+    """Another program holds the serial port's lock; ``port`` names it."""
+
+    def __init__(self, message: str, *, port: str):
+        super().__init__(message)
+        self.port = port
 
 
 class DxlTimeoutError(DxlError, TimeoutError):

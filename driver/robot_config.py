@@ -14,7 +14,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any, Mapping
 
-from swerve.configs.loader import Document, Section, document, read_yaml
+from swerve.configs.loader import Bound, Document, Section, document, read_yaml
 from swerve.driver.control_table import (BAUD_RATES_BPS, CONFIG_DIR, POSITION_MODES, REFERENCE_MODEL,
                                          ControlTable, OperatingMode, Reg, table_for)
 from swerve.driver.errors import SwerveError
@@ -31,6 +31,77 @@ MODE_NAMES = {m.name.lower(): m for m in OperatingMode}
 OFFSET_MAX_M = 5.0
 WHEEL_RADIUS_MAX_M = 1.0
 SPEED_MAX_MPS = 10.0
+#: Smallest wheel offset from the centroid and smallest wheel, m: a wheel module is larger than this.
+OFFSET_MIN_M = 0.02
+WHEEL_RADIUS_MIN_M = 0.005
+#: Smallest wheel speed cap, m/s (a cap below 1 mm/s is a typo or a wrong unit).
+SPEED_MIN_MPS = 0.001
+#: Smallest steering-angle limit, rad (about half a degree).
+STEER_ANGLE_MIN_RAD = 0.01
+#: Most consecutive reply timeouts a run tolerates before it stops (at the paper's 62.5 Hz,
+#: 100 cycles are 1.6 s of driving blind).
+TIMEOUTS_MAX = 100
+
+
+def robot_bounds(table: ControlTable) -> dict[str, Bound]:
+    """The accepted range of every number in the robot file, for servos of ``table``'s model.
+
+    Keys are dotted paths with ``[]`` for any list item and ``*`` for any gain register. Ranges
+    that come from the servo are read from the model's control table (e-Manual,
+    https://emanual.robotis.com/docs/en/dxl/x/xh430-w210/#control-table): IDs, Return Delay Time,
+    Bus Watchdog, Velocity Limit, profiles and gains. configs/README.md lists them for the shipped
+    model; ``tests/configs/test_robot_bounds.py`` keeps the two equal.
+    """
+    def reg(name, unit="", why="", si=False, lo_raw=None):
+        r = table[name]
+        lo, hi = r.raw_bounds()
+        lo = lo if lo_raw is None else lo_raw
+        if si:
+            return Bound(r.to_si(lo), r.to_si(hi), unit, why)
+        return Bound(lo, hi, unit, why, integer=True)
+
+    rdt = table[Reg.RETURN_DELAY_TIME]
+    rdt_step_us = rdt.to_si(1) * 1e6
+    velocity = reg(Reg.VELOCITY_LIMIT, "rad/s", "Velocity Limit (44): one unit to its largest value",
+                   si=True, lo_raw=1)
+    offset = Bound(-OFFSET_MAX_M, OFFSET_MAX_M, "m", "wheel position on the body")
+    ids = reg(Reg.ID, why="ID (7): 0-252 (253 and 254 are reserved for the bus)")
+    sign = Bound(-1, 1, why="+1 or -1: which way the servo is mounted", integer=True, allowed=(1, -1))
+    bounds = {
+        "geometry.a_m": Bound(OFFSET_MIN_M, OFFSET_MAX_M, "m", "half wheelbase"),
+        "geometry.b_m": Bound(OFFSET_MIN_M, OFFSET_MAX_M, "m", "half track"),
+        "geometry.wheel_radius_m": Bound(WHEEL_RADIUS_MIN_M, WHEEL_RADIUS_MAX_M, "m", "wheel radius"),
+        "limits.v1_max_mps": Bound(SPEED_MIN_MPS, SPEED_MAX_MPS, "m/s",
+                                   "wheel ground speed cap; also v1_max_mps / wheel_radius_m must be "
+                                   "within the drive servo's Velocity Limit (44)"),
+        "limits.steer_rate_max_radps": velocity,
+        "limits.steer_angle_max_rad": Bound(STEER_ANGLE_MIN_RAD, math.pi, "rad", "half a turn at most"),
+        "link.baud": Bound(min(BAUD_RATES_BPS), max(BAUD_RATES_BPS), "bps", "Baud Rate (8) values",
+                           integer=True, allowed=tuple(BAUD_RATES_BPS)),
+        "link.return_delay_us": Bound(0.0, rdt.to_si(rdt.raw_bounds()[1]) * 1e6, "us",
+                                      "Return Delay Time (9), 2 us units", step=rdt_step_us),
+        "link.protocol": Bound(2.0, 2.0, why="Protocol 2.0 only", allowed=(2.0,)),
+        "wheels[].x_m": offset,
+        "wheels[].y_m": offset,
+        "wheels[].drive_id": ids,
+        "wheels[].steer_id": ids,
+        "drive.direction[]": sign,
+        "steering.direction[]": sign,
+        "steering.center_pulse[]": Bound(0, table.pulses_per_rev - 1, "pulse",
+                                         "Present Position over one turn", integer=True),
+        "safety.bus_watchdog_s": reg(Reg.BUS_WATCHDOG, "s", "Bus Watchdog (98), 20 ms units; 0: off",
+                                     si=True),
+        "safety.max_consecutive_timeouts": Bound(1, TIMEOUTS_MAX, why="reply timeouts in a row before "
+                                                 "a run stops", integer=True),
+    }
+    for group in ("drive", "steering"):
+        for key in ("profile_velocity", "profile_acceleration"):
+            bounds[f"{group}.{key}"] = reg(key, "raw", f"{table[key].name} item, raw units")
+        gains = [table[n].raw_bounds() for n in table.registers if n.endswith("_gain")]
+        bounds[f"{group}.gains.*"] = Bound(min(lo for lo, _ in gains), max(hi for _, hi in gains), "raw",
+                                           "gain items (P, I, D of velocity and position), each "
+                                           "within its own control-table range", integer=True)
+    return bounds
 
 
 @dataclass(frozen=True)
@@ -106,7 +177,8 @@ class RobotConfig:
         return self.v1_max_mps / self.wheel_radius_m
 
 
-def _group(sec: Section, table: ControlTable) -> ServoGroupConfig:
+def _group(sec: Section, table: ControlTable, bounds: Mapping[str, Bound]) -> ServoGroupConfig:
+    group = sec.key()
     mode = sec.choice("operating_mode", MODE_NAMES)
     gsec = sec.section("gains")
     gains = {}
@@ -114,75 +186,74 @@ def _group(sec: Section, table: ControlTable) -> ServoGroupConfig:
         if str(name) not in table or not str(name).endswith("_gain"):
             gsec.fail(f"not a gain register of {table.model}", name)
         lo, hi = table[str(name)].raw_bounds()
-        gains[str(name)] = gsec.integer(name, min=lo, max=hi)
-    prof = {}
-    for key in ("profile_velocity", "profile_acceleration"):
-        lo, hi = table[key].raw_bounds()
-        prof[key] = sec.integer(key, None, min=lo, max=hi)
+        gains[str(name)] = gsec.bounded(name, Bound(lo, hi, "raw", integer=True))
+    prof = {key: sec.bounded(key, bounds[f"{group}.{key}"], None)
+            for key in ("profile_velocity", "profile_acceleration")}
     return ServoGroupConfig(int(mode), MappingProxyType(gains), **prof)
 
 
 def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
     """Validate a robot document: a :class:`~swerve.configs.loader.Document` (errors then carry
-    line numbers) or already-parsed YAML data named ``where`` in errors."""
+    line numbers) or already-parsed YAML data named ``where`` in errors.
+
+    Every number is checked against :func:`robot_bounds` of the file's servo model.
+    """
     doc = data if isinstance(data, Document) else document(data, where)
     top = doc.root()
     geo, lim, link, safety = (top.section(k) for k in ("geometry", "limits", "link", "safety"))
-    port = link.string("port")
-    baud = link.integer("baud")
-    if baud not in BAUD_RATES_BPS:
-        link.fail(f"{baud} is not a Dynamixel X baud rate {BAUD_RATES_BPS}", "baud")
-    rdt = link.number("return_delay_us", nonneg=True, max=RETURN_DELAY_MAX_US)
-    if rdt % 2:
-        link.fail(f"{rdt:g} us is not a multiple of 2 us in [0, {RETURN_DELAY_MAX_US:g}]", "return_delay_us")
-    protocol = link.number("protocol", 2.0)
-    if protocol != 2.0:
-        link.fail(f"only Protocol 2.0 is supported, got {protocol:g}", "protocol")
     model = top.string("model")
     try:
         table = table_for(model)
     except SwerveError as exc:
         top.fail(str(exc), "model")
+    bounds = robot_bounds(table)
+    port = link.string("port")
+    baud = link.bounded("baud", bounds["link.baud"])
+    rdt = link.bounded("return_delay_us", bounds["link.return_delay_us"])
+    protocol = link.bounded("protocol", bounds["link.protocol"], 2.0)
     wheels_in = top.items("wheels", 4)
     drive, steering = top.section("drive"), top.section("steering")
-    ddir = drive.integers("direction", 4, allowed=(1, -1))
-    sdir = steering.integers("direction", 4, allowed=(1, -1))
-    centers = steering.integers("center_pulse", 4, min=0, max=table.pulses_per_rev - 1)
+    ddir = drive.bounded_list("direction", 4, bounds["drive.direction[]"])
+    sdir = steering.bounded_list("direction", 4, bounds["steering.direction[]"])
+    centers = steering.bounded_list("center_pulse", 4, bounds["steering.center_pulse[]"])
     wheels, seen = [], {}
     for k, w in enumerate(wheels_in):
         ids = {}
         for key in ("drive_id", "steer_id"):
-            ids[key] = w.integer(key, min=0, max=table[Reg.ID].max)
+            ids[key] = w.bounded(key, bounds[f"wheels[].{key}"])
             if ids[key] in seen:
                 w.fail(f"duplicate servo ID {ids[key]} (also {seen[ids[key]]})", key)
             seen[ids[key]] = w.key(key)
         wheels.append(WheelConfig(
-            name=w.string("name"), x_m=w.number("x_m", min=-OFFSET_MAX_M, max=OFFSET_MAX_M),
-            y_m=w.number("y_m", min=-OFFSET_MAX_M, max=OFFSET_MAX_M),
+            name=w.string("name"), x_m=w.bounded("x_m", bounds["wheels[].x_m"]),
+            y_m=w.bounded("y_m", bounds["wheels[].y_m"]),
             drive_id=ids["drive_id"], steer_id=ids["steer_id"], axle=w.string("axle", "", nonempty=False),
             drive_direction=ddir[k], steer_direction=sdir[k], center_pulse=centers[k]))
         w.check_unknown()
-    dgroup = _group(drive, table)
-    sgroup = _group(steering, table)
+    dgroup = _group(drive, table, bounds)
+    sgroup = _group(steering, table, bounds)
     if dgroup.operating_mode != OperatingMode.VELOCITY:
         drive.fail("drive servos must be in velocity mode", "operating_mode")
     if sgroup.operating_mode not in POSITION_MODES:
         steering.fail("steering servos must be in a position mode", "operating_mode")
-    wd = safety.number("bus_watchdog_s", nonneg=True, max=BUS_WATCHDOG_MAX_S + 1e-9)
     cfg = RobotConfig(
         name=top.string("name", "", nonempty=False),
-        a_m=geo.number("a_m", positive=True, max=OFFSET_MAX_M),
-        b_m=geo.number("b_m", positive=True, max=OFFSET_MAX_M),
-        wheel_radius_m=geo.number("wheel_radius_m", positive=True, max=WHEEL_RADIUS_MAX_M),
-        v1_max_mps=lim.number("v1_max_mps", positive=True, max=SPEED_MAX_MPS),
-        steer_rate_max_radps=lim.number("steer_rate_max_radps", positive=True,
-                                        max=table[Reg.VELOCITY_LIMIT].to_si(table[Reg.VELOCITY_LIMIT].max)),
-        steer_angle_max_rad=lim.number("steer_angle_max_rad", positive=True, max=math.pi),
+        a_m=geo.bounded("a_m", bounds["geometry.a_m"]),
+        b_m=geo.bounded("b_m", bounds["geometry.b_m"]),
+        wheel_radius_m=geo.bounded("wheel_radius_m", bounds["geometry.wheel_radius_m"]),
+        v1_max_mps=lim.bounded("v1_max_mps", bounds["limits.v1_max_mps"]),
+        steer_rate_max_radps=lim.bounded("steer_rate_max_radps", bounds["limits.steer_rate_max_radps"]),
+        steer_angle_max_rad=lim.bounded("steer_angle_max_rad", bounds["limits.steer_angle_max_rad"]),
         link=LinkConfig(port, baud, rdt, protocol),
         model=table.model, wheels=tuple(wheels), drive=dgroup, steering=sgroup,
-        bus_watchdog_s=wd,
-        max_consecutive_timeouts=safety.integer("max_consecutive_timeouts", 3, min=1),
+        bus_watchdog_s=safety.bounded("bus_watchdog_s", bounds["safety.bus_watchdog_s"]),
+        max_consecutive_timeouts=safety.bounded("max_consecutive_timeouts",
+                                                bounds["safety.max_consecutive_timeouts"], 3),
         source=doc.file)
+    wheel_max = bounds["limits.steer_rate_max_radps"].hi
+    if cfg.drive_max_radps > wheel_max:
+        lim.fail(f"{cfg.v1_max_mps:g} m/s on a {cfg.wheel_radius_m:g} m wheel is {cfg.drive_max_radps:.4g} "
+                 f"rad/s, above the drive servo's Velocity Limit {wheel_max:.4g} rad/s", "v1_max_mps")
     for sec in (top, geo, lim, link, safety, drive, steering):
         sec.check_unknown()
     return cfg

@@ -17,6 +17,12 @@ but moves that decoding behind the last byte: 3-4 % fewer round trips per second
 emulator with 1 Mbps wire timing (``bench/bench_emulator.py``), so the transport keeps
 pyserial's VMIN.
 
+A device or pty path is opened with pyserial's ``exclusive=True``: an advisory
+``flock(LOCK_EX | LOCK_NB)`` on the device, so a second swerve program on the same bus is
+refused with :class:`PortInUseError` instead of interleaving its writes with the first one's.
+(The lock is advisory: a program that does not ask for it, e.g. the Dynamixel SDK's
+``PortHandler``, is not kept out.)
+
 Every OS-level failure of the port (unplugged adapter, ``termios.error``, EIO, a closed
 or invalid descriptor, end of file) is raised as a :class:`TransportError` naming the port.
 
@@ -26,6 +32,7 @@ per-device sysfs file (FTDI default 16 ms; set it to 1 ms, see :func:`latency_ti
 """
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import re
@@ -39,7 +46,7 @@ import serial
 
 # Baud rates the X series supports, in scan order (factory default first).
 from swerve.driver.control_table import SCAN_BAUDS_BPS as STANDARD_BAUDS
-from swerve.driver.errors import TransportError
+from swerve.driver.errors import PortInUseError, TransportError
 from swerve.driver.parser import PacketParser
 
 log = logging.getLogger(__name__)
@@ -114,12 +121,18 @@ def open_port(url: str, baud: int, timeout_s: float = 0.1) -> serial.SerialBase:
 
     ``timeout_s`` bounds a single blocking read; :class:`Transport` sets its own
     deadlines. On a ttyUSB, low-latency mode is requested (ignored where unsupported).
-    Raises :class:`TransportError` naming the port on failure.
+    A device or pty path is locked for this process (see the module notes). Raises
+    :class:`PortInUseError` when another program holds the port, :class:`TransportError`
+    naming the port on any other failure.
     """
+    lock = {} if "://" in url else {"exclusive": True}
     try:
         port = serial.serial_for_url(url, baudrate=int(baud), timeout=timeout_s,
-                                     write_timeout=max(1.0, timeout_s))
+                                     write_timeout=max(1.0, timeout_s), **lock)
     except (serial.SerialException, OSError, ValueError) as exc:
+        if lock and getattr(exc, "errno", None) in (errno.EAGAIN, errno.EWOULDBLOCK):
+            raise PortInUseError(f"serial port {url} is in use by another program (it holds the port's "
+                                 f"lock); stop that program first", port=url) from None
         raise TransportError(f"cannot open serial port {url!r} at {baud} bps: {exc}") from None
     if "://" not in url and _TTYUSB.match(os.path.basename(os.path.realpath(url))):
         try:

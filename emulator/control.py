@@ -17,6 +17,12 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
     info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> body <0|1>
     (anything else)            ->  error <text>
 
+Limits: at most :data:`MAX_CLIENTS` connections; a request line is ASCII and at most
+:data:`MAX_LINE_BYTES` long; ``advance`` moves robot
+time by at most :data:`MAX_ADVANCE_S`; ``tx_bytes`` is at most :data:`MAX_TX_BYTES`. A request
+outside them is answered with ``error``; a client whose line overruns the cap, or that does not
+read its replies (its socket buffer fills), is disconnected. The bus is never stopped by a client.
+
 ``BITS`` of ``hwerror`` are ``+``-separated names (``overload+overheating``) or an integer. A
 fault sent this way takes effect at a known point of robot time (after the announced bytes).
 
@@ -28,17 +34,33 @@ written, then time advanced" deterministic. Connect before writing to the pty.
 """
 from __future__ import annotations
 
+import errno
 import logging
+import math
 import os
 import socket
+import stat
 import tempfile
 from pathlib import Path
 from typing import Protocol
+
+from swerve.configs.errors import SwerveError
 
 log = logging.getLogger(__name__)
 
 #: Longest the bus thread waits for bytes a barrier announced before answering with an error, s.
 BARRIER_TIMEOUT_S = 10.0
+#: Longest request line, bytes (the longest valid one is under 100); a longer one drops the client.
+MAX_LINE_BYTES = 1024
+#: Most control connections open at once; a further one is told so and closed.
+MAX_CLIENTS = 16
+#: Bytes read from a client per wakeup of the bus thread.
+RECV_CHUNK = 4096
+#: Largest robot time one ``advance`` may move, s: the bus thread runs the physics over it
+#: before it serves anything else (a minute of physics at 1 kHz is 60 000 steps).
+MAX_ADVANCE_S = 60.0
+#: Largest ``tx_bytes`` a request may announce (far above a second of 4.5 Mbps wire).
+MAX_TX_BYTES = 1 << 20
 
 
 class ControlledBus(Protocol):
@@ -76,12 +98,16 @@ class ControlledBus(Protocol):
 class _Connection:
     def __init__(self, sock: socket.socket, rx_base: int):
         self.sock = sock
-        self.buffer = b""
+        self.buffer = bytearray()     # bytes after the last complete line (at most MAX_LINE_BYTES)
         self.rx_base = rx_base        # the emulator's received bytes at the previous request
 
 
 class ControlServer:
-    """The listening socket (``path``; a fresh temporary one by default) and its connections."""
+    """The listening socket (``path``; a fresh temporary one by default) and its connections.
+
+    An existing file at ``path`` that is not a socket is refused (``FileExistsError``), never
+    removed; a stale socket left by a previous emulator is replaced.
+    """
 
     def __init__(self, path: str | os.PathLike | None = None):
         self._tmpdir = None
@@ -89,7 +115,14 @@ class ControlServer:
             self._tmpdir = tempfile.mkdtemp(prefix="swerve-lockstep-")
             path = Path(self._tmpdir) / "control.sock"
         self.path = str(path)
-        if os.path.exists(self.path):
+        try:
+            mode = os.lstat(self.path).st_mode
+        except FileNotFoundError:
+            mode = None
+        if mode is not None:
+            if not stat.S_ISSOCK(mode):
+                raise FileExistsError(errno.EEXIST, f"{self.path} exists and is not a socket (remove it or "
+                                                    f"choose another path)")
             os.unlink(self.path)
         self._listener = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
         self._listener.bind(self.path)
@@ -103,13 +136,25 @@ class ControlServer:
         return self._fds
 
     def handle(self, fd: int, bus: ControlledBus) -> None:
-        """Serve a readable descriptor (a new connection or request lines)."""
+        """Serve a readable descriptor (a new connection or request lines).
+
+        Nothing a client sends stops the bus thread: a malformed request is answered with an
+        ``error`` line, and a client that overruns :data:`MAX_LINE_BYTES` or stops reading its
+        replies (its socket buffer full) is disconnected.
+        """
         if fd == self._listener.fileno():
             try:
                 sock, _ = self._listener.accept()
-            except BlockingIOError:
+            except (BlockingIOError, ConnectionAbortedError):
                 return
-            sock.setblocking(True)
+            sock.setblocking(False)
+            if len(self._conns) >= MAX_CLIENTS:
+                try:
+                    sock.send(f"error more than {MAX_CLIENTS} control clients; disconnected\n".encode("ascii"))
+                except OSError:
+                    pass
+                sock.close()
+                return
             self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes)
             self._fds = (self._listener.fileno(), *self._conns)
             return
@@ -117,20 +162,55 @@ class ControlServer:
         if conn is None:
             return
         try:
-            data = conn.sock.recv(4096)
+            data = conn.sock.recv(RECV_CHUNK)
+        except BlockingIOError:
+            return
         except OSError:
             data = b""
         if not data:
             self._drop(fd)
             return
-        *lines, conn.buffer = (conn.buffer + data).split(b"\n")
-        for line in lines:
-            reply = self._answer(conn, line.decode("ascii", "replace").split(), bus)
-            try:
-                conn.sock.sendall(reply.encode("ascii") + b"\n")
-            except OSError:
-                self._drop(fd)
+        buf = conn.buffer
+        start = len(buf)
+        buf += data
+        begin = 0
+        while True:
+            end = buf.find(b"\n", start)
+            if end < 0:
+                break
+            reply = self._reply(conn, bytes(buf[begin:end]), bus)
+            if not self._send(fd, conn, reply):
                 return
+            begin = start = end + 1
+        del buf[:begin]
+        if len(buf) > MAX_LINE_BYTES:
+            self._send(fd, conn, f"error request line longer than {MAX_LINE_BYTES} bytes; disconnected")
+            self._drop(fd)
+
+    def _reply(self, conn: _Connection, line: bytes, bus: ControlledBus) -> str:
+        if len(line) > MAX_LINE_BYTES:
+            return f"error request line longer than {MAX_LINE_BYTES} bytes"
+        try:
+            text = line.decode("ascii")
+        except UnicodeDecodeError as exc:
+            return f"error request is not ASCII text (byte 0x{line[exc.start]:02x} at {exc.start})"
+        try:
+            return self._answer(conn, text.split(), bus)
+        except (ArithmeticError, LookupError, TypeError, ValueError, SwerveError) as exc:
+            return f"error {type(exc).__name__}: {exc}"
+
+    def _send(self, fd: int, conn: _Connection, reply: str) -> bool:
+        """Queue one reply line without blocking; drops the client (False) if it cannot take it."""
+        data = reply.encode("ascii", "backslashreplace") + b"\n"
+        try:
+            sent = conn.sock.send(data)
+        except OSError:
+            sent = -1
+        if sent != len(data):           # its socket buffer is full: it stopped reading replies
+            log.warning("control client dropped: it does not read its replies")
+            self._drop(fd)
+            return False
+        return True
 
     def _answer(self, conn: _Connection, words: list[str], bus: ControlledBus) -> str:
         cmd, args = (words[0], words[1:]) if words else ("", [])
@@ -145,8 +225,8 @@ class ControlServer:
                 tx = int(args[-1])
             else:
                 return f"error unknown request {' '.join(words)!r}"
-            if tx < 0:
-                return "error tx_bytes must be >= 0"
+            if not 0 <= tx <= MAX_TX_BYTES:
+                return f"error tx_bytes must be in [0, {MAX_TX_BYTES}], got {tx}"
             target = conn.rx_base + tx
             if not bus.receive_until(target, BARRIER_TIMEOUT_S):
                 conn.rx_base = bus.rx_bytes
@@ -154,8 +234,11 @@ class ControlServer:
                         f"within {BARRIER_TIMEOUT_S:g} s")
             conn.rx_base = target
             if cmd == "advance":
-                asked = bus.robot_time_s()
-                return f"at {bus.move_to(float(args[0]))!r} {asked!r}"
+                asked, t_s = bus.robot_time_s(), float(args[0])
+                if not math.isfinite(t_s) or t_s - asked > MAX_ADVANCE_S:
+                    return (f"error advance to {t_s!r} s refused: at most {MAX_ADVANCE_S:g} s past "
+                            f"robot time {asked!r} s per request")
+                return f"at {bus.move_to(t_s)!r} {asked!r}"
             if cmd == "now":
                 return f"at {bus.robot_time_s()!r}"
             bus.settle()

@@ -57,17 +57,45 @@ def test_an_exception_inside_the_block_leaves_nothing_new(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_the_temporary_is_private_and_a_symlink_target_is_replaced_not_followed(tmp_path):
-    victim = tmp_path / "victim"
+def test_the_temporary_is_private_and_a_symlink_is_written_through(tmp_path):
+    real_dir = tmp_path / "real"
+    real_dir.mkdir()
+    victim = real_dir / "robot.yaml"
     victim.write_text("keep\n")
+    victim.chmod(0o640)
     link = tmp_path / "out.txt"
     link.symlink_to(victim)
     with atomic_write(link) as fh:
-        seen = [p for p in tmp_path.iterdir() if p.name.startswith(".out.txt.")]
+        seen = [p for p in real_dir.iterdir() if p.name.startswith(".robot.yaml.")]
         modes = [stat.S_IMODE(os.lstat(p).st_mode) for p in seen]
         fh.write("new\n")
     assert len(seen) == 1 and modes == [0o600]
-    assert victim.read_text() == "keep\n" and not link.is_symlink() and link.read_text() == "new\n"
+    assert link.is_symlink() and os.readlink(link) == str(victim)
+    assert victim.read_text() == "new\n" and stat.S_IMODE(victim.stat().st_mode) == 0o640
+    assert sorted(p.name for p in real_dir.iterdir()) == ["robot.yaml"]
+
+
+def test_a_read_only_file_is_refused_not_replaced(tmp_path):
+    target = tmp_path / "robot.yaml"
+    target.write_text("a: 1\n")
+    target.chmod(0o444)
+    link = tmp_path / "link.yaml"
+    link.symlink_to(target)
+    for path in (target, link):
+        with pytest.raises(OutputError, match=r"robot\.yaml.*: the file is read-only \(mode 0444\)"):
+            write_text(path, "a: 2\n")
+        with pytest.raises(OutputError, match="read-only"):
+            atomic.check_writable(path)
+    assert target.read_text() == "a: 1\n" and sorted(p.name for p in tmp_path.iterdir()) == ["link.yaml",
+                                                                                             "robot.yaml"]
+
+
+def test_a_symlink_loop_is_one_line(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.symlink_to(b)
+    b.symlink_to(a)
+    with pytest.raises(OutputError, match="symlink loop"):
+        write_text(a, "x")
 
 
 def test_a_replaced_file_keeps_its_permissions(tmp_path):

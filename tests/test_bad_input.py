@@ -16,12 +16,16 @@ absent servos, a link path that exists, trajectories too long to hold, an endles
 """
 from __future__ import annotations
 
+import io
 import os
 import subprocess
 import sys
+import zipfile
 from pathlib import Path
 
 import pytest
+
+from swerve.configs import shipped
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "logs"))
@@ -112,6 +116,14 @@ CASES: list[tuple[str, list[str], str | None]] = [
     ("sim-gains-binary-npz", ["sim", "--trajectory", "line", "--gains", "{W}/binary.npz"], None),
     ("sim-gains-binary-dat", ["sim", "--trajectory", "line", "--gains", "{W}/binary.dat"], None),
     ("sim-gains-wrong-suffix", ["sim", "--trajectory", "line", "--gains", "{W}/empty.yaml"], None),
+    ("sim-gains-complex", ["sim", "--trajectory", "line", "--gains", "{W}/complex.npz"], None),
+    ("sim-gains-huge-header", ["sim", "--trajectory", "line", "--gains", "{W}/huge-header.npz"], None),
+    ("sim-gains-short-phi", ["sim", "--trajectory", "line", "--gains", "{W}/short-phi.npz"], None),
+    ("sim-gains-meta-list-npz", ["sim", "--trajectory", "line", "--gains", "{W}/meta-list.npz"], None),
+    ("sim-gains-meta-list-dat", ["sim", "--trajectory", "line", "--gains", "{W}/meta-list.dat"], None),
+    ("sim-robot-wheel-radius-tiny", ["sim", "--trajectory", "line", "--config", "{W}/tiny-wheel.yaml"], None),
+    ("sim-robot-timeouts-huge", ["sim", "--trajectory", "line", "--config", "{W}/many-timeouts.yaml"], None),
+    ("emulate-control-on-a-file", ["emulate", "--lockstep", "--control", "{W}/empty.yaml"], None),
     ("sim-x0-nan", ["sim", "--trajectory", "line", "--x0", "nan,0,0,0,0"], None),
     ("sim-x0-short", ["sim", "--trajectory", "line", "--x0", "1,2"], None),
     ("sim-x0-words", ["sim", "--trajectory", "line", "--x0", "a,b,c,d,e"], None),
@@ -136,7 +148,9 @@ CASES: list[tuple[str, list[str], str | None]] = [
     # --- demo -----------------------------------------------------------------------------
     ("demo-time-scale-nan", ["demo", "--time-scale", "nan", "--out", "{W}/demo"], "demo"),
     ("demo-time-scale-zero", ["demo", "--time-scale", "0", "--out", "{W}/demo"], "demo"),
-    ("demo-trajectory-unknown", ["demo", "--trajectories", "spiral", "--out", "{W}/demo"], None),
+    ("demo-trajectory-unknown", ["demo", "--trajectories", "spiral", "--out", "{W}/demo"], "demo"),
+    ("demo-trajectories-empty", ["demo", "--trajectories", "", "--out", "{W}/demo"], "demo"),
+    ("demo-trajectories-commas", ["demo", "--trajectories", ",,", "--out", "{W}/demo"], "demo"),
     # --- tune (each fails before a servo is touched) --------------------------------------
     ("tune-pwm-zero", ["tune", "--emulate", "--pwm", "0"], None),
     ("tune-pwm-above-one", ["tune", "--emulate", "--pwm", "1.5"], None),
@@ -204,6 +218,11 @@ def work(tmp_path_factory) -> Path:
     (w / "bomb.yaml").write_text("a: &a [x, x, x, x, x, x, x, x, x]\n" + "".join(
         f"{c}: &{c} [{', '.join([f'*{p}'] * 9)}]\n" for p, c in zip("abcdefgh", "bcdefghi")))
     (w / "truncated.npz").write_bytes((w / "good.npz").read_bytes()[:3000])
+    _hostile_gains(w)
+    robot = Path(shipped("robot.yaml")).read_text()
+    (w / "tiny-wheel.yaml").write_text(robot.replace("wheel_radius_m: 0.033", "wheel_radius_m: 1.0e-300"))
+    (w / "many-timeouts.yaml").write_text(robot.replace("max_consecutive_timeouts: 3",
+                                                        "max_consecutive_timeouts: 1000000000000000000000000000000"))
     (w / "truncated.dat").write_bytes((w / "good.dat").read_bytes()[:5000])
     synthetic.write(w / "log", synthetic.records(50))
     from mcap.writer import Writer
@@ -213,6 +232,31 @@ def work(tmp_path_factory) -> Path:
         mw.start()
         mw.finish()
     return w
+
+
+def _hostile_gains(w: Path) -> None:
+    """Gain files that are wrong in one way each, made from ``good.npz``."""
+    import json
+
+    import numpy as np
+
+    with np.load(w / "good.npz") as z:
+        good = {k: z[k] for k in z.files}
+    variants = {"complex": {"K": good["K"] * (1 + 1j)}, "short-phi": {"phi_rad": good["phi_rad"][:2]},
+                "meta-list": {"meta": np.array(json.dumps([1, 2]))}}
+    for name, change in variants.items():
+        np.savez(w / f"{name}.npz", **{**good, **change})
+    header = io.BytesIO()
+    np.lib.format.write_array_header_1_0(header, {"descr": "<f8", "fortran_order": False,
+                                                  "shape": (200_000_000, 3, 5)})
+    with zipfile.ZipFile(w / "huge-header.npz", "w") as zf:
+        for k, v in good.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, v)
+            zf.writestr(f"{k}.npy", header.getvalue() + b"\0" * 64 if k == "K" else buf.getvalue())
+    dat = (w / "good.dat").read_text().splitlines(keepends=True)
+    (w / "meta-list.dat").write_text("".join("# meta: [1, 2]\n" if ln.startswith("# meta:") else ln
+                                             for ln in dat))
 
 
 def _leftovers(folder: Path) -> list[str]:

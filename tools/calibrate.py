@@ -13,16 +13,16 @@ Operators: :class:`ConsoleOperator` (prompts, arrow-key jog), :class:`DefaultOpe
 (``--yes``: accept every default), :class:`EmulatorOperator` (``--yes`` on the emulator:
 answers from the emulator's true state, which never crosses the bus).
 
-The robot file is edited line by line (comments and alignment kept, as
-:mod:`swerve.tools.tune.config_io` does for gains), re-validated with :func:`swerve.driver.robot_config.parse_robot_config`, and replaced
-atomically (temporary file in the same folder + :func:`os.replace`).
+The robot file is edited line by line by :mod:`swerve.configs.yaml_edit` (comments and alignment
+kept), re-validated with :func:`swerve.driver.robot_config.parse_robot_config`, and replaced
+atomically by :mod:`swerve.configs.atomic` (a symlink is written through; a read-only file is
+refused, and ``swerve calibrate --write`` checks that before it drives the robot).
 """
 from __future__ import annotations
 
 import dataclasses
 import math
 import os
-import re
 import sys
 import time
 from pathlib import Path
@@ -34,7 +34,8 @@ from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, SwerveError
 from swerve.driver.robot_config import RobotConfig, WheelConfig, parse_robot_config
 from swerve.driver.wheelset import WheelSet
-from swerve.tools.tune.config_io import _block, write_text_atomic
+from swerve.configs.atomic import write_text
+from swerve.configs.yaml_edit import set_value
 from swerve.tools.signals import safe_stop
 
 #: Pulses per revolution of the X-series encoder (Present Position, 0..4095 in position mode).
@@ -258,26 +259,6 @@ def wheel_radius(s: Session, op: Operator, *, distance_m: float = 1.0,
 
 # --- the robot file -------------------------------------------------------------------------
 
-_SCALAR_LINE = r"^(?P<head>[ \t]+{key}:[ \t]*)(?P<value>\[[^\]#]*\]|[^\s#]+)(?P<gap>[ \t]*)(?P<tail>#.*)?$"
-
-
-def _replace_value(lines: list[str], section: str, key: str, value: str, where: str) -> None:
-    """Rewrite the one-line value of ``section.key`` in place; the comment keeps its column."""
-    start, end = _block(lines, section)
-    pattern = re.compile(_SCALAR_LINE.format(key=re.escape(key)))
-    for k in range(start + 1, end):
-        body = lines[k].rstrip("\n")
-        m = pattern.match(body)
-        if m:
-            gap = m["gap"]
-            if m["tail"]:
-                gap = " " * max(1, len(m["value"]) + len(gap) - len(value))
-            nl = "\n" if lines[k].endswith("\n") else ""
-            lines[k] = f"{m['head']}{value}{gap}{m['tail'] or ''}{nl}"
-            return
-    raise ConfigError(f"{where}: no one-line '{key}:' under '{section}:' to update")
-
-
 def update_robot_text(text: str, *, center_pulse: Sequence[int] | None = None,
                       drive_direction: Sequence[int] | None = None,
                       steer_direction: Sequence[int] | None = None,
@@ -285,20 +266,18 @@ def update_robot_text(text: str, *, center_pulse: Sequence[int] | None = None,
     """``text`` with the calibration values replaced, line by line: every other byte, comment
     and alignment is kept. The result is validated and must give back the values written;
     raises :class:`ConfigError` otherwise."""
-    lines = text.splitlines(keepends=True)
-
     def seq(values: Sequence[int]) -> str:
         return "[" + ", ".join(str(int(v)) for v in values) + "]"
 
+    new = text
     if center_pulse is not None:
-        _replace_value(lines, "steering", "center_pulse", seq(center_pulse), where)
+        new = set_value(new, "steering", "center_pulse", seq(center_pulse), where)
     if drive_direction is not None:
-        _replace_value(lines, "drive", "direction", seq(drive_direction), where)
+        new = set_value(new, "drive", "direction", seq(drive_direction), where)
     if steer_direction is not None:
-        _replace_value(lines, "steering", "direction", seq(steer_direction), where)
+        new = set_value(new, "steering", "direction", seq(steer_direction), where)
     if wheel_radius_m is not None:
-        _replace_value(lines, "geometry", "wheel_radius_m", f"{float(wheel_radius_m):.6g}", where)
-    new = "".join(lines)
+        new = set_value(new, "geometry", "wheel_radius_m", f"{float(wheel_radius_m):.6g}", where)
     cfg = parse_robot_config(parse_yaml_text(new, where))
     want = with_calibration(cfg, center_pulse=center_pulse, drive_direction=drive_direction,
                             steer_direction=steer_direction,
@@ -315,7 +294,7 @@ def write_robot_file(path: str | Path, **values) -> None:
         text = path.read_text()
     except OSError as exc:
         raise ConfigError(f"{path}: cannot read ({exc.strerror})") from None
-    write_text_atomic(path, update_robot_text(text, where=str(path), **values))
+    write_text(path, update_robot_text(text, where=str(path), **values), mkdir=False)
 
 
 def yaml_snippet(*, center_pulse=None, drive_direction=None, steer_direction=None,

@@ -48,6 +48,7 @@ Open it in Foxglove: "Open connection" -> Foxglove WebSocket -> ``ws://HOST:PORT
 from __future__ import annotations
 
 import collections
+import ipaddress
 import json
 import logging
 import math
@@ -107,6 +108,16 @@ def parse_live(text: str) -> tuple[str, int]:
     if not 0 <= port_i <= 65535 or not host:
         raise ConfigError(f"--live {text!r}: expected [HOST:]PORT with a port in 0-65535")
     return host, port_i
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` (an address or ``localhost``) is reachable from this machine only."""
+    if host == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:          # a host name: it may resolve to any interface
+        return False
 
 
 def layout_path() -> Path:
@@ -259,6 +270,9 @@ class LivePublisher:
                                                  context=self._ctx)
         except Exception as exc:  # noqa: BLE001 - the SDK raises its own error types
             raise ConfigError(f"cannot start the live view on {self.host}:{self.requested_port}: {exc}") from None
+        if not is_loopback(self.host):
+            log.warning("the live view %s is reachable from other machines: anyone who can reach this "
+                        "host can watch the robot's state (no authentication; read-only)", self.url)
         self._refusals = _RefusedClientLog(self.url)
         logging.getLogger("foxglove.websocket.server").addHandler(self._refusals)
         T = self._ts.types

@@ -9,6 +9,7 @@ time-scaled on the wall clock instead), write the run log, plots and a one-page 
 from __future__ import annotations
 
 import argparse
+import shutil
 import time
 from pathlib import Path
 
@@ -40,14 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.controller.design import synthesize
-    from swerve.controller.gains_io import save_gains
+    from swerve.configs.atomic import check_writable
     from swerve.controller.reference import load_trajectory
-    from swerve.controller.simulate import metrics, simulate
-    from swerve.controller.tracking import TrackingLaw
-    from swerve.tools.logs.bag import read_log
-    from swerve.tools.logs.plots import plot_run
-    from swerve.tools.run.orchestrate import RunRequest, run_tracking
     from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 
     from swerve.configs.errors import ConfigError
@@ -59,15 +54,47 @@ def run(args: argparse.Namespace) -> int:
     pace = ("in lockstep, " + (f"paced at {scale}x" if scale else "as fast as possible")
             if lockstep else f"on the wall clock at {scale}x")
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     choice, cfg = locate_and_load(args.config)
     print(f"config: {choice.describe()}", flush=True)
     geom, limits = geometry_and_limits(cfg)
     names = [n.strip() for n in args.trajectories.split(",") if n.strip()]
+    if not names:
+        raise ConfigError(f"--trajectories {args.trajectories!r} names no trajectory "
+                          f"(e.g. {','.join(TRAJECTORIES)})")
+    trajectories = {name: load_trajectory(name, geom) for name in names}     # all valid before any output
+    check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
+    created = _missing_folder(out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        return _demo(args, out, choice, cfg, geom, limits, trajectories, lockstep, scale, pace)
+    except BaseException:
+        if created is not None:     # a failed demo leaves no new folder behind
+            shutil.rmtree(created, ignore_errors=True)
+        raise
+
+
+def _missing_folder(path: Path) -> Path | None:
+    """The outermost folder of ``path`` that does not exist yet (``None`` if ``path`` exists)."""
+    missing = None
+    for folder in (path, *path.parents):
+        if folder.exists():
+            break
+        missing = folder
+    return missing
+
+
+def _demo(args, out, choice, cfg, geom, limits, trajectories, lockstep, scale, pace) -> int:
+    from swerve.controller.design import synthesize
+    from swerve.controller.gains_io import save_gains
+    from swerve.controller.simulate import metrics, simulate
+    from swerve.controller.tracking import TrackingLaw
+    from swerve.tools.logs.bag import read_log
+    from swerve.tools.logs.plots import plot_run
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
+
     rows, t_start = [], time.monotonic()
-    for name in names:
+    for name, traj in trajectories.items():
         print(f"[{name}] synthesising gains (Riccati) ...", flush=True)
-        traj = load_trajectory(name, geom)
         ref, gains = synthesize(traj, "riccati", geom, limits)
         stem = Path(name).stem
         gains_file = save_gains(out / "gains" / f"{stem}.npz", gains)
@@ -79,7 +106,6 @@ def run(args: argparse.Namespace) -> int:
               flush=True)
         log_dir = out / "logs" / stem
         if log_dir.exists():
-            import shutil
             shutil.rmtree(log_dir)
         res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=choice,
                                       emulate=True, lockstep=lockstep, time_scale=scale, log=log_dir,

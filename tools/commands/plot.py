@@ -1,4 +1,8 @@
-"""``swerve plot LOG --out DIR``: PNG figures like the paper's Figs 11-16."""
+"""``swerve plot LOG --out DIR``: PNG figures like the paper's Figs 11-16.
+
+The figures are drawn into a temporary folder beside ``DIR`` and moved into it only when all of
+them are written, so a failure (a full disk) leaves ``DIR`` as it was.
+"""
 from __future__ import annotations
 
 import argparse
@@ -17,6 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from swerve.configs.atomic import files_into
     from swerve.tools.logs.bag import LogDamaged
     from swerve.tools.logs import plot_run, read_log
 
@@ -24,8 +29,10 @@ def run(args: argparse.Namespace) -> int:
     if log.recovery_note and not log.damage:
         print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
     sim = read_log(args.sim) if args.sim is not None else None
-    for path in plot_run(log, args.out, sim=sim):
-        print(path)
+    with files_into(args.out) as tmp:       # all figures or none: no partial folder on a full disk
+        written = plot_run(log, tmp, sim=sim)
+    for path in written:
+        print(args.out / path.name)
     for damaged in (log, sim):
         if damaged is not None and damaged.damage:
             raise LogDamaged(f"{damaged.path}: {damaged.recovery_note}")

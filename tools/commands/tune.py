@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import argparse
 import math
+from pathlib import Path
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
@@ -69,6 +70,7 @@ def run(args: argparse.Namespace) -> int:
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.physics.profiles import resolve_emulator_config
+    from swerve.configs.atomic import check_writable, files_into
     from swerve.tools.tune.config_io import write_gains
     from swerve.tools.tune.design import Spec
     from swerve.tools.tune.experiments import Limits
@@ -80,6 +82,10 @@ def run(args: argparse.Namespace) -> int:
     emulator_file = resolve_emulator_config(args.emulator_config or "ideal")
     print(f"config: {choice.describe()}")
     rc = load_robot_config(robot_file)
+    # a read-only or full robot file or report folder is refused before the servo moves
+    check_writable(Path(args.out) / f"tune_{args.id}.json")
+    if args.write_config:
+        check_writable(robot_file, mkdir=False)
     prior_cfg = load_config(resolve_emulator_config(args.prior or "ideal"))
     if not 0.0 < args.pwm <= 1.0:
         raise ConfigError(f"--pwm {args.pwm} must be in (0, 1]")
@@ -139,7 +145,8 @@ def run(args: argparse.Namespace) -> int:
 
         res = tune_servo(bus, args.id, group, spec, prior, limits=limits, firmware=prior_cfg.firmware,
                          center_rad=center_rad, duty_max=args.pwm, progress=progress)
-    paths = write_report(res, args.out)
+    with files_into(args.out) as tmp:       # the whole report or none of it
+        paths = [Path(args.out) / p.name for p in write_report(res, tmp)]
     _print(res, paths)
     if not res.meets_spec:
         raise SwerveError("the designed gains do not meet the spec when measured ("

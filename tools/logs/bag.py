@@ -16,6 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
+from swerve.configs.atomic import OutputError
 from swerve.driver.errors import ConfigError
 
 from .messages import CycleMessages, CycleSerializer
@@ -103,8 +104,19 @@ class RunLogWriter:
     def __exit__(self, *exc) -> None:
         self.close()
 
+    def _output_error(self, exc: OSError) -> OutputError:
+        """``exc`` (a full disk, a lost mount) as one line naming the log file."""
+        found = sorted(self.path.glob("*.mcap")) if self.path.is_dir() else []
+        return OutputError(f"cannot write run log {found[0] if found else self.path}: {exc.strerror or exc}")
+
     def open(self) -> None:
         """Create the bag, register every topic and write the metadata message."""
+        try:
+            self._open_bag()
+        except OSError as exc:
+            raise self._output_error(exc) from None
+
+    def _open_bag(self) -> None:
         self._bag.open()
         self._storage = self._bag.storage
         # rosbags keeps the current MCAP chunk in memory until it reaches 1 MiB; closing it early
@@ -125,7 +137,10 @@ class RunLogWriter:
             if not self.cycles_written:
                 self._put_metadata(time.time_ns())
             self._open = False
-            self._bag.close()
+            try:
+                self._bag.close()
+            except OSError as exc:
+                raise self._output_error(exc) from None
 
     def _put_metadata(self, stamp_ns: int) -> None:
         # stamped like the first cycle, so the bag's time range is the run's (not 1970-now)
@@ -146,14 +161,17 @@ class RunLogWriter:
         if not self._open:
             raise RuntimeError("RunLogWriter.write() outside an open log")
         ns = int(rec.stamp_ns)
-        if not self.cycles_written:
-            self._put_metadata(ns)
-        write, conn = self._bag.write, self._conn
-        for topic, data in self._cdr.serialize(rec):
-            write(conn[topic], ns, data)
-        self.cycles_written += 1
-        if self.cycles_written % self.flush_every == 0:
-            self._flush()
+        try:
+            if not self.cycles_written:
+                self._put_metadata(ns)
+            write, conn = self._bag.write, self._conn
+            for topic, data in self._cdr.serialize(rec):
+                write(conn[topic], ns, data)
+            self.cycles_written += 1
+            if self.cycles_written % self.flush_every == 0:
+                self._flush()
+        except OSError as exc:
+            raise self._output_error(exc) from None
 
 
 # -- reading ---------------------------------------------------------------------------------
