@@ -31,16 +31,24 @@ MODE_NAMES = {m.name.lower(): m for m in OperatingMode}
 OFFSET_MAX_M = 5.0
 WHEEL_RADIUS_MAX_M = 1.0
 SPEED_MAX_MPS = 10.0
+#: Range of an FTDI USB-serial adapter's latency timer (``link.adapter_latency_ms``), ms: whole
+#: ms in 1..255 (FTDI AN232B-04 §3.3; Linux commit db9240662a44, which also notes the chip runs
+#: the invalid 0 as 1 ms).
+ADAPTER_LATENCY_MIN_MS = 1
+ADAPTER_LATENCY_MAX_MS = 255
 
 
 @dataclass(frozen=True)
 class LinkConfig:
-    """Serial link: ``port`` URL, ``baud`` bps, servo ``return_delay_us``."""
+    """Serial link: ``port`` URL, ``baud`` bps, servo ``return_delay_us``, and the USB-serial
+    adapter's latency timer ``adapter_latency_ms`` (``None``: no USB adapter between the host and
+    the cable, e.g. a UART on the host's board)."""
 
     port: str
     baud: int
     return_delay_us: float
     protocol: float = 2.0
+    adapter_latency_ms: int | None = None
 
 
 @dataclass(frozen=True)
@@ -138,6 +146,7 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
     protocol = link.number("protocol", 2.0)
     if protocol != 2.0:
         link.fail(f"only Protocol 2.0 is supported, got {protocol:g}", "protocol")
+    adapter_ms = link.integer("adapter_latency_ms", None, min=ADAPTER_LATENCY_MIN_MS, max=ADAPTER_LATENCY_MAX_MS)
     model = top.string("model")
     try:
         table = table_for(model)
@@ -178,7 +187,7 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
         steer_rate_max_radps=lim.number("steer_rate_max_radps", positive=True,
                                         max=table[Reg.VELOCITY_LIMIT].to_si(table[Reg.VELOCITY_LIMIT].max)),
         steer_angle_max_rad=lim.number("steer_angle_max_rad", positive=True, max=math.pi),
-        link=LinkConfig(port, baud, rdt, protocol),
+        link=LinkConfig(port, baud, rdt, protocol, adapter_ms),
         model=table.model, wheels=tuple(wheels), drive=dgroup, steering=sgroup,
         bus_watchdog_s=wd,
         max_consecutive_timeouts=safety.integer("max_consecutive_timeouts", 3, min=1),

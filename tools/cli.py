@@ -55,6 +55,17 @@ def add_bus_options(parser: argparse.ArgumentParser, emulate_help: str) -> None:
     add_config_option(parser)
 
 
+def add_adapter_option(parser: argparse.ArgumentParser) -> None:
+    """``--adapter-latency-ms MS``: the emulated USB adapter's latency timer (1..255 ms)."""
+    from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
+    from swerve.tools.argtypes import int_range
+
+    parser.add_argument("--adapter-latency-ms", metavar="MS", default=None,
+                        type=int_range(ADAPTER_LATENCY_MIN_MS, ADAPTER_LATENCY_MAX_MS),
+                        help="the emulated U2D2's USB latency timer, whole ms in 1..255 (16 as shipped, 1 "
+                             "once set; default: link.adapter_latency_ms of the robot file)")
+
+
 def _load(name: str):
     """Import ``tools.commands.<name>``; ``None`` only if that module itself does not exist.
 
