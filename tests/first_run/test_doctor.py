@@ -14,6 +14,8 @@ from swerve.tools.cli import main
 
 MARGIN_S = 0.2      # the emulator is a Python thread on a shared machine
 BAUDS = (57_600, 1_000_000)
+#: The CLI tests' reply deadlines: the emulated bus paces replies on this shared machine's wall clock.
+SLACK = ("--timeout-margin-ms", "500")
 
 
 @pytest.fixture
@@ -113,7 +115,7 @@ def test_wire_limit_counts_the_bytes_of_one_cycle(cfg):
 
 def test_cli_exit_0_on_a_fresh_emulated_robot_and_json(capsys):
     """Factory settings that swerve run writes itself do not fail the check."""
-    assert main(["doctor", "--emulate", "--cycles", "5", "--json"]) == 0
+    assert main(["doctor", "--emulate", "--cycles", "5", "--json", *SLACK]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert doc["ok"] is True and doc["exit_code"] == 0
     # every check passes but the timed cycle, which is timed on this (shared) machine's wall clock
@@ -124,7 +126,7 @@ def test_cli_exit_0_on_a_fresh_emulated_robot_and_json(capsys):
 
 
 def test_cli_exit_0_with_warnings_names_the_16_ms_adapter_and_its_fix(capsys):
-    assert main(["doctor", "--emulate", "--cycles", "3", "--adapter-latency-ms", "16"]) == 0
+    assert main(["doctor", "--emulate", "--cycles", "3", "--adapter-latency-ms", "16", *SLACK]) == 0
     out = capsys.readouterr().out
     assert "[warn] latency timer: emulated U2D2: 16 ms" in out
     assert "--adapter-latency-ms 1" in out and "latency_timer" in out
@@ -132,7 +134,8 @@ def test_cli_exit_0_with_warnings_names_the_16_ms_adapter_and_its_fix(capsys):
 
 
 def test_cli_fix_sets_the_emulated_adapter_to_1_ms(capsys):
-    assert main(["doctor", "--emulate", "--cycles", "3", "--adapter-latency-ms", "16", "--fix", "--json"]) == 0
+    assert main(["doctor", "--emulate", "--cycles", "3", "--adapter-latency-ms", "16", "--fix", "--json",
+                 *SLACK]) == 0
     doc = json.loads(capsys.readouterr().out)
     assert "set the latency timer of emulated U2D2 to 1 ms (until the adapter is replugged)" in doc["fixed"]
     assert next(c for c in doc["checks"] if c["name"] == "latency timer")["status"] == "pass"

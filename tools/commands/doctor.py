@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
                                                      adapter_latency_ms=args.adapter_latency_ms))
             port = emu.port
             latency = EmulatedLatencyTimer(emu.adapter)
+            if args.timeout_margin_ms is None and emu.adapter is not None:
+                # a ttyUSB's deadlines count the latency timer twice (driver.transport); a pty has none
+                margin_ms += 2 * emu.adapter.latency_ms
         else:
             port = args.port or cfg.link.port
         report = diagnose(cfg, port, fix=args.fix, margin_s=margin_ms * 1e-3, cycles=args.cycles, latency=latency)
