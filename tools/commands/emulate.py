@@ -175,7 +175,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"LINK {emu.link_path}", flush=True)
         what = "frozen (register-only)" if physics is None else (
             "moving the robot body" if emu.world is not None else "free shafts")
-        print(f"{len(emu.servos)} x {emu.model} IDs {ids_text} at {emu.baud} bps, {what}",
+        adapter = "no USB adapter" if emu.adapter is None else f"USB adapter latency timer {emu.adapter.latency_ms} ms"
+        print(f"{len(emu.servos)} x {emu.model} IDs {ids_text} at {emu.baud} bps, {what}, {adapter}",
               file=sys.stderr, flush=True)
         while not stop.wait(1.0):
             pass
