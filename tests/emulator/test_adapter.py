@@ -4,6 +4,9 @@ input space, exact round trips through it in lockstep robot time, the robot file
 from __future__ import annotations
 
 import math
+import signal
+import subprocess
+import sys
 import time
 
 import pytest
@@ -19,6 +22,7 @@ from swerve.emulator.adapter import (AdapterSettings, UsbAdapter, byte_arrivals,
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.cli import main
+from swerve.tools.commands.emulate import parse_control, parse_port_line
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
 
 BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
@@ -235,3 +239,37 @@ def test_adapter_latency_option_bad_values_one_line_exit_2(command, value, capsy
 def test_run_refuses_the_option_without_the_emulator(capsys):
     assert main(["run", "--trajectory", "line", "--adapter-latency-ms", "1", "--no-log"]) == 2
     assert "--adapter-latency-ms needs --emulate" in capsys.readouterr().err
+
+
+def test_emulate_option_reaches_the_emulated_adapter():
+    proc = subprocess.Popen([sys.executable, "-m", "swerve.tools.cli", "emulate", "--lockstep", "--frozen",
+                             "--ids", "1", "--adapter-latency-ms", "16"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        port, baud, _ = parse_port_line(line)
+        with LockstepClock(parse_control(line)) as clock, Bus(port, baud, default_model="xh430-w210",
+                                                              timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+            clock.count_tx(lambda: bus.bytes_written)
+            assert clock.info()["adapter_latency_ms"] == 16
+            t0 = clock.now()
+            bus.read(1, Reg.PRESENT_POSITION)
+            assert clock.now() - t0 == pytest.approx(16 * MS, abs=1e-12)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=20) == 0
+        assert "USB adapter latency timer 16 ms" in proc.stderr.read()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+
+
+@pytest.mark.slow
+def test_a_lockstep_run_through_a_16_ms_adapter_overruns_every_cycle():
+    from swerve.tools.run.orchestrate import RunRequest, run_tracking
+
+    s = run_tracking(RunRequest(trajectory="line", emulate=True, lockstep=True, time_scale=None,
+                                adapter_latency_ms=16)).summary.to_dict()
+    # the read ends 18.2 ms into its 16 ms slot: every cycle runs into the next slot, which is skipped
+    assert s["completed"] and s["overruns"] == s["cycles"] == s["missed_slots"] == 1250
+    assert s["loop_period_p50_ms"] == pytest.approx(32.0, abs=1e-9)
