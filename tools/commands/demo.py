@@ -68,6 +68,8 @@ def run(args: argparse.Namespace) -> int:
     calibration = None
     if not args.no_calibrate:
         calibration = _calibrate(out, cfg, choice.path, args.emulator_config)
+        _, calibrated = locate_and_load(calibration.path)
+        geom, limits = geometry_and_limits(calibrated)      # the gains are synthesised for it too
         rows += [_run_one(out, name, geom, limits, calibration.path, "calibrated", emulated_robot=choice.path, **run)
                  for name in names]
     summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
@@ -119,12 +121,12 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
     traj = load_trajectory(name, geom)
     ref, gains = synthesize(traj, "riccati", geom, limits)
     stem = Path(name).stem
-    gains_file = save_gains(out / "gains" / f"{stem}.npz", gains)
-    save_gains(out / "gains" / f"{stem}.dat", gains)
+    run_name = stem if robot == "as is" else f"{stem}-{robot}"
+    gains_file = save_gains(out / "gains" / f"{run_name}.npz", gains)
+    save_gains(out / "gains" / f"{run_name}.dat", gains)
     sim = metrics(simulate(TrackingLaw(ref, gains, limits), traj.start_state(geom)), traj.Q, traj.R, traj.tau_s)
     print(f"{tag} simulated: final error {sim['final_position_error_m'] * 1e3:.1f} mm; running on the emulator "
           f"{pace} ({traj.tf_s:.0f} s of robot time) ...", flush=True)
-    run_name = stem if robot == "as is" else f"{stem}-{robot}"
     log_dir = out / "logs" / run_name
     if log_dir.exists():
         shutil.rmtree(log_dir)
