@@ -36,9 +36,11 @@ def test_demo_runs_before_and_after_calibrating_the_realistic_robot(tmp_path, ca
     out = tmp_path / "demo"
     assert main(["demo", "--trajectories", "line", "--out", str(out)]) == 0
     summary = (out / "summary.md").read_text()
-    rows = {line.split("|")[2].strip(): line for line in summary.splitlines() if line.startswith("| line |")}
+    cells = [[c.strip() for c in line.split("|")[1:-1]] for line in summary.splitlines()
+             if line.startswith("| line |")]
+    rows = {c[1]: c for c in cells if len(c) == 12}                    # the run table's rows
     assert set(rows) == {"as is", "calibrated"}
-    rms = {k: float(v.split("|")[6]) for k, v in rows.items()}          # emu rms, mm
+    rms = {k: float(c[5]) for k, c in rows.items()}                      # emu rms, mm
     assert rms["calibrated"] < rms["as is"]                             # lockstep: 23.2 < 36.9 mm
     assert "## What calibration recovered" in summary
     calibrated = load_robot_config(out / "robot-calibrated.yaml")
