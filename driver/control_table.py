@@ -117,14 +117,30 @@ class HardwareError:
     MOTOR_ENCODER = 0x08
     ELECTRICAL_SHOCK = 0x10
     OVERLOAD = 0x20
-    NAMES = {0x01: "input voltage", 0x04: "overheating", 0x08: "motor encoder",
-             0x10: "electrical shock", 0x20: "overload"}
+    #: Each bit's name and what it means (e-Manual, X series, "Hardware Error Status(70)").
+    BITS = {0x01: ("input voltage", "the supply is outside Min/Max Voltage Limit"),
+            0x04: ("overheating", "the internal temperature exceeded Temperature Limit"),
+            0x08: ("motor encoder", "the encoder malfunctioned"),
+            0x10: ("electrical shock", "an electrical shock on the circuit, or too little power to drive "
+                                       "the motor"),
+            0x20: ("overload", "a persistent load beyond the servo's maximum output")}
+    NAMES = {b: name for b, (name, _) in BITS.items()}
 
     @classmethod
     def describe(cls, bits: int) -> str:
         """``"overload, overheating"`` for the set bits; ``"none"`` if zero."""
         names = [n for b, n in cls.NAMES.items() if bits & b]
         return ", ".join(names) if names else "none"
+
+    @classmethod
+    def explain(cls, bits: int) -> str:
+        """``"overload: a persistent load ..."`` for each set bit, ``;``-separated; unknown bits
+        are named as such."""
+        known = [f"{name}: {meaning}" for b, (name, meaning) in cls.BITS.items() if bits & b]
+        rest = bits & ~sum(cls.BITS)
+        if rest:
+            known.append(f"unknown bits 0x{rest:02X}")
+        return "; ".join(known) if known else "none"
 
 
 @dataclass(frozen=True)

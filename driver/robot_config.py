@@ -31,6 +31,11 @@ MODE_NAMES = {m.name.lower(): m for m in OperatingMode}
 OFFSET_MAX_M = 5.0
 WHEEL_RADIUS_MAX_M = 1.0
 SPEED_MAX_MPS = 10.0
+#: Range of an FTDI USB-serial adapter's latency timer (``link.adapter_latency_ms``), ms: whole
+#: ms in 1..255 (FTDI AN232B-04 §3.3; Linux commit db9240662a44, which also notes the chip runs
+#: the invalid 0 as 1 ms).
+ADAPTER_LATENCY_MIN_MS = 1
+ADAPTER_LATENCY_MAX_MS = 255
 #: Smallest wheel offset from the centroid and smallest wheel, m: a wheel module is larger than this.
 OFFSET_MIN_M = 0.02
 WHEEL_RADIUS_MIN_M = 0.005
@@ -81,6 +86,9 @@ def robot_bounds(table: ControlTable) -> dict[str, Bound]:
         "link.return_delay_us": Bound(0.0, rdt.to_si(rdt.raw_bounds()[1]) * 1e6, "us",
                                       "Return Delay Time (9), 2 us units", step=rdt_step_us),
         "link.protocol": Bound(2.0, 2.0, why="Protocol 2.0 only", allowed=(2.0,)),
+        "link.adapter_latency_ms": Bound(ADAPTER_LATENCY_MIN_MS, ADAPTER_LATENCY_MAX_MS, "ms",
+                                         "USB adapter latency timer, whole ms; absent: no adapter",
+                                         integer=True),
         "wheels[].x_m": offset,
         "wheels[].y_m": offset,
         "wheels[].drive_id": ids,
@@ -106,12 +114,15 @@ def robot_bounds(table: ControlTable) -> dict[str, Bound]:
 
 @dataclass(frozen=True)
 class LinkConfig:
-    """Serial link: ``port`` URL, ``baud`` bps, servo ``return_delay_us``."""
+    """Serial link: ``port`` URL, ``baud`` bps, servo ``return_delay_us``, and the USB-serial
+    adapter's latency timer ``adapter_latency_ms`` (``None``: no USB adapter between the host and
+    the cable, e.g. a UART on the host's board)."""
 
     port: str
     baud: int
     return_delay_us: float
     protocol: float = 2.0
+    adapter_latency_ms: int | None = None
 
 
 @dataclass(frozen=True)
@@ -211,6 +222,7 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
     baud = link.bounded("baud", bounds["link.baud"])
     rdt = link.bounded("return_delay_us", bounds["link.return_delay_us"])
     protocol = link.bounded("protocol", bounds["link.protocol"], 2.0)
+    adapter_ms = link.bounded("adapter_latency_ms", bounds["link.adapter_latency_ms"], None)
     wheels_in = top.items("wheels", 4)
     drive, steering = top.section("drive"), top.section("steering")
     ddir = drive.bounded_list("direction", 4, bounds["drive.direction[]"])
@@ -244,7 +256,7 @@ def parse_robot_config(data: Any, where: str = "robot config") -> RobotConfig:
         v1_max_mps=lim.bounded("v1_max_mps", bounds["limits.v1_max_mps"]),
         steer_rate_max_radps=lim.bounded("steer_rate_max_radps", bounds["limits.steer_rate_max_radps"]),
         steer_angle_max_rad=lim.bounded("steer_angle_max_rad", bounds["limits.steer_angle_max_rad"]),
-        link=LinkConfig(port, baud, rdt, protocol),
+        link=LinkConfig(port, baud, rdt, protocol, adapter_ms),
         model=table.model, wheels=tuple(wheels), drive=dgroup, steering=sgroup,
         bus_watchdog_s=safety.bounded("bus_watchdog_s", bounds["safety.bus_watchdog_s"]),
         max_consecutive_timeouts=safety.bounded("max_consecutive_timeouts",

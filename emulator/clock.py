@@ -69,6 +69,7 @@ class PhysicsClock(Protocol):
 
     rate_hz: float            # physics steps per simulated second
     stats: "ClockStats"
+    reply_latency_s: float    # a servo's time to start answering that the clock charges, s (0: none)
 
     def run(self, world: StepWorld) -> float:
         """Run the steps that are due; return wall seconds the bus thread may block (``inf``: until
@@ -77,10 +78,11 @@ class PhysicsClock(Protocol):
     def on_request(self, world: StepWorld, wire_s: float) -> None:
         """An instruction of ``wire_s`` seconds on the wire has arrived (before it is executed)."""
 
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
-        """``replies`` status frames totalling ``wire_s`` (bytes, return delays) are due. True: the
-        clock charged them in simulated time, so they go out at once; False: the server paces
-        them in wall time."""
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
+        """``replies`` status frames totalling ``wire_s`` (bytes, return delays) are due, and the
+        USB adapter holds the last byte ``hold_s`` after it left the cable. True: the clock
+        charged them in simulated time, so they go out at once; False: the server paces them in
+        wall time."""
 
     # optional: catch_up(world), run the steps simulated time has passed but the physics has not
     # yet (a lockstep clock leaves those owed by replies and move_to for later); the emulator
@@ -122,6 +124,8 @@ class ClockStats:
 class FrozenClock:
     """Simulated time stands still; the bus only answers (``emu.advance`` steps by hand)."""
 
+    reply_latency_s = 0.0
+
     def __init__(self, rate_hz: float = 1000.0):
         if not rate_hz > 0:
             raise ConfigError(f"clock rate must be > 0 Hz, got {rate_hz:g}")
@@ -134,7 +138,7 @@ class FrozenClock:
     def on_request(self, world: StepWorld, wire_s: float) -> None:
         pass
 
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
         return False
 
 
@@ -147,6 +151,8 @@ class WallClock:
     :data:`MAX_BACKLOG_WALL_S` of backlog, simulated time is dropped and counted in :attr:`stats`
     (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
     """
+
+    reply_latency_s = 0.0      # the emulator's own answering time is real
 
     def __init__(self, time_scale: float = 1.0, rate_hz: float = 1000.0):
         if not (math.isfinite(time_scale) and time_scale > 0):
@@ -206,7 +212,7 @@ class WallClock:
     def on_request(self, world: StepWorld, wire_s: float) -> None:
         pass
 
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
         return False
 
 
@@ -273,8 +279,8 @@ class LockstepClock:
         self.bus_s += wire_s
         self._run_to(world)
 
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int) -> bool:
-        cost = wire_s + replies * self.reply_latency_s
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
+        cost = wire_s + replies * self.reply_latency_s + hold_s
         self.now_s += cost
         self.bus_s += cost
         return True

@@ -14,7 +14,7 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
     fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
     stats                      ->  stats <key> <int> ...      the bus counters (replies_dropped, ...)
-    info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> body <0|1>
+    info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> adapter_latency_ms <ms> body <0|1>
     (anything else)            ->  error <text>
 
 Limits: at most :data:`MAX_CLIENTS` connections; a request line is ASCII and at most

@@ -39,6 +39,7 @@ from swerve.configs.atomic import write_text
 from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
+from swerve.emulator.adapter import AdapterSettings, UsbAdapter
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
@@ -250,7 +251,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                    faults: Faults | str | None = None, status_file: str | os.PathLike | None = None,
                    status_hz: float = 20.0, limit_error=None, lockstep: bool = False,
                    control_path: str | os.PathLike | None = None,
-                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S, **link: object) -> Emulator:
+                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S,
+                   adapter_latency_ms: int | None = None, **link: object) -> Emulator:
     """The emulated bus, built from already-parsed configs (nothing is read from disk here).
 
     Parameters
@@ -283,6 +285,10 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         at ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is
         charged at its wire time plus ``reply_latency_s`` per answering servo
         (:class:`~swerve.emulator.clock.LockstepClock`). ``time_scale`` is then ignored.
+    adapter_latency_ms : int, optional
+        The USB-serial adapter's latency timer, ms (1..255; :mod:`swerve.emulator.adapter`),
+        overriding the robot file's ``link.adapter_latency_ms``. Neither: no adapter (the host
+        reads the cable directly).
     **link
         :class:`~swerve.emulator.server.LinkSettings` fields (``path``, ``wire_timing``, ...).
 
@@ -307,6 +313,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     model = model or (robot.model if robot is not None else DEFAULT_MODEL)
     baud = int(baud or (robot.link.baud if robot is not None else DEFAULT_BAUD))
     settings = LinkSettings(baud=baud, **link)
+    if adapter_latency_ms is None and robot is not None:
+        adapter_latency_ms = robot.link.adapter_latency_ms
+    adapter = None if adapter_latency_ms is None else UsbAdapter(AdapterSettings(adapter_latency_ms))
     if body is None:
         body = physics is not None and robot_ids is not None and set(robot_ids) <= set(ids)
     if body and (robot is None or physics is None):
@@ -319,7 +328,7 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
             raise ConfigError("sensor noise needs physics")
         servos = make_servos(ids, model, baud, **extra)
         clock, control = _clock(lockstep, time_scale, rate_hz or FROZEN_RATE_HZ, control_path, reply_latency_s)
-        return Emulator(servos, link=settings, clock=clock, faults=faults, control=control)
+        return Emulator(servos, link=settings, clock=clock, faults=faults, control=control, adapter=adapter)
 
     rate_hz = float(rate_hz or physics.rate_hz)
     if rate_hz < 1000:
@@ -349,7 +358,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         if s.dynamics is not None:
             s.memory.stale = True
     clock, control = _clock(lockstep, time_scale, rate_hz, control_path, reply_latency_s)
-    emu = Emulator(servos, link=settings, clock=clock, faults=faults, world=world, control=control)
+    emu = Emulator(servos, link=settings, clock=clock, faults=faults, world=world, control=control,
+                   adapter=adapter)
     if status_file is not None:
         writer = StatusFile(status_file, status_hz)
         writer.write(emu, strict=True)      # an unwritable path is an error before anything is served

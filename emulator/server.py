@@ -31,6 +31,7 @@ from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber
                             parse_sync_read, parse_sync_write)
 from swerve.driver.parser import PacketParser
 
+from swerve.emulator.adapter import UsbAdapter, byte_arrivals
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
@@ -186,11 +187,16 @@ class Emulator:
     control : ControlServer, optional
         The lockstep control channel (:mod:`swerve.emulator.control`), served by the bus thread;
         needs a clock with ``move_to`` (:class:`~swerve.emulator.clock.LockstepClock`).
+    adapter : UsbAdapter, optional
+        The USB-serial adapter between the cable and the host (:mod:`swerve.emulator.adapter`):
+        replies reach the host when it sends them (its latency timer, full packets, USB frames),
+        in robot time with a lockstep clock and in wall time with ``link.wire_timing``.
+        ``None``: the host reads the cable directly.
     """
 
     def __init__(self, servos: Sequence[VirtualServo], *, link: LinkSettings = LinkSettings(),
                  clock: PhysicsClock | None = None, faults: Faults | str | None = None, world: World | None = None,
-                 control: ControlServer | None = None):
+                 control: ControlServer | None = None, adapter: UsbAdapter | None = None):
         self.servos: tuple[VirtualServo, ...] = tuple(sorted(servos, key=lambda s: s.id))
         if not self.servos:
             raise ConfigError("an emulated bus needs at least one servo")
@@ -205,6 +211,7 @@ class Emulator:
         if control is not None and not hasattr(self.clock, "move_to"):
             raise ConfigError("a lockstep control channel needs a lockstep clock")
         self.control = control
+        self.adapter = adapter
         #: Bytes received from the client on the pty (the control channel's barrier counts them).
         self.rx_bytes = 0
         self.stats = Stats()
@@ -434,8 +441,9 @@ class Emulator:
         return self.stats.as_dict()
 
     def control_info(self) -> str:
+        adapter_ms = 0 if self.adapter is None else self.adapter.latency_ms
         return (f"rate_hz {self.clock.rate_hz!r} reply_latency_s "
-                f"{getattr(self.clock, 'reply_latency_s', 0.0)!r} baud {self.line_baud()}")
+                f"{self.clock.reply_latency_s!r} baud {self.line_baud()} adapter_latency_ms {adapter_ms}")
 
     def _count_parser_errors(self) -> None:
         p = self._parser
@@ -638,14 +646,17 @@ class Emulator:
         wire_byte_t = byte_t if self.wire_timing else 0.0
         extra_s = self.faults.delay_s
         due, t = [], start_t
-        frames = []
+        frames, gaps = [], []
         for r, frame in self._surviving(replies):
-            t += r.delay_s + extra_s + len(frame) * wire_byte_t   # the last byte reaches the host then
+            t += r.delay_s + extra_s + len(frame) * wire_byte_t   # the last byte leaves the cable then
             due.append(t)
             frames.append(frame)
+            gaps.append(r.delay_s + extra_s)
         n = len(frames)
         if not n:
             return
+        if self.adapter is not None and self.wire_timing:
+            due = self._through_adapter(start_t, gaps, frames, byte_t)
         i = 0
         while i < n:
             now = time.monotonic()
@@ -690,19 +701,46 @@ class Emulator:
 
     def _transmit_charged(self, replies: list[_Reply], byte_t: float) -> bool:
         """Offer the replies' wire time to the clock; if it charges it (lockstep), send them at
-        once and return True. Fault draws happen in the same order as with wall pacing."""
+        once and return True. Fault draws happen in the same order as with wall pacing.
+
+        With an adapter, the clock is also charged the time the adapter holds the last byte
+        after it left the cable (``hold_s``); every reply's bytes count, a dropped one's too
+        (its wire time is charged as well)."""
         extra_s, wire_s, answering, fast = self.faults.delay_s, 0, 0, 0
+        latency = self.clock.reply_latency_s
+        gaps = []
         for r in replies:
             wire_s += r.delay_s + extra_s + len(r.frame) * byte_t
+            starts = not r.fast or not fast        # a combined fast-read frame answers once
             if r.fast:
                 fast = 1
             else:
                 answering += 1
-        answering += fast                 # a combined fast-read frame answers once
-        if not self.clock.on_replies(self, wire_s, answering):
+            gaps.append((r.delay_s + extra_s + (latency if starts else 0.0), len(r.frame)))
+        answering += fast
+        hold_s, delivery = 0.0, None
+        if self.adapter is not None:
+            start = self.robot_time_s()
+            delivery = self.adapter.plan(byte_arrivals(start, gaps, byte_t))
+            hold_s = max(0.0, delivery.end_s - (start + wire_s + answering * latency))
+        if not self.clock.on_replies(self, wire_s, answering, hold_s):
             return False
+        if delivery is not None:
+            self.adapter.commit(delivery)
         self._write(b"".join(frame for _, frame in self._surviving(replies)))
         return True
+
+    def _through_adapter(self, start_t: float, gaps: list[float], frames: list[bytes],
+                         byte_t: float) -> list[float]:
+        """Wall time at which the host has each of ``frames`` (its last byte) through the
+        adapter, the frames leaving the cable back to back from ``start_t`` after their ``gaps``."""
+        delivery = self.adapter.plan(byte_arrivals(start_t, list(zip(gaps, map(len, frames))), byte_t))
+        self.adapter.commit(delivery)
+        ends, k = [], 0
+        for f in frames:
+            k += len(f)
+            ends.append(delivery.times_s[k - 1])
+        return ends
 
     def _write(self, data: bytes) -> None:
         if data:

@@ -20,6 +20,7 @@ refused, and ``swerve calibrate --write`` checks that before it drives the robot
 """
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import math
 import os
@@ -47,6 +48,10 @@ DRIVE_TEST_MPS = 0.05
 DRIVE_TEST_S = 0.8
 #: Ground speed of the radius drive, m/s (below the paper's 0.13 m/s cap).
 RADIUS_SPEED_MPS = 0.1
+#: The calibration steps, in the order they run.
+STEPS = ("steering", "directions", "radius")
+#: Physics rate of the emulated robot while calibrating, Hz.
+EMULATOR_RATE_HZ = 1000.0
 
 
 class CalibrationAborted(SwerveError):
@@ -312,6 +317,86 @@ def yaml_snippet(*, center_pulse=None, drive_direction=None, steer_direction=Non
         if center_pulse is not None:
             lines.append(f"  center_pulse: [{', '.join(map(str, center_pulse))}]")
     return "\n".join(lines) + "\n"
+
+
+# --- the steps in order, and the emulated robot -----------------------------------------------
+
+def run_steps(s: Session, op: Operator, steps: Sequence[str] = STEPS, *, jog: bool,
+              distance_m: float = 1.0, speed_mps: float = RADIUS_SPEED_MPS) -> dict:
+    """Run the chosen ``steps`` (of :data:`STEPS`, in that order), each continuing with what the
+    previous ones found. Returns the keyword values of :func:`write_robot_file` /
+    :func:`yaml_snippet`; the radius step adds ``radius_facts`` (encoder and measured distance, m)."""
+    cfg = s.cfg
+    values: dict = {}
+    if "steering" in steps:
+        values["center_pulse"] = steering_zero(s, op, jog=jog)
+        s.use(with_calibration(s.cfg, center_pulse=values["center_pulse"]))
+        s.log(f"steering centres: {values['center_pulse']} pulse (were {[w.center_pulse for w in cfg.wheels]})")
+    if "directions" in steps:
+        values["drive_direction"], values["steer_direction"] = directions(s, op)
+        s.use(with_calibration(s.cfg, drive_direction=values["drive_direction"],
+                               steer_direction=values["steer_direction"]))
+    if "radius" in steps:
+        radius, facts = wheel_radius(s, op, distance_m=distance_m, speed_mps=speed_mps)
+        values["wheel_radius_m"] = radius
+        values["radius_facts"] = facts
+        s.log(f"wheel radius: {radius * 1e3:.3f} mm (was {cfg.wheel_radius_m * 1e3:.3f} mm; encoders "
+              f"{facts['encoder_distance_m']:.4f} m, measured {facts['measured_distance_m']:.4f} m)")
+    return values
+
+
+@contextlib.contextmanager
+def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: str | Path | None = None,
+                 lockstep: bool = True, time_scale: float = 1.0, margin_s: float | None = None):
+    """The emulated robot built from ``robot_path`` (its steering centres, direction signs and
+    wheel radius, plus the physics of ``emulator_config``: a profile name or file, default
+    ideal, are the truth calibration must find), and a bus to it at ``cfg``'s baud.
+
+    Yields ``(bus, clock, emu)``: ``clock`` the lockstep clock (``lockstep``), else None.
+    """
+    from swerve.emulator.physics.profiles import resolve_emulator_config
+    from swerve.emulator.robot_emulator import robot_emulator
+    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
+
+    if margin_s is None:
+        margin_s = LOCKSTEP_TIMEOUT_MARGIN_S if lockstep else 0.05
+    with contextlib.ExitStack() as stack:
+        emu = stack.enter_context(robot_emulator(robot_path, resolve_emulator_config(emulator_config or "ideal"),
+                                                 body=True, time_scale=time_scale, rate_hz=EMULATOR_RATE_HZ,
+                                                 lockstep=lockstep))
+        clock = stack.enter_context(LockstepClock(emu.control.path)) if lockstep else None
+        bus = stack.enter_context(Bus(emu.port, cfg.link.baud, default_model=cfg.model, retries=1,
+                                      timeout_margin_s=margin_s))
+        if clock is not None:           # connected before anything was written to the pty
+            clock.attach(bus)
+        yield bus, clock, emu
+
+
+def emulator_operator(emu, clock, cfg: RobotConfig, settle: Callable[[float], None]) -> "EmulatorOperator":
+    """The :class:`EmulatorOperator` of a running emulated robot (what ``--yes`` answers with)."""
+    from swerve.emulator.robot_emulator import status
+
+    def true_state() -> dict:
+        if clock is not None:
+            clock.pose()        # answered once the emulator has run the physics up to robot time
+        with emu.lock:
+            return status(emu)
+
+    return EmulatorOperator(true_state, rad_per_pulse=cfg.table["present_position"].scale, settle=settle)
+
+
+def calibrate_emulated(cfg: RobotConfig, robot_path: str | Path, *, emulator_config: str | Path | None = None,
+                       steps: Sequence[str] = STEPS, lockstep: bool = True, time_scale: float = 1.0,
+                       distance_m: float = 1.0, speed_mps: float = RADIUS_SPEED_MPS,
+                       margin_s: float | None = None, log: Callable[[str], None] = print) -> dict:
+    """``swerve calibrate --emulate --yes``: calibrate ``cfg`` on the emulated robot of
+    ``robot_path`` and ``emulator_config`` (:func:`emulated_bus`), the answers read from its
+    true state (:class:`EmulatorOperator`). Returns the values of :func:`run_steps`."""
+    with emulated_bus(robot_path, cfg, emulator_config=emulator_config, lockstep=lockstep,
+                      time_scale=time_scale, margin_s=margin_s) as (bus, clock, emu):
+        with Session(bus, cfg, time_scale=time_scale, log=log, clock=clock) as session:
+            op = emulator_operator(emu, clock, cfg, session.sleep)
+            return run_steps(session, op, steps, jog=True, distance_m=distance_m, speed_mps=speed_mps)
 
 
 # --- operators ------------------------------------------------------------------------------

@@ -34,6 +34,8 @@ import warnings
 from pathlib import Path
 
 from swerve.configs.errors import SwerveError
+from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
+from swerve.tools.argtypes import int_range
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
 COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "tune", "plot", "export_csv",
@@ -53,6 +55,14 @@ def add_bus_options(parser: argparse.ArgumentParser, emulate_help: str) -> None:
     where.add_argument("--port", default=None, help="serial port of the U2D2 (default: link.port in the config)")
     where.add_argument("--emulate", action="store_true", help=emulate_help)
     add_config_option(parser)
+
+
+def add_adapter_option(parser: argparse.ArgumentParser) -> None:
+    """``--adapter-latency-ms MS``: the emulated USB adapter's latency timer (1..255 ms)."""
+    parser.add_argument("--adapter-latency-ms", metavar="MS", default=None,
+                        type=int_range(ADAPTER_LATENCY_MIN_MS, ADAPTER_LATENCY_MAX_MS),
+                        help="the emulated U2D2's USB latency timer, whole ms in 1..255 (16 as shipped, 1 "
+                             "once set; default: link.adapter_latency_ms of the robot file)")
 
 
 def _load(name: str):

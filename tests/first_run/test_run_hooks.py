@@ -24,9 +24,10 @@ FAULT_AT_S = 12.0
 #: Wall seconds the run waits, cycle by cycle, for the live client before it goes on regardless
 #: (robot time stands still meanwhile, so waiting changes no number of the run).
 CLIENT_WAIT_S = 60.0
-#: Largest true-pose error of this run, m. Lockstep makes it the same on every run (13.05 mm
-#: measured): the bound only leaves room for round-off across platforms.
-MAX_ERROR_M = 0.014
+#: Largest true-pose error of this run, m. Lockstep makes it the same on every run (14.46 mm
+#: measured, replies through the robot file's 1 ms USB adapter): the bound only leaves room for
+#: round-off across platforms.
+MAX_ERROR_M = 0.015
 
 
 def _free_port() -> int:

@@ -44,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --emulate: the robot file the emulator is built from; its steering "
                              "centres, direction signs and wheel radius are the truth that calibration "
                              "must find (default: --config)")
+    parser.add_argument("--emulator-config", default=None,
+                        help="with --emulate: the emulated robot's physics, a profile (ideal, realistic) or a "
+                             "file; its wheel radius scales and steering offsets are part of the truth "
+                             "(default ideal)")
     parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=1.0,
                         help="with --emulate: robot seconds per wall second (default 1)")
     parser.add_argument("--lockstep", action="store_true",
@@ -57,9 +61,9 @@ def run(args: argparse.Namespace) -> int:
     import contextlib
     import sys
 
+    from swerve.configs import locate_robot_file
     from swerve.driver.bus import Bus
     from swerve.driver.errors import ConfigError
-    from swerve.configs import locate_robot_file
     from swerve.driver.robot_config import load_robot_config
     from swerve.tools import calibrate as cal
 
@@ -69,6 +73,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--lockstep needs --emulate: a real bus runs on the wall clock")
     if args.emulated_robot and not args.emulate:
         raise ConfigError("--emulated-robot needs --emulate")
+    if args.emulator_config and not args.emulate:
+        raise ConfigError("--emulator-config needs --emulate")
     choice = locate_robot_file(args.config)
     cfg_path = choice.path
     cfg = load_robot_config(cfg_path)
@@ -83,58 +89,26 @@ def run(args: argparse.Namespace) -> int:
     def log(msg: str) -> None:
         print(msg, file=sys.stderr, flush=True)
 
-    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
-
-    margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (
-        LOCKSTEP_TIMEOUT_MARGIN_S * 1e3 if args.lockstep else 50.0 if args.emulate else 2.0)
-    values: dict = {}
+    margin_s = None if args.timeout_margin_ms is None else args.timeout_margin_ms * 1e-3
+    steps = dict(jog=args.jog or args.emulate, distance_m=args.distance, speed_mps=args.speed)
     with contextlib.ExitStack() as stack:
-        clock = None
         if args.emulate:
-            from swerve.emulator.robot_emulator import robot_emulator
-
-            emu = stack.enter_context(robot_emulator(args.emulated_robot or cfg_path, body=True,
-                                                     time_scale=args.time_scale, rate_hz=1000.0,
-                                                     lockstep=args.lockstep))
-            port = emu.port
-            if args.lockstep:       # connected before anything is written to the pty
-                clock = stack.enter_context(LockstepClock(emu.control.path))
+            bus, clock, emu = stack.enter_context(cal.emulated_bus(
+                args.emulated_robot or cfg_path, cfg, emulator_config=args.emulator_config, lockstep=args.lockstep,
+                time_scale=args.time_scale, margin_s=margin_s))
         else:
-            port = args.port or cfg.link.port
-        bus = stack.enter_context(Bus(port, cfg.link.baud, default_model=cfg.model, retries=1,
-                                      timeout_margin_s=margin_ms * 1e-3))
-        if clock is not None:
-            clock.attach(bus)
+            clock = None
+            bus = stack.enter_context(Bus(args.port or cfg.link.port, cfg.link.baud, default_model=cfg.model,
+                                          retries=1, timeout_margin_s=2e-3 if margin_s is None else margin_s))
         session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log, clock=clock))
-        scale = cfg.table["present_position"].scale
         if args.emulate and args.yes:
-            from swerve.emulator.robot_emulator import status
-
-            def true_state() -> dict:
-                if clock is not None:
-                    clock.pose()    # answered once the emulator has run the physics up to robot time
-                with emu.lock:
-                    return status(emu)
-
-            op = cal.EmulatorOperator(true_state, rad_per_pulse=scale, settle=session.sleep)
+            op = cal.emulator_operator(emu, clock, cfg, session.sleep)
         elif args.yes:
             op = cal.DefaultOperator()
         else:
             op = cal.ConsoleOperator(cfg.wheels)
-        if "steering" in args.steps:
-            values["center_pulse"] = cal.steering_zero(session, op, jog=args.jog or args.emulate)
-            session.use(cal.with_calibration(session.cfg, center_pulse=values["center_pulse"]))
-            log(f"steering centres: {values['center_pulse']} pulse (were "
-                f"{[w.center_pulse for w in cfg.wheels]})")
-        if "directions" in args.steps:
-            values["drive_direction"], values["steer_direction"] = cal.directions(session, op)
-            session.use(cal.with_calibration(session.cfg, drive_direction=values["drive_direction"],
-                                             steer_direction=values["steer_direction"]))
-        if "radius" in args.steps:
-            radius, facts = cal.wheel_radius(session, op, distance_m=args.distance, speed_mps=args.speed)
-            values["wheel_radius_m"] = radius
-            log(f"wheel radius: {radius * 1e3:.3f} mm (was {cfg.wheel_radius_m * 1e3:.3f} mm; encoders "
-                f"{facts['encoder_distance_m']:.4f} m, measured {facts['measured_distance_m']:.4f} m)")
+        values = cal.run_steps(session, op, args.steps, **steps)
+    values.pop("radius_facts", None)
     if args.write:
         cal.write_robot_file(cfg_path, **values)
         log(f"wrote {cfg_path}")

@@ -22,6 +22,7 @@ from swerve.driver.control_table import ID_MAX, table_for
 from swerve.driver.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import baud_rate, finite_float
+from swerve.tools.cli import add_adapter_option
 
 NAME = "emulate"
 HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
@@ -69,7 +70,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--baud", type=baud_rate, default=None,
                         help="servos' initial baud rate in bps (default: config or 1000000)")
     parser.add_argument("--wire-timing", action="store_true",
-                        help="pace replies at the baud rate as on a real cable")
+                        help="pace replies at the baud rate as on a real cable (and through the USB adapter)")
+    add_adapter_option(parser)
     parser.add_argument("--faults", default=None,
                         help="fault injection, e.g. drop=0.05,corrupt=0.01,delay=0.002,vanish=3,"
                              "hwerror=5:overload,seed=1 (see emulator/README.md)")
@@ -148,7 +150,8 @@ def run(args: argparse.Namespace) -> int:
                              body=True if args.physics else None, time_scale=args.time_scale,
                              rate_hz=args.clock_hz, noise=args.noise, faults=args.faults,
                              status_file=args.status_file, path=args.link, wire_timing=args.wire_timing,
-                             baud_check=not args.no_baud_check, **lockstep)
+                             baud_check=not args.no_baud_check, adapter_latency_ms=args.adapter_latency_ms,
+                             **lockstep)
     except ValueError as exc:            # ConfigError is a ValueError too
         raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from None
     stop = threading.Event()
@@ -181,7 +184,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"LINK {emu.link_path}", flush=True)
         what = "frozen (register-only)" if physics is None else (
             "moving the robot body" if emu.world is not None else "free shafts")
-        print(f"{len(emu.servos)} x {emu.model} IDs {ids_text} at {emu.baud} bps, {what}",
+        adapter = "no USB adapter" if emu.adapter is None else f"USB adapter latency timer {emu.adapter.latency_ms} ms"
+        print(f"{len(emu.servos)} x {emu.model} IDs {ids_text} at {emu.baud} bps, {what}, {adapter}",
               file=sys.stderr, flush=True)
         while not stop.wait(1.0):
             pass

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
-from swerve.tools.cli import add_config_option
+from swerve.tools.cli import add_adapter_option, add_config_option
 
 NAME = "run"
 HELP = "track a trajectory on the robot (--port) or on the emulator (--emulate)"
@@ -51,6 +51,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--faults", default=None,
                         help="with --emulate: fault injection, e.g. drop=0.02 (see emulator/README.md)")
     parser.add_argument("--emulator-config", default=None, help=f"with --emulate: {EMULATOR_CONFIG_HELP}; default ideal")
+    add_adapter_option(parser)
     parser.add_argument("--x0", metavar="x,y,θ,δ1,δ2",
                         help="the robot's start state in m and rad (default: the trajectory's)")
     parser.add_argument("--on-servo-fault", choices=("stop", "recover"), default="stop",
@@ -76,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     if args.emulator_config is not None and not args.emulate:
         raise ConfigError("--emulator-config needs --emulate")
+    if args.adapter_latency_ms is not None and not args.emulate:
+        raise ConfigError("--adapter-latency-ms needs --emulate (on the robot, doctor reads and sets the real one)")
     log = None if args.no_log else (
         Path(args.log) if args.log else
         Path("out/runs") / f"{Path(args.trajectory).stem}-{time.strftime('%Y%m%d-%H%M%S')}")
@@ -83,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
                      port=args.port, emulate=args.emulate, lockstep=args.lockstep,
                      time_scale=args.time_scale, log=log,
                      fast_read=args.fast_read, faults=args.faults, emulator_config=args.emulator_config,
+                     adapter_latency_ms=args.adapter_latency_ms,
                      timeout_margin_s=None if args.timeout_margin_ms is None else args.timeout_margin_ms / 1e3,
                      progress=sys.stderr.isatty(), on_servo_fault=args.on_servo_fault, live=args.live,
                      start=None if args.x0 is None else tuple(parse_x0(args.x0)))

@@ -248,8 +248,8 @@ class LockstepClock:
         return {k: int(v) for k, v in zip(words[::2], words[1::2])}
 
     def info(self) -> dict[str, float]:
-        """``{"rate_hz", "reply_latency_s", "baud", "body"}`` of the emulator (``body`` 1: it
-        has a robot body, so a true pose)."""
+        """``{"rate_hz", "reply_latency_s", "baud", "adapter_latency_ms", "body"}`` of the emulator
+        (``adapter_latency_ms`` 0: no USB adapter; ``body`` 1: it has a robot body, so a true pose)."""
         words = self._ask("info")[1:]
         return {k: float(v) for k, v in zip(words[::2], words[1::2])}
 

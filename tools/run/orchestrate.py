@@ -53,6 +53,9 @@ class RunRequest:
     timeout_margin_s: float | None = None   # None: driver default, or EMULATOR_TIMEOUT_MARGIN_S
     physics_rate_hz: float | None = None    # emulator physics rate; None: EMULATOR_PHYSICS_RATE_HZ
     emulator_config: str | Path | None = None   # emulator physics: "ideal", "realistic" or a file
+    adapter_latency_ms: int | None = None   # with emulate: the USB adapter's latency timer; None: the robot file's
+    emulated_robot: str | Path | None = None    # with emulate: the robot file the emulator is built from
+                                                # (the truth); None: ``config``
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
@@ -164,9 +167,9 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             from swerve.tools.run.lockstep import LockstepClock
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
+                req.emulated_robot or cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
                 faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
-                start_pose=tuple(start[:3]), rate_hz=rate_hz))
+                start_pose=tuple(start[:3]), rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms))
             clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
             port = emu.port
             true_pose = clock.pose
@@ -175,9 +178,9 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             from swerve.emulator.process import EmulatorProcess
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
+                req.emulated_robot or cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
                 time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
-                rate_hz=rate_hz))
+                rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms))
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
         else:
