@@ -26,7 +26,7 @@ import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterable, Mapping, Sequence
+from typing import Callable, Iterable, Mapping, Protocol, Sequence
 
 from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
@@ -39,6 +39,8 @@ from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
 STATUS_OVERHEAD = 11
+#: Wall time a reply the gate says was sent may take to arrive, s (a loaded host delivers late).
+GATE_WAIT_S = 30.0
 #: Broadcast-ping slot budgeted per possible ID, s (what ROBOTIS host libraries allow).
 BROADCAST_PING_SLOT_S = 0.003
 
@@ -48,6 +50,19 @@ RegLike = str | Reg
 _CHAINED_READS = frozenset((Instruction.SYNC_READ, Instruction.BULK_READ))
 #: Encoded Sync Read requests kept for reuse (the control loop repeats one request).
 _REQUEST_CACHE_SIZE = 32
+
+
+class ReplyGate(Protocol):
+    """A peer that can say how many bytes it has sent back (a lockstep emulator's control channel).
+
+    With a gate, a reply the wall-clock timeout missed is not given up on until the peer has said
+    it never sent it: the outcome of an exchange then depends only on what the peer did, not on
+    how fast the host delivered it.
+    """
+
+    def bytes_sent(self) -> int:
+        """Bytes the peer has written to the port since this bus opened it, counted after the
+        peer has served every byte written to it so far."""
 
 
 @dataclass(frozen=True)
@@ -105,6 +120,7 @@ class Bus:
         self.corrupt_frames = 0
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
+        self._gate: ReplyGate | None = None
         self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
         # per-request plans: sync read spans (address, length, names, values) and bulk write layouts
         self._plans: dict[tuple, tuple] = {}
@@ -128,6 +144,15 @@ class Bus:
     def bytes_written(self) -> int:
         """Bytes sent to the port since it was opened (what a lockstep clock's barrier counts)."""
         return self._transport.bytes_written
+
+    @property
+    def bytes_received(self) -> int:
+        """Bytes that came in on the port since it was opened (read or discarded unread)."""
+        return self._transport.bytes_received
+
+    def gate_replies(self, gate: ReplyGate | None) -> None:
+        """Ask ``gate`` before an exchange gives up on a reply (``None``: the timeout decides)."""
+        self._gate = gate
 
     def call_after_write(self, callback: Callable[[], None] | None) -> None:
         """Call ``callback()`` each time an instruction's bytes have been sent, before its reply
@@ -198,14 +223,25 @@ class Bus:
         deadline = time.monotonic() + timeout
         corrupt: list[CorruptPacketError] = []
         erred = False               # a reply carries an error byte
+        due: int | None = None      # bytes the gate says were sent; all of them are in when reached
         while not wanted <= got.keys():
-            batch = transport.read_packets(deadline)
+            if due is not None and transport.bytes_received >= due:
+                batch = transport.parser.flush() if transport.parser.pending else []
+            else:
+                batch = transport.read_packets(deadline)
             if transport.parser.errors:
                 errs = transport.parser.take_errors()
                 self.corrupt_frames += len(errs)
                 corrupt += errs
-            if not batch and time.monotonic() >= deadline:
-                break
+            if not batch:
+                if due is not None and transport.bytes_received >= due:
+                    break
+                if time.monotonic() >= deadline:
+                    if self._gate is None or due is not None:
+                        break
+                    due = self._gate.bytes_sent()
+                    deadline = time.monotonic() + GATE_WAIT_S
+                continue
             for p in batch:
                 if isinstance(p, StatusPacket):
                     i = p.id
@@ -224,8 +260,8 @@ class Bus:
         if fast_lengths is not None:
             transport.parser.expect_fast(None)
         missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
-        if (missing and until_all) or corrupt:
-            self._unsettled = True
+        if ((missing and until_all) or corrupt) and not (due is not None and transport.bytes_received >= due):
+            self._unsettled = True      # a late reply may still come (a gate said none will)
         if missing and until_all:
             if corrupt:
                 err = corrupt[-1]

@@ -33,10 +33,12 @@ per-device sysfs file (FTDI default 16 ms; set it to 1 ms, see :func:`latency_ti
 from __future__ import annotations
 
 import errno
+import fcntl
 import logging
 import os
 import re
 import select
+import struct
 import termios
 import time
 import warnings
@@ -166,6 +168,8 @@ class Transport:
                 self._fd = None
         #: Bytes handed to the port since it was opened (a lockstep barrier counts on it).
         self.bytes_written = 0
+        #: Bytes that came in since the port was opened: read, or discarded unread before a write.
+        self.bytes_received = 0
         #: Called after each :meth:`write` has sent all its bytes (e.g. a lockstep clock
         #: announcing them to its emulator while the reply is on its way); None: nothing.
         self.after_write: Callable[[], None] | None = None
@@ -202,7 +206,10 @@ class Transport:
         fd = self._fd
         try:
             if fd is None:
-                self._port.reset_input_buffer()
+                stale = self._port.in_waiting
+                if stale:
+                    self.bytes_received += stale
+                    self._port.reset_input_buffer()
                 n = self._port.write(data)
                 if n is not None and n != len(data):
                     raise self._failed("write", f"only {n} of {len(data)} bytes sent")
@@ -218,7 +225,10 @@ class Transport:
 
     def _write_fd(self, fd: int, data: bytes) -> None:
         """Send ``data`` on the non-blocking descriptor, waiting (bounded) while its queue is full."""
-        termios.tcflush(fd, termios.TCIFLUSH)
+        stale = struct.unpack("i", fcntl.ioctl(fd, termios.FIONREAD, b"\0\0\0\0"))[0]
+        if stale:       # only then: a flush wakes a pty master in packet mode
+            self.bytes_received += stale
+            termios.tcflush(fd, termios.TCIFLUSH)
         view, deadline = memoryview(data), None
         while view:
             try:
@@ -240,7 +250,9 @@ class Transport:
             if fd is None:
                 port = self._port
                 port.timeout = remaining_s
-                return port.read(max(1, port.in_waiting))
+                data = port.read(max(1, port.in_waiting))
+                self.bytes_received += len(data)
+                return data
             if not select.select([fd], [], [], remaining_s)[0]:
                 return b""
             try:
@@ -251,6 +263,7 @@ class Transport:
             raise self._failed("read", exc) from None
         if not data:  # readable but end of file: the device went away
             raise self._failed("read", "end of file (device disconnected)")
+        self.bytes_received += len(data)
         return data
 
     def drain_quiet(self, quiet_s: float, max_s: float) -> int:

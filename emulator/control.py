@@ -12,6 +12,8 @@ Protocol (ASCII lines, one reply line per request; times in s as Python ``repr``
                                                               a pty byte or pose/fault is served
     now <tx_bytes>             ->  at <now_s>
     pose <tx_bytes>            ->  pose <now_s> <x_m> <y_m> <theta_rad> <physics_t_s>
+    sent <tx_bytes>            ->  sent <now_s> <bytes>         bytes written to the pty since this
+                                                              client connected (replies included)
     fault <tx_bytes> <what> <args>  ->  ok                   vanish ID | restore ID | hwerror ID BITS
     stats                      ->  stats <key> <int> ...      the bus counters (replies_dropped, ...)
     info                       ->  info rate_hz <hz> reply_latency_s <s> baud <bps> adapter_latency_ms <ms> body <0|1>
@@ -67,6 +69,7 @@ class ControlledBus(Protocol):
     """What the channel needs from :class:`swerve.emulator.server.Emulator`."""
 
     rx_bytes: int
+    tx_bytes: int
     world: object | None        # the robot body (None: a bus without one, so no pose)
 
     def receive_until(self, rx_bytes: int, timeout_s: float) -> bool:
@@ -96,10 +99,11 @@ class ControlledBus(Protocol):
 
 
 class _Connection:
-    def __init__(self, sock: socket.socket, rx_base: int):
+    def __init__(self, sock: socket.socket, rx_base: int, tx_base: int):
         self.sock = sock
         self.buffer = bytearray()     # bytes after the last complete line (at most MAX_LINE_BYTES)
         self.rx_base = rx_base        # the emulator's received bytes at the previous request
+        self.tx_base = tx_base        # the emulator's sent bytes when the client connected
 
 
 class ControlServer:
@@ -155,7 +159,7 @@ class ControlServer:
                     pass
                 sock.close()
                 return
-            self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes)
+            self._conns[sock.fileno()] = _Connection(sock, bus.rx_bytes, bus.tx_bytes)
             self._fds = (self._listener.fileno(), *self._conns)
             return
         conn = self._conns.get(fd)
@@ -221,7 +225,7 @@ class ControlServer:
                 return "stats " + " ".join(f"{k} {v}" for k, v in bus.counters().items())
             if cmd == "fault" and len(args) >= 3:
                 tx, fault = int(args[0]), args[1:]
-            elif cmd in ("advance", "now", "pose") and len(args) == (2 if cmd == "advance" else 1):
+            elif cmd in ("advance", "now", "pose", "sent") and len(args) == (2 if cmd == "advance" else 1):
                 tx = int(args[-1])
             else:
                 return f"error unknown request {' '.join(words)!r}"
@@ -241,6 +245,8 @@ class ControlServer:
                 return f"at {bus.move_to(t_s)!r} {asked!r}"
             if cmd == "now":
                 return f"at {bus.robot_time_s()!r}"
+            if cmd == "sent":
+                return f"sent {bus.robot_time_s()!r} {bus.tx_bytes - conn.tx_base}"
             bus.settle()
             if cmd == "fault":
                 bus.inject_fault(fault[0], fault[1:])

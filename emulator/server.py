@@ -214,6 +214,8 @@ class Emulator:
         self.adapter = adapter
         #: Bytes received from the client on the pty (the control channel's barrier counts them).
         self.rx_bytes = 0
+        #: Bytes written to the pty in all (a lockstep client's reply gate counts on it).
+        self.tx_bytes = 0
         self.stats = Stats()
         #: Simulated seconds stepped so far (clock and :meth:`advance` together).
         self.sim_time_s = 0.0
@@ -745,6 +747,7 @@ class Emulator:
     def _write(self, data: bytes) -> None:
         if data:
             sent = self._pty.write(bytes(data))
+            self.tx_bytes += sent
             self.stats.tx_overflow_bytes += len(data) - sent
 
     def _sleep_until(self, deadline: float) -> None:

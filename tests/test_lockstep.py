@@ -15,6 +15,7 @@ from swerve.driver.bus import Bus
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.driver.control_table import Reg
+from swerve.driver.errors import DxlTimeoutError
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.commands.emulate import parse_control, parse_port_line
@@ -81,7 +82,6 @@ def test_the_barrier_serves_bytes_written_before_the_time_request(bus_in_lockste
 def test_a_fault_sent_on_the_channel_takes_effect_in_order(bus_in_lockstep):
     emu, bus, clock = bus_in_lockstep
     clock.fault("vanish", 2)
-    from swerve.driver.errors import DxlTimeoutError
     with pytest.raises(DxlTimeoutError):
         bus.ping(2)
     clock.fault("restore", 2)
@@ -252,3 +252,20 @@ def test_a_bus_opened_by_the_fixture_lets_the_clock_ask_with_the_read(emulated_r
         assert clock.requests == n + 1                  # sent by the bus's write, not by now()
         t = clock.now()
         assert clock.requests == n + 1 and t == emulated_robot.time_s > 0
+
+
+def test_an_attached_bus_waits_for_every_reply_the_emulator_sent(bus_in_lockstep):
+    """With the clock as its reply gate, an exchange's outcome is what the emulator did, however
+    late the host delivers: with no wall-clock margin at all, every reply is still taken, and a
+    servo that is gone times out at once (the emulator says it sent nothing)."""
+    emu, bus, clock = bus_in_lockstep
+    clock.attach(bus)
+    bus.timeout_margin_s = 0.0          # the wire time alone: most replies arrive after it
+    for _ in range(50):
+        assert bus.ping(2).id == 2
+        assert bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
+    clock.fault("vanish", 3)
+    with pytest.raises(DxlTimeoutError) as err:
+        bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
+    assert err.value.ids == (3,)
+    assert bus.ping(1).id == 1 and bus.drained_bytes == 0

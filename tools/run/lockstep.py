@@ -230,11 +230,24 @@ class LockstepClock:
             self._send(f"pose {self._delta()}")
 
     def attach(self, bus) -> None:
-        """Count the bytes ``bus`` (a :class:`swerve.driver.bus.Bus`) writes to the pty and
-        hear of each write (``bus.call_after_write``)."""
+        """Count the bytes ``bus`` (a :class:`swerve.driver.bus.Bus`) writes to the pty, hear of
+        each write (``bus.call_after_write``) and be its reply gate (``bus.gate_replies``), so a
+        reply is waited for until the emulator says it was never sent, whatever the host's load."""
         self.count_tx(lambda: bus.bytes_written)
         bus.call_after_write(self.written)
+        self._sent_base = self._sent() - bus.bytes_received     # nothing is in flight now
+        bus.gate_replies(self)
         self._attached = True
+
+    def _sent(self) -> int:
+        words = self._ask(f"sent {self._delta()}")
+        self._now_s, self._known, self._pose = float(words[1]), True, None
+        return int(words[2])
+
+    def bytes_sent(self) -> int:
+        """Bytes the emulator has written to the pty, on the attached bus's count, after it
+        served every byte written so far (:class:`swerve.driver.bus.ReplyGate`)."""
+        return self._sent() - self._sent_base
 
     def fault(self, what: str, *args) -> None:
         """Inject a fault once every byte written so far was served: ``fault("vanish", 7)``,
