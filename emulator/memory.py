@@ -22,7 +22,6 @@ from swerve.driver.control_table import ControlTable, Reg, Register
 from swerve.driver.errors import RegisterError
 from swerve.driver.control_table import OperatingMode
 from swerve.driver.packets import ErrorNumber, ResetOption
-from swerve.driver.span_codec import STRUCT_CODES as _SPAN_CODES
 from swerve.driver.span_codec import item_struct, items_struct
 
 #: Goal items that a tripped Bus Watchdog makes read-only (writes -> Data Range Error).
@@ -30,10 +29,6 @@ WATCHDOG_LOCKED = (Reg.GOAL_PWM, Reg.GOAL_CURRENT, Reg.GOAL_VELOCITY, Reg.GOAL_P
 #: Factory Reset options: which items survive.
 RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD = ResetOption.ALL, ResetOption.EXCEPT_ID, ResetOption.EXCEPT_ID_BAUD
 POSITION_MODE = OperatingMode.POSITION
-#: ``struct`` codes by item size, then signedness: the nested view of
-#: :data:`swerve.driver.span_codec.STRUCT_CODES` that ``robot_emulator``'s input decoder indexes.
-STRUCT_CODES = {size: {signed: code for (n, signed), code in _SPAN_CODES.items() if n == size}
-                for size in sorted({n for n, _ in _SPAN_CODES})}
 TIME_BASED_PROFILE_BIT = 0x04
 # Items the write rules name, looked up once (an Enum member costs a metaclass lookup per use)
 _TORQUE_ENABLE, _PROFILE_VELOCITY, _DRIVE_MODE, _GOAL_POSITION, _OPERATING_MODE = (

@@ -28,7 +28,6 @@ import json
 import logging
 import math
 import os
-import struct
 import time
 from pathlib import Path
 from typing import Iterable, Mapping
@@ -39,11 +38,11 @@ from swerve.configs.atomic import write_text
 from swerve.configs.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
+from swerve.driver.span_codec import items_struct
 from swerve.emulator.adapter import AdapterSettings, UsbAdapter
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
 from swerve.emulator.control import ControlServer
 from swerve.emulator.faults import Faults
-from swerve.emulator.memory import STRUCT_CODES
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
 from swerve.emulator.physics.servo_model import ServoModel, wheel_servo
@@ -79,14 +78,10 @@ class _ServoDynamics:
         self.model = model
         self._servo = servo
         self._memory = servo.memory
-        regs = sorted((servo.table[n] for n in _INPUTS), key=lambda r: r.address)
-        self._end = max(r.address + r.size for r in regs)
-        fmt, at = "<", 0                # the items in address order, gaps skipped
-        for r in regs:
-            fmt += "x" * (r.address - at) + STRUCT_CODES[r.size][r.signed]
-            at = r.address + r.size
-        self._names = [r.name for r in regs]
-        self._unpack = struct.Struct(fmt).unpack_from
+        names, fmt = items_struct(servo.table, _INPUTS)    # address order, gaps as pad bytes, from byte 0
+        self._names = list(names)
+        self._end = fmt.size
+        self._unpack = fmt.unpack_from
         self._raw = b""
         self._items: dict[str, int] = {}
 

@@ -28,8 +28,9 @@ from swerve.driver.control_table import table_for
 from swerve.driver.errors import ChecksumError, ConfigError, CorruptPacketError
 from swerve.driver.packets import (BROADCAST_ID, MAX_ID, MAX_LENGTH, ErrorNumber, FastStatus, Instruction,
                             InstructionPacket, StatusPacket, parse_bulk_read, parse_bulk_write,
-                            parse_sync_read, parse_sync_write)
+                            fast_status_length, parse_sync_read, parse_sync_write)
 from swerve.driver.parser import PacketParser
+from swerve.driver.transport import BITS_PER_BYTE
 
 from swerve.emulator.adapter import UsbAdapter, byte_arrivals
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
@@ -55,7 +56,6 @@ def freeze_startup_heap() -> None:
 DEFAULT_IDS = tuple(range(1, 9))
 DEFAULT_MODEL = "xh430-w210"
 DEFAULT_BAUD = 1_000_000
-BITS_PER_BYTE = 10          # 8N1: start + 8 data + stop
 #: Most physics steps :meth:`Emulator.step_many` runs under one hold of the lock (~2 ms of CPU).
 MAX_STEPS_PER_HOLD = 100
 IDLE_POLL_S = 0.25          # select timeout while the line is idle (only to notice close)
@@ -593,7 +593,7 @@ class Emulator:
     def _fast_read(self, items: list[tuple[int, int, int]], by_id: dict[int, VirtualServo]):
         """Replies and servos read of a Fast Sync/Bulk Read of ``items`` ``(id, address, length)``:
         one combined frame, cut into each answering servo's slice."""
-        if 1 + sum(n + 4 for _, _, n in items) > MAX_LENGTH:
+        if fast_status_length([n for _, _, n in items]) > MAX_LENGTH:
             raise CorruptPacketError("fast read reply would exceed the largest frame")
         statuses: list[tuple[VirtualServo | None, StatusPacket]] = []
         for id_, address, length in items:

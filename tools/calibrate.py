@@ -39,8 +39,6 @@ from swerve.configs.atomic import write_text
 from swerve.configs.yaml_edit import set_value
 from swerve.tools.signals import safe_stop
 
-#: Pulses per revolution of the X-series encoder (Present Position, 0..4095 in position mode).
-PULSES_PER_REV = 4096
 #: Steering test angle for the direction check, rad (about 17 degrees).
 STEER_TEST_RAD = 0.3
 #: Wheel ground speed of the direction check, m/s, and how long it turns, robot s.
@@ -90,9 +88,10 @@ class Jogger:
 
     def jog(self, wheel: int, delta_pulse: int) -> int:
         """Move wheel ``wheel``'s steering goal by ``delta_pulse``; returns the new goal."""
-        new = min(PULSES_PER_REV - 1, max(0, self.goals[wheel] + int(delta_pulse)))
+        steer_id = self.session.cfg.wheels[wheel].steer_id
+        new = min(self.session.bus.table(steer_id).pulses_per_rev - 1, max(0, self.goals[wheel] + int(delta_pulse)))
         self.goals[wheel] = new
-        self.session.bus.write(self.session.cfg.wheels[wheel].steer_id, Reg.GOAL_POSITION, new)
+        self.session.bus.write(steer_id, Reg.GOAL_POSITION, new)
         return new
 
     def settle(self, robot_s: float = 0.3) -> None:
@@ -170,7 +169,7 @@ def steering_zero(s: Session, op: Operator, *, jog: bool) -> list[int]:
         s.log("steering: torque off; set all four wheels straight ahead by hand")
         op.wait_straight()
         pos = s.bus.sync_read(steer_ids, Reg.PRESENT_POSITION)
-        return [pos[i][Reg.PRESENT_POSITION] % PULSES_PER_REV for i in steer_ids]
+        return [pos[i][Reg.PRESENT_POSITION] % s.bus.table(i).pulses_per_rev for i in steer_ids]
     s.configure()
     jogger = Jogger(s, [w.center_pulse for w in s.cfg.wheels])
     s.bus.sync_write(Reg.GOAL_POSITION, dict(zip(steer_ids, jogger.goals)))

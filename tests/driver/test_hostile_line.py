@@ -7,6 +7,7 @@ Time bounds here are generous multiples of that deadline: the verdict is "answer
 """
 from __future__ import annotations
 
+import fcntl
 import logging
 import os
 import pty
@@ -83,13 +84,18 @@ def test_unplugged_pty_raises_transport_error_naming_the_port():
 
 @pytest.mark.parametrize("where,exc", [
     ("tcflush", termios.error(5, "Input/output error")),
+    ("ioctl", OSError(5, "Input/output error")),
     ("select", ValueError("file descriptor cannot be a negative integer (-1)")),
     ("select", OSError(9, "Bad file descriptor")),
-], ids=["termios_error", "select_negative_fd", "select_ebadf"])
+], ids=["termios_error", "ioctl_error", "select_negative_fd", "select_ebadf"])
 def test_every_os_failure_is_a_transport_error(monkeypatch, where, exc):
     with RawPty() as dev:
         t = Transport(dev.port, 1_000_000)
-        module = termios if where == "tcflush" else select
+        module = {"tcflush": termios, "ioctl": fcntl}.get(where, select)
+        os.write(dev.master, b"stale")              # unread input: the write flushes it first
+        deadline = time.monotonic() + 5
+        while not select.select([t._fd], [], [], 0)[0] and time.monotonic() < deadline:
+            time.sleep(0.001)                       # the pty hands the bytes over asynchronously
 
         def fail(*_args):
             raise exc
