@@ -36,8 +36,8 @@ from pathlib import Path
 from swerve.configs.errors import SwerveError
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
-COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "tune", "plot", "export_csv",
-            "config")
+COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "campaign", "tune", "plot",
+            "export_csv", "config")
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_bus_options
 
@@ -44,6 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --emulate: the robot file the emulator is built from; its steering "
                              "centres, direction signs and wheel radius are the truth that calibration "
                              "must find (default: --config)")
+    parser.add_argument("--emulator-config", default=None,
+                        help=f"with --emulate: {EMULATOR_CONFIG_HELP}; default ideal")
     parser.add_argument("--time-scale", type=finite_float(0.0, 1000.0, lo_open=True), default=1.0,
                         help="with --emulate: robot seconds per wall second (default 1)")
     parser.add_argument("--lockstep", action="store_true",
@@ -69,6 +72,8 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--lockstep needs --emulate: a real bus runs on the wall clock")
     if args.emulated_robot and not args.emulate:
         raise ConfigError("--emulated-robot needs --emulate")
+    if args.emulator_config and not args.emulate:
+        raise ConfigError("--emulator-config needs --emulate")
     choice = locate_robot_file(args.config)
     cfg_path = choice.path
     cfg = load_robot_config(cfg_path)
@@ -89,7 +94,10 @@ def run(args: argparse.Namespace) -> int:
         if args.emulate:
             from swerve.emulator.robot_emulator import robot_emulator
 
-            emu = stack.enter_context(robot_emulator(args.emulated_robot or cfg_path, body=True,
+            from swerve.emulator.physics.profiles import resolve_emulator_config
+
+            physics = resolve_emulator_config(args.emulator_config or "ideal")
+            emu = stack.enter_context(robot_emulator(args.emulated_robot or cfg_path, physics, body=True,
                                                      time_scale=args.time_scale, rate_hz=1000.0,
                                                      lockstep=args.lockstep))
             port = emu.port

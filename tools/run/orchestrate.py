@@ -56,6 +56,8 @@ class RunRequest:
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
+    emulated_robot: str | Path | None = None    # with emulate: the emulator's robot file (the truth);
+                                                # None: ``config`` (a calibrated file runs a true robot)
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
@@ -164,7 +166,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             from swerve.tools.run.lockstep import LockstepClock
 
             emu = stack.enter_context(EmulatorProcess(
-                cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
+                req.emulated_robot or cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
+                lockstep=True,
                 faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
                 start_pose=tuple(start[:3]), rate_hz=rate_hz))
             clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
