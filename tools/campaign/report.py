@@ -61,7 +61,8 @@ def worst(rows: list[dict], folder: Path, n: int = WORST) -> list[dict]:
     out = []
     for r in sorted(rows, key=key)[:n]:
         out.append(dict(index=int(r["index"]), trajectory=r["trajectory"], calibrate=r["calibrate"],
-                        status=r["status"], reason=r["reason"], rms_position_error_m=_float(r["rms_position_error_m"]),
+                        status=r["status"], reason=r["reason"],
+                        rms_position_error_m=e if math.isfinite(e := _float(r["rms_position_error_m"])) else None,
                         replay=f"swerve campaign replay {folder} {r['index']} --log {folder}/replay-{r['index']}"))
     return out
 
@@ -103,7 +104,7 @@ def write_summary(campaign: Campaign, rows: list[dict], folder: Path) -> dict:
              "emulator's true pose, over t >= tf/4 (rms, max) and at the end (final).", "",
              table(s), "", "## Worst scenarios", ""]
     lines += [f"- {w['index']}: {w['trajectory']} calibrate={w['calibrate']} {w['status']} "
-              f"{_mm(w['rms_position_error_m']) if math.isfinite(w['rms_position_error_m']) else '-'} mm rms"
+              f"{_mm(w['rms_position_error_m'])} mm rms"
               f"{': ' + w['reason'] if w['reason'] else ''} — `{w['replay']}`" for w in s["worst"]]
     write_text(folder / "summary.md", "\n".join(lines) + "\n")
     return s

@@ -107,14 +107,17 @@ class Store:
         return [i for i in range(self.campaign.scenarios) if i not in self.outcomes]
 
     def rows(self) -> list[dict]:
-        """The finished rows of this campaign (``--samples`` may have shrunk it), by index."""
-        return [self.outcomes[i].row for i in sorted(self.outcomes) if i < self.campaign.scenarios]
+        """The finished rows of this campaign (``--samples`` may have shrunk it), by index, with
+        every column of results.csv (empty where a row has no value)."""
+        head = columns(self.campaign)
+        return [{c: self.outcomes[i].row.get(c, "") for c in head}
+                for i in sorted(self.outcomes) if i < self.campaign.scenarios]
 
     def write_results(self) -> Path:
         """Rewrite ``results.csv`` (atomically) from the finished scenarios."""
         head = columns(self.campaign)
         buf = io.StringIO()
-        w = csv.DictWriter(buf, head, restval="", extrasaction="raise", lineterminator="\n")
+        w = csv.DictWriter(buf, head, lineterminator="\n")
         w.writeheader()
         w.writerows(self.rows())
         return write_text(self.folder / RESULTS, buf.getvalue(), fsync=False)
