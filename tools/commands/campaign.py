@@ -12,28 +12,10 @@ import argparse
 import sys
 from pathlib import Path
 
+from swerve.tools.argtypes import int_range
+
 NAME = "campaign"
 HELP = "run a campaign of emulated scenarios (a process pool or Ray), or replay one of its scenarios"
-
-
-def _positive_int(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {text!r}") from None
-    if value < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
-    return value
-
-
-def _index(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a scenario index (0, 1, ...), got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a scenario index (0, 1, ...), got {value}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -42,18 +24,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          description="run every scenario of a campaign not in DIR yet")
     run.add_argument("file", metavar="FILE", help="campaign file, or a shipped campaign: smoke, tolerances")
     run.add_argument("--out", required=True, metavar="DIR", help="results folder (created; reused to resume)")
-    run.add_argument("--workers", type=_positive_int, default=None,
+    run.add_argument("--workers", type=int_range(1, 4096), default=None,
                      help="scenarios at a time (pool: default the CPUs; --ray auto: the local Ray's CPUs)")
     run.add_argument("--ray", default=None, metavar="auto|ADDRESS",
                      help='run on Ray: "auto" starts a local Ray, HOST:PORT joins a running cluster '
                           '(needs pip install "swerve[cluster]")')
-    run.add_argument("--samples", type=_positive_int, default=None,
+    run.add_argument("--samples", type=int_range(1, 10**6), default=None,
                      help="robots to draw instead of the file's samples (a quick look; same draws)")
     run.add_argument("--no-plots", action="store_true", help="skip the plots")
     replay = sub.add_parser("replay", help="run one scenario of a campaign again",
                             description="run scenario INDEX of the campaign in DIR again, in this process")
     replay.add_argument("dir", metavar="DIR", help="the campaign's results folder")
-    replay.add_argument("index", metavar="INDEX", type=_index, help="scenario index (results.csv column index)")
+    replay.add_argument("index", metavar="INDEX", type=int_range(0), help="scenario index (results.csv column index)")
     replay.add_argument("--log", default=None, metavar="DIR", help="write the run log (ROS 2 bag, MCAP) here")
 
 
