@@ -135,6 +135,17 @@ class PoolEngine:
 
 
 def _ray_task(campaign: Campaign, index: int) -> Outcome:
+    """One scenario in a Ray worker, at the priority a pool worker has.
+
+    Ray starts its workers at nice 15 (below its own raylet); on a host shared with other work a
+    scenario (and the emulator process it starts, which inherits the value) would then run only
+    when nothing else wants the CPU. Where the process may (root, CAP_SYS_NICE) it takes back the
+    default niceness, 0; elsewhere it keeps Ray's.
+    """
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except PermissionError:
+        pass
     return run_scenario(campaign, index)
 
 
