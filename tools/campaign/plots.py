@@ -49,7 +49,7 @@ def plot_campaign(campaign: Campaign, rows: list[dict], folder: Path) -> list[Pa
         for name, sel in groups.items():
             x = np.sort([v for v in (_num(r[m]) * 1e3 for r in sel) if math.isfinite(v)])
             if x.size:
-                ax.step(x, np.arange(1, x.size + 1) / x.size, where="post", label=name)
+                ax.step(np.r_[x[0], x], np.r_[0.0, np.arange(1, x.size + 1) / x.size], where="post", label=name)
         ax.set_xlabel(f"{m.removesuffix('_m')} (mm)")
         ax.set_ylabel("share of robots")
         ax.grid(alpha=0.3)
