@@ -130,3 +130,18 @@ def test_pool_reports_a_killed_worker_as_lost():
 def test_workers_must_be_positive():
     with pytest.raises(ConfigError):
         PoolEngine(load_campaign("smoke"), 0)
+
+
+def test_smoke_writes_summary_plots_and_replay_commands(smoke_pool):
+    summary = json.loads((smoke_pool / "summary.json").read_text())
+    assert summary["finished"] == summary["scenarios"] == 4
+    assert sum(summary["overall"]["count"].values()) == 4
+    assert {(g["trajectory"], g["calibrate"]) for g in summary["groups"]} == {
+        (t, c) for t in ("trajectories/line-6s.yaml", "trajectories/circle-8s.yaml") for c in ("false", "true")}
+    table = rows((smoke_pool / "results.csv").read_bytes())
+    assert [r["calibrate"] for r in table] == ["false", "true"] * 2
+    assert all(r["calibrated_wheel_radius_m"] != "" for r in table if r["calibrate"] == "true")
+    assert all(r["calibrated_wheel_radius_m"] == "" for r in table if r["calibrate"] == "false")
+    for name in ("cdf.png", "rms_position_error_m_vs_parameters.png"):
+        assert (smoke_pool / "plots" / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert f"swerve campaign replay {smoke_pool} " in (smoke_pool / "summary.md").read_text()
