@@ -38,8 +38,8 @@ from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_M
 from swerve.tools.argtypes import int_range
 
 #: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
-COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "tune", "plot", "export_csv",
-            "config")
+COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "campaign", "tune", "plot",
+            "export_csv", "config")
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:

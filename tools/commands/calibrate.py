@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_bus_options
 

@@ -59,6 +59,8 @@ class RunRequest:
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
+    emulated_robot: str | Path | None = None    # with emulate: the emulator's robot file (the truth);
+                                                # None: ``config`` (a calibrated file runs a true robot)
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):

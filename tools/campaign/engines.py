@@ -1,0 +1,206 @@
+"""Where scenarios run: a local process pool, or Ray tasks on a local or remote cluster.
+
+Both offer the :class:`Engine` protocol: ``submit(index)``, ``wait() -> Done`` (blocks until one
+submitted scenario has finished or was lost with its worker) and ``close()``. Retries are the
+caller's (:mod:`swerve.tools.campaign.runner`): an engine only reports a lost scenario.
+Both run :func:`swerve.tools.campaign.scenario.run_scenario`, so a scenario's row does not
+depend on the engine.
+"""
+from __future__ import annotations
+
+import multiprocessing as mp
+import os
+import signal
+from dataclasses import dataclass
+from multiprocessing.connection import Connection, wait
+from typing import Protocol
+
+from swerve.configs.errors import ConfigError
+
+from .scenario import Outcome, run_scenario
+from .spec import Campaign
+
+#: How long a stopping worker may take to close its emulator before it is killed, s.
+WORKER_STOP_S = 10.0
+#: The one line ``--ray`` prints when Ray is not installed.
+RAY_MISSING = 'Ray is not installed: pip install "swerve[cluster]" (or pip install ray)'
+
+
+@dataclass(frozen=True)
+class Done:
+    """A submitted scenario that ended: its ``outcome``, or ``lost`` (why its worker went away)."""
+
+    index: int
+    outcome: Outcome | None = None
+    lost: str | None = None
+
+
+class Engine(Protocol):
+    """Runs scenarios of one campaign; ``slots`` of them at a time."""
+
+    slots: int
+    name: str
+
+    def submit(self, index: int) -> None:
+        """Start scenario ``index`` (at most ``slots`` are outstanding)."""
+
+    def wait(self) -> Done:
+        """Block until one submitted scenario ends."""
+
+    def close(self) -> None:
+        """Stop every worker (outstanding scenarios are dropped, not reported)."""
+
+
+def _worker(conn: Connection, campaign: Campaign) -> None:
+    """A pool worker: run each index received, send its :class:`Outcome`; ``None`` stops it.
+    A stop signal ends the running scenario through its clean-up (emulator closed) and exits."""
+    from swerve.tools.signals import signals_as_interrupt
+
+    with signals_as_interrupt():
+        try:
+            while (index := conn.recv()) is not None:
+                conn.send(run_scenario(campaign, index))
+        except (KeyboardInterrupt, EOFError, BrokenPipeError):
+            pass
+
+
+class _Slot:
+    def __init__(self, ctx, campaign: Campaign):
+        self.conn, child = ctx.Pipe()
+        self.proc = ctx.Process(target=_worker, args=(child, campaign), name="swerve-campaign-worker")
+        self.proc.start()
+        child.close()
+        self.index: int | None = None
+
+
+class PoolEngine:
+    """``workers`` local processes (started with ``spawn``), each running one scenario at a
+    time. A worker that dies mid-scenario (killed, crashed) is reported as lost and replaced."""
+
+    name = "pool"
+
+    def __init__(self, campaign: Campaign, workers: int):
+        if workers < 1:
+            raise ConfigError(f"--workers must be >= 1, got {workers}")
+        self._ctx = mp.get_context("spawn")
+        self._campaign = campaign
+        self.slots = workers
+        self._slots: list[_Slot] = []
+
+    def submit(self, index: int) -> None:
+        free = next((s for s in self._slots if s.index is None), None)
+        if free is None:
+            free = _Slot(self._ctx, self._campaign)
+            self._slots.append(free)
+        free.index = index
+        free.conn.send(index)
+
+    def wait(self) -> Done:
+        while True:
+            busy = [s for s in self._slots if s.index is not None]
+            if not busy:
+                raise RuntimeError("wait() with nothing submitted")
+            ready = wait([s.conn for s in busy] + [s.proc.sentinel for s in busy])
+            for s in busy:
+                if s.conn in ready:
+                    try:
+                        outcome = s.conn.recv()
+                    except (EOFError, OSError):
+                        continue            # died while sending: its sentinel reports it
+                    index, s.index = s.index, None
+                    return Done(index, outcome)
+            for s in busy:
+                if s.proc.sentinel in ready:
+                    s.proc.join()
+                    self._slots.remove(s)
+                    s.conn.close()
+                    return Done(s.index, lost=f"worker process exited with status {s.proc.exitcode}")
+
+    def close(self) -> None:
+        for s in self._slots:
+            try:
+                if s.index is None:
+                    s.conn.send(None)
+                elif s.proc.is_alive():
+                    os.kill(s.proc.pid, signal.SIGTERM)
+            except (OSError, ValueError):
+                pass
+        for s in self._slots:
+            s.proc.join(WORKER_STOP_S)
+            if s.proc.is_alive():
+                s.proc.kill()
+                s.proc.join()
+            s.conn.close()
+        self._slots.clear()
+
+
+def _ray_task(campaign: Campaign, index: int) -> Outcome:
+    """One scenario in a Ray worker, at the priority a pool worker has.
+
+    Ray starts its workers at nice 15 (below its own raylet); on a host shared with other work a
+    scenario (and the emulator process it starts, which inherits the value) would then run only
+    when nothing else wants the CPU. Where the process may (root, CAP_SYS_NICE) it takes back the
+    default niceness, 0; elsewhere it keeps Ray's.
+    """
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, 0)
+    except PermissionError:
+        pass
+    return run_scenario(campaign, index)
+
+
+class RayEngine:
+    """Scenarios as Ray tasks (one CPU each). ``address`` ``"auto"`` starts a local Ray
+    (``workers`` CPUs, default all); any other value is the address of a running cluster
+    (``HOST:PORT`` of ``ray start --head``) to join. Every node must have swerve installed and
+    the campaign's files at the same paths."""
+
+    name = "ray"
+
+    def __init__(self, campaign: Campaign, address: str, workers: int | None = None):
+        try:
+            import ray
+        except ImportError:
+            raise ConfigError(RAY_MISSING) from None
+        self._ray = ray
+        kw = dict(include_dashboard=False, log_to_driver=False, configure_logging=False)
+        if address == "auto":
+            ray.init(num_cpus=workers, **kw)
+        else:
+            ray.init(address=address, **kw)
+        self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
+        self._task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
+        self._campaign = ray.put(campaign)
+        self._pending: dict = {}
+
+    def submit(self, index: int) -> None:
+        self._pending[self._task.remote(self._campaign, index)] = index
+
+    def wait(self) -> Done:
+        ray = self._ray
+        [ref], _ = ray.wait(list(self._pending), num_returns=1)
+        index = self._pending.pop(ref)
+        try:
+            return Done(index, ray.get(ref))
+        except ray.exceptions.RayError as exc:
+            return Done(index, lost=f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}")
+
+    def close(self) -> None:
+        for ref in self._pending:
+            try:
+                self._ray.cancel(ref, force=True)
+            except Exception:  # noqa: BLE001 - a task that already ended cannot be cancelled
+                pass
+        self._pending.clear()
+        self._ray.shutdown()
+
+
+def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> Engine:
+    """The engine the options ask for: Ray with ``ray`` (``auto`` or an address), else the pool
+    (``workers`` default: the CPUs this process may use)."""
+    if ray is not None:
+        return RayEngine(campaign, ray, workers)
+    return PoolEngine(campaign, workers or len(os.sched_getaffinity(0)))
+
+
+__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine"]
