@@ -34,10 +34,6 @@ METRICS = ("completed", "cycles", "failed_reads", "rms_position_error_m", "max_p
            "abort_cause")
 #: What calibration found, kept in results.csv when the campaign calibrates.
 CALIBRATION = tuple(f"calibrated_center_pulse[{w}]" for w in range(4)) + ("calibrated_wheel_radius_m",)
-#: Slack on every bus reply deadline in a scenario, wall s. In lockstep no reply is late in robot
-#: time, but one that comes later than this in wall time (a loaded host: several workers, other
-#: jobs) counts as lost and changes the run; a reply the fault spec drops costs this much wall time.
-TIMEOUT_MARGIN_S = 1.0
 #: Statuses of a row.
 STATUSES = ("completed", "stopped", "failed")
 
@@ -134,8 +130,7 @@ def calibrate(campaign: Campaign, physics: Path, folder: Path, out: io.StringIO)
     command.add_arguments(parser)
     args = parser.parse_args(["--emulate", "--yes", "--lockstep", "--write", "--config", str(robot),
                               "--emulated-robot", str(campaign.robot), "--emulator-config", str(physics),
-                              "--distance", repr(campaign.calibration_distance_m),
-                              "--timeout-margin-ms", repr(TIMEOUT_MARGIN_S * 1e3)])
+                              "--distance", repr(campaign.calibration_distance_m)])
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
         command.run(args)
     return Path(robot)
@@ -168,7 +163,6 @@ def run_scenario(campaign: Campaign, index: int, log: Path | None = None) -> Out
             result = run_tracking(RunRequest(
                 trajectory=campaign.resolve(cell.trajectory), gains=gains, config=config, emulated_robot=campaign.robot,
                 emulate=True, lockstep=True, time_scale=None, log=log, faults=faults,
-                timeout_margin_s=TIMEOUT_MARGIN_S,
                 emulator_config=physics))
         except SwerveError as exc:
             row.update(status="failed", reason=f"{stage}: {exc}")

@@ -27,8 +27,9 @@ from swerve.driver.errors import SwerveError
 #: Wall seconds a control request may take before the emulator is taken for dead.
 CONTROL_TIMEOUT_S = 30.0
 #: Bus timeout slack against a lockstep emulator, wall s: its replies are never late in robot
-#: time, so this only has to ride out a loaded host (a lost reply costs this much wall time).
-LOCKSTEP_TIMEOUT_MARGIN_S = 0.25
+#: time, and a reply not in by then is waited for if the emulator says it sent it (the clock is
+#: the bus's reply gate), so this only sets how soon a lost reply is confirmed lost.
+LOCKSTEP_TIMEOUT_MARGIN_S = 0.02
 
 
 class LockstepError(SwerveError):
