@@ -17,10 +17,12 @@ from .bessel import BesselFilter, bessel_coefficients, bessel_reset, bessel_step
 from .firmware import (AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains, pi_step, position_profile_step,
                        profile_type, velocity_profile_step)
 from .jit import compiled, jitable
-from .motor import GearedMotor
+from . import motor as motor_module
+from . import protection as protection_module
+from .motor import GearedMotor, electrical_decay, friction_step, friction_terms
 from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
                      SensorParams, ThermalParams)
-from .protection import Protection
+from .protection import Protection, limits, protection_step
 
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
@@ -235,9 +237,9 @@ class ServoModel:
         (rad/s) / :attr:`true_position_pulse` (pulse) after the tick (what the body needs).
         Returns the ticks run (1..n).
 
-        Without gearbox friction, a held shaft, protection or position noise (the ``ideal``
-        profile) the ticks run in the compiled kernel when numba is installed (:mod:`.jit`);
-        otherwise, and with ``SWERVE_NO_JIT=1``, in the same function as plain Python.
+        Without position noise the ticks run in the compiled kernel when numba is installed
+        (:mod:`.jit`), gearbox friction, a held shaft and the protection included; otherwise, and
+        with ``SWERVE_NO_JIT=1``, in the same function as plain Python.
         """
         if n < 1:
             return 0
@@ -253,11 +255,10 @@ class ServoModel:
         if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
             plant = self._plant = self._derive_plant(dt_s)
         self._sign, self._homing = sign, homing = plan.sign, plan.homing
-        linear = motor.friction is None and not motor.blocked
         protection = self.protection
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
-        if _COMPILED_TICKS is not None and linear and protection is None and not noisy:
+        if _COMPILED_TICKS is not None and not noisy:
             kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
@@ -273,16 +274,18 @@ class ServoModel:
         (ran, bits, motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
          prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
          self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
-         present, v_meas) = kernel(
+         motor.stuck, motor.friction_torque_nm, overload_s, raised, present, v_meas) = kernel(
             n, dt_s, plant_coef, input_coef, homing, record_speeds, speed_trace, record_positions, position_trace,
-            self.rng if noisy else None, None if linear else motor, protection,
-            None if protection is None else table,
+            self.rng if noisy else None, motor.blocked,
             motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
             prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
             self.temperature_c, self.duty, self._wrap_pulse, self._started, switched,
             switched or plan.goal_position != self._prev_goal_position, hold is not None,
-            0.0 if hold is None else hold, self._goal_pulse, float(self.encoder_offset_pulse), self.supply_voltage_v,
-            motor.load_torque_nm)
+            0.0 if hold is None else hold, self._goal_pulse, motor.stuck, motor.friction_torque_nm,
+            0.0 if protection is None else protection.overload_timer_s, 0 if protection is None else protection.raised,
+            float(self.encoder_offset_pulse), self.supply_voltage_v, motor.load_torque_nm)
+        if protection is not None:
+            protection.overload_timer_s, protection.raised = overload_s, raised
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
@@ -314,7 +317,7 @@ class ServoModel:
                 unused if plan.position_goal is None else plan.position_goal,
                 unused if plan.position_current_limit is None else plan.position_current_limit,
                 unused if plan.pwm_counts is None else plan.pwm_counts,
-                unused if plan.current_ref is None else plan.current_ref)
+                unused if plan.current_ref is None else plan.current_ref, *plan.limits)
         return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def _derive_plant(self, dt_s: float) -> tuple:
@@ -323,6 +326,9 @@ class ServoModel:
         constants, as ``(dt_s, inertia, floats, float64 array or None without the compiled kernel)``."""
         motor, fw, th = self.motor, self.fw, self.thermal
         p = motor.params
+        friction = (0.0, 0.0, 1.0, 0.0) if motor.friction is None else friction_terms(motor.friction)
+        overload = (1.0, 1.0) if self.protection is None else (self.protection.params.overload_current_a,
+                                                                self.protection.params.overload_time_s)
         vf = self.velocity_filter
         if dt_s != vf._dt_s:
             vf.prepare(dt_s)
@@ -336,7 +342,8 @@ class ServoModel:
             fa00, fa01, fa10, fa11, fb0, fb1, *bessel_coefficients(vf.cutoff_radps, vf.norm),
             a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
             math.exp(-dt_s / th.time_constant_s), th.ambient_c, th.thermal_resistance_k_per_w,
-            self.sensors.position_noise_std_pulse)))
+            self.sensors.position_noise_std_pulse, motor.friction is not None, motor.gear_ratio * p.torque_nm_per_a,
+            electrical_decay(p, dt_s), *friction, self.protection is not None, *overload)))
         return dt_s, motor.load_inertia_kg_m2, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def outputs(self) -> dict[str, int]:
@@ -404,7 +411,7 @@ class _InputPlan:
                  "current_margin_v", "pwm_counts", "current_ref", "velocity_goal", "velocity_a_max",
                  "velocity_gains", "position_goal", "position_v_max", "position_a_max", "position_gains",
                  "position_current_limit", "position_mode", "velocity_mode", "pwm_mode", "current_position_mode",
-                 "firmware_mode", "rewrap_on_switch")
+                 "firmware_mode", "rewrap_on_switch", "limits")
 
     def __init__(self, t: Mapping[str, int], resistance_ohm: float, gains):
         self.sign = -1 if t["drive_mode"] & 1 else 1
@@ -421,6 +428,7 @@ class _InputPlan:
                                               or mode == u.MODE_CURRENT)
         self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
         self.goal_position = t["goal_position"]
+        self.limits = limits(t)
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])
         self.tripped = tripped = t["bus_watchdog"] == u.WATCHDOG_TRIPPED
@@ -465,25 +473,26 @@ def wrapped_pulse(raw_pulse: int) -> int:
     return u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
 
 
-def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, motor,
-                protection, table, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
-                temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, enc_off, supply,
-                load_torque_nm):
+def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, blocked,
+                i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
+                temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, stuck, friction_torque,
+                overload_s, raised, enc_off, supply, load_torque_nm):
     """Up to ``n`` ticks of one servo (:meth:`ServoModel.run`): state in, state out, on plain numbers.
 
     ``plant`` / ``inputs``: the constants of :meth:`ServoModel._derive_plant` /
     :meth:`ServoModel._derive_inputs` (tuples, or float64 arrays when compiled); ``homing``:
     Homing Offset, pulse. ``speeds`` / ``positions``: buffers of ``n``
     entries that get the output speed (rad/s) / true position (pulse) after each tick when
-    ``record_speeds`` / ``record_positions``. ``rng`` (position noise), ``motor`` (its own step:
-    gearbox friction, a held shaft) and ``protection`` (with the raw limit items ``table``) are
-    ``None`` unless the configuration needs them; compiled, they are always ``None`` (numba
-    removes their branches). The state: motor current (A), speed and angle (motor side, rad/s,
+    ``record_speeds`` / ``record_positions``. ``rng`` (position noise) is ``None`` unless the
+    configuration needs it (compiled, always). ``blocked``: the shaft is held (a stall test).
+    The state: motor current (A), speed and angle (motor side, rad/s,
     rad); velocity and reference filter states; profile position, velocity, acceleration, ongoing
     and type; PI integral; winding temperature (°C); duty; the wrap of Present Position (pulse);
     whether the encoder was read before; whether the mode / the goal changed before this run;
-    the watchdog's held goal (``holding``, ``hold``); the goal after limits (pulse). Then the
-    encoder offset (pulse), supply (V) and load torque (output side, N·m) of the run.
+    the watchdog's held goal (``holding``, ``hold``); the goal after limits (pulse); the gearbox's
+    stick state and friction torque (N·m, :func:`.motor.friction_step`); the protection's overload
+    timer (s) and reported bits (:func:`.protection.protection_step`). Then the encoder offset
+    (pulse), supply (V) and load torque (output side, N·m) of the run.
 
     Returns ``(ran, hardware_error_bits)``, the new state in the order of the arguments (without
     ``switched`` and ``new_goal``), then the last Present Position (pulse) and measured velocity
@@ -491,10 +500,13 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
     """
     (gear, ke, r_arm, tick, ticks, ka, l_over_tc, fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0,
      a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
-     decay, ambient, r_th, noise) = plant
+     decay, ambient, r_th, noise, has_friction, gear_km, decay_e, coulomb, breakaway, stribeck, viscous, protect,
+     overload_a, overload_time_s) = plant
     (velocity_mode, position_mode, pwm_mode, firmware_mode, rewrap_on_switch, current_position, tripped,
      reference_filter, measure_filtered, d_or_ff, torque, fsign, pwm_lim, margin, v_goal, v_a_max, kp, ki, kd, ff1,
-     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref) = inputs
+     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref, temperature_limit,
+     min_voltage, max_voltage) = inputs
+    own_step = has_friction != 0.0 or blocked     # the motor's friction step, else its linear one inline
     neg_supply = -supply
     tau = load_torque_nm / gear
     # the load's terms of the motor step, the same every tick of the run
@@ -595,10 +607,12 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             integral = 0.0
             duty = 0.0
             ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
-        if motor is not None:       # gearbox friction or a held shaft: the motor's own step
-            motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
-            motor.step(dt_s, voltage if firmware_mode else None)
-            i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
+        if own_step:                # gearbox friction or a held shaft (:meth:`GearedMotor.step`)
+            applied = voltage if firmware_mode else 0.0
+            i_a_, w, th, stuck, friction_torque = friction_step(
+                firmware_mode, applied, i_a_, w, th, load_torque_nm, blocked, stuck,
+                friction_torque, gear, gear_km, decay_e, r_arm, coulomb, breakaway, stribeck, viscous, a00, a01,
+                a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1)
         elif not firmware_mode:     # bridge open (:meth:`GearedMotor._step_linear`)
             i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
         else:
@@ -615,16 +629,18 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             speeds[ran - 1] = fsign * (w / gear)
         if record_positions:
             positions[ran - 1] = (x - wrap_f + homing_f) - sign_off
-        if protection is not None:
-            bits = protection.update(dt_s, i_a_, temp, supply, table)
+        if protect:
+            bits, overload_s, raised = protection_step(dt_s, i_a_, temp, supply, overload_s, raised, overload_a,
+                                                       overload_time_s, temperature_limit, min_voltage, max_voltage)
             if bits:
                 break
     return (ran, bits, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral, temp, duty,
-            wrap, started, holding, hold, goal_pulse, present, v_meas)
+            wrap, started, holding, hold, goal_pulse, stuck, friction_torque, overload_s, raised, present, v_meas)
 
 
 #: :func:`servo_ticks` compiled (:mod:`.jit`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
-_COMPILED_TICKS = compiled(servo_ticks, depends=(firmware.__file__, bessel.__file__, u.__file__))
+_COMPILED_TICKS = compiled(servo_ticks, depends=(firmware.__file__, bessel.__file__, u.__file__, motor_module.__file__,
+                                                 protection_module.__file__))
 
 
 def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse: int | None = None,
