@@ -243,19 +243,7 @@ class ServoModel:
         """
         if n < 1:
             return 0
-        plan = self._plan
-        if not same_inputs or plan is None or table is not self._plan_table:
-            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
-            self._plan_table = table
-        motor = self.motor
-        inputs = self._inputs
-        if inputs is None or inputs[0] is not plan:
-            inputs = self._inputs = self._derive_inputs(plan)
-        plant = self._plant
-        if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
-            plant = self._plant = self._derive_plant(dt_s)
-        self._sign, self._homing = sign, homing = plan.sign, plan.homing
-        protection = self.protection
+        plan, plant, inputs = self.begin_run(dt_s, table, same_inputs)
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
         if _COMPILED_TICKS is not None and not noisy:
@@ -267,35 +255,68 @@ class ServoModel:
             kernel, plant_coef, input_coef = servo_ticks, plant[2], inputs[1]
             speed_trace = [0.0] * n if record_speeds else None
             position_trace = [0.0] * n if record_positions else None
-        vf, rf, prof = self.velocity_filter, self.reference_filter, self.profile
-        hold = self._hold_position
-        key = plan.key
-        switched = key != self._prev_key
-        (ran, bits, motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
-         motor.stuck, motor.friction_torque_nm, overload_s, raised, present, v_meas) = kernel(
-            n, dt_s, plant_coef, input_coef, homing, record_speeds, speed_trace, record_positions, position_trace,
-            self.rng if noisy else None, motor.blocked,
-            motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-            prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-            self.temperature_c, self.duty, self._wrap_pulse, self._started, switched,
-            switched or plan.goal_position != self._prev_goal_position, hold is not None,
-            0.0 if hold is None else hold, self._goal_pulse, motor.stuck, motor.friction_torque_nm,
-            0.0 if protection is None else protection.overload_timer_s, 0 if protection is None else protection.raised,
-            float(self.encoder_offset_pulse), self.supply_voltage_v, motor.load_torque_nm)
-        if protection is not None:
-            protection.overload_timer_s, protection.raised = overload_s, raised
+        switched, new_goal = self.run_flags(plan)
+        state = self.run_state()
+        out = kernel(n, dt_s, plant_coef, input_coef, plan.homing, record_speeds, speed_trace, record_positions,
+                     position_trace, self.rng if noisy else None, self.motor.blocked, *state[:17], switched, new_goal,
+                     *state[17:], float(self.encoder_offset_pulse), self.supply_voltage_v, self.motor.load_torque_nm)
+        ran = out[0]
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
+        self.finish_run(table, plan, out[1], out[2:])
+        return ran
+
+    def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
+        """Before a run of ticks under ``table`` (:meth:`run`): ``(plan, plant, inputs)``, what the
+        firmware derives from the items and the discretised plant, each kept while unchanged
+        (``plant`` / ``inputs``: ``[2]`` floats, ``[3]`` / ``[2]`` float64 array or None)."""
+        plan = self._plan
+        if not same_inputs or plan is None or table is not self._plan_table:
+            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+            self._plan_table = table
+        inputs = self._inputs
+        if inputs is None or inputs[0] is not plan:
+            inputs = self._inputs = self._derive_inputs(plan)
+        plant = self._plant
+        if plant is None or plant[0] != dt_s or plant[1] != self.motor.load_inertia_kg_m2:
+            plant = self._plant = self._derive_plant(dt_s)
+        self._sign, self._homing = plan.sign, plan.homing
+        return plan, plant, inputs
+
+    def run_flags(self, plan: "_InputPlan") -> tuple[bool, bool]:
+        """``(switched, new_goal)`` of :func:`servo_ticks` for a run under ``plan``: the mode (or
+        torque, Drive Mode) changed since the last run, the goal position did."""
+        switched = plan.key != self._prev_key
+        return switched, switched or plan.goal_position != self._prev_goal_position
+
+    def run_state(self) -> tuple:
+        """The state :func:`servo_ticks` takes, in its order, without ``switched`` and ``new_goal``
+        (which go between the 17th and 18th entries)."""
+        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
+        hold, protection = self._hold_position, self.protection
+        return (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+                prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+                self.temperature_c, self.duty, self._wrap_pulse, self._started, hold is not None,
+                0.0 if hold is None else hold, self._goal_pulse, motor.stuck, motor.friction_torque_nm,
+                0.0 if protection is None else protection.overload_timer_s, 0 if protection is None else protection.raised)
+
+    def finish_run(self, table: Mapping[str, int], plan: "_InputPlan", bits: int, state: tuple) -> None:
+        """After a run: store :func:`servo_ticks`'s returned ``state`` (its return value after
+        ``ran`` and ``bits``) and note the Hardware Error ``bits`` it raised."""
+        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
+        (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
+         motor.stuck, motor.friction_torque_nm, overload_s, raised, present, v_meas) = state
+        if self.protection is not None:
+            self.protection.overload_timer_s, self.protection.raised = overload_s, raised
         if bits:
             self.pending_hardware_error |= bits
         self._hold_position = hold if holding else None
-        self._prev_key, self._prev_goal_position = key, plan.goal_position
-        self._last = (table, plan.mode, plan.torque, present, v_meas, sign)
-        return ran
+        self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
+        self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
 
     def _derive_inputs(self, plan: "_InputPlan") -> tuple:
         """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
@@ -473,6 +494,7 @@ def wrapped_pulse(raw_pulse: int) -> int:
     return u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
 
 
+@jitable
 def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, blocked,
                 i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
                 temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, stuck, friction_torque,
@@ -639,8 +661,9 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
 
 
 #: :func:`servo_ticks` compiled (:mod:`.jit`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
-_COMPILED_TICKS = compiled(servo_ticks, depends=(firmware.__file__, bessel.__file__, u.__file__, motor_module.__file__,
-                                                 protection_module.__file__))
+#: Source files of the :func:`.jit.jitable` helpers :func:`servo_ticks` calls (the kernel's cache stamp).
+KERNEL_SOURCES = (firmware.__file__, bessel.__file__, u.__file__, motor_module.__file__, protection_module.__file__)
+_COMPILED_TICKS = compiled(servo_ticks, depends=KERNEL_SOURCES)
 
 
 def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse: int | None = None,
