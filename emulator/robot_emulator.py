@@ -367,6 +367,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                   for i in ids}            # steering shafts start at their centre
     for m in models.values():           # SciPy's first expm would stall the bus at torque-on
         m.prepare(1.0 / rate_hz)
+    if world is not None:
+        world.physics.prepare(1.0 / rate_hz)
     servos = make_servos(ids, model, baud, **extra,
                          dynamics=lambda s: _ServoDynamics(models[s.id], s) if s.id in models else None)
     for s in servos:                    # present items from the physics, not the table defaults

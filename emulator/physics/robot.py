@@ -23,7 +23,7 @@ from . import coupled
 from .body import RobotBody
 from .contact import ContactBody
 from .params import PhysicsConfig
-from .servo_model import ServoModel, wheel_servo
+from .servo_model import IDLE_ITEMS, ServoModel, wheel_servo
 
 
 @dataclass(frozen=True)
@@ -179,6 +179,14 @@ class RobotPhysics:
                 s.supply_voltage_v = self.bus_voltage_v
         return pose
 
+
+    def prepare(self, dt_s: float) -> None:
+        """Load the compiled :func:`.coupled.robot_ticks` now if :meth:`run_coupled` will run (from
+        numba's cache, or compiled the first time): loaded at the first coupled step it would
+        stall the bus. Runs it once on a spare copy of this robot at rest."""
+        if self.coupled() and not coupled.ROBOT_TICKS.signatures:
+            spare = RobotPhysics(self.cfg, self.geometry)
+            spare.run_coupled(dt_s, 1, {m: (IDLE_ITEMS, False) for m in spare.servos.values()})
 
     def coupled(self) -> bool:
         """Whether :meth:`run_coupled` runs here: tyre contact, no position noise, and the

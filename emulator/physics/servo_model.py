@@ -28,7 +28,7 @@ PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 p
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
 PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
 #: The items of a servo with torque off (what :meth:`ServoModel.prepare` runs the kernel on once).
-_IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
+IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
                "goal_position": 0, "goal_pwm": 0, "pwm_limit": 0, "current_limit": 0, "bus_watchdog": 0}
 GOAL_KEYS = ("goal_velocity", "goal_position", "goal_pwm", "goal_current")
 OUTPUT_KEYS = ("present_pwm", "present_current", "present_velocity", "present_position",
@@ -151,7 +151,7 @@ class ServoModel:
         self.reference_filter.prepare(dt_s)
         if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
             spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
-            spare.run(dt_s, _IDLE_ITEMS, 1, speeds=[], positions=[])
+            spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])
 
     def set_shaft_angle(self, angle_rad: float) -> None:
         """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
