@@ -293,6 +293,7 @@ def test_coupled_ticks_equal_single_ticks(monkeypatch, stall):
         calls.append(n)
         return kernel(n, *args)
 
+    counting.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
     monkeypatch.setattr(coupled, "ROBOT_TICKS", counting)
     build = _emulator
 
