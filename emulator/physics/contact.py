@@ -156,10 +156,8 @@ def contact_step(dt_s, kl, stiffness, m, iz, vx, vy, w, xs, ys, limits, speeds, 
     n = len(xs)
     sat = 0
     for j in range(n):
-        x, y, u, d, limit = xs[j], ys[j], speeds[j], steer[j], limits[j]
-        c, s = math.cos(d), math.sin(d)
-        px, py = vx - w * y, vy + w * x
-        sl, st = c * px + s * py - u, -s * px + c * py
+        x, y, u, limit = xs[j], ys[j], speeds[j], limits[j]
+        c, s, sl, st = _wheel_slip(vx, vy, w, x, y, u, steer[j])
         f0 = stiffness * _norm(sl, kl * st)
         saturated = f0 > limit
         k = stiffness * (limit / f0 if saturated else 1.0)      # secant stiffness on the friction circle
@@ -180,10 +178,8 @@ def contact_step(dt_s, kl, stiffness, m, iz, vx, vy, w, xs, ys, limits, speeds, 
     vx, vy, w = _solve_sym3(a11, a12, a13, a22, a23, a33, r1, r2, r3)
     power = 0.0
     for j in range(n):
-        x, y, u, d, k = xs[j], ys[j], speeds[j], steer[j], flong[j]
-        c, s = math.cos(d), math.sin(d)
-        px, py = vx - w * y, vy + w * x
-        sl, st = c * px + s * py - u, -s * px + c * py
+        k = flong[j]
+        c, s, sl, st = _wheel_slip(vx, vy, w, xs[j], ys[j], speeds[j], steer[j])
         fl, ft = -k * sl, -k * kl * st                     # force on the body, wheel frame
         slip[j] = _norm(sl, st)
         flong[j] = fl
@@ -191,6 +187,15 @@ def contact_step(dt_s, kl, stiffness, m, iz, vx, vy, w, xs, ys, limits, speeds, 
         fy[j] = s * fl + c * ft
         power -= fl * sl + ft * st
     return vx, vy, w, power, sat
+
+
+@jitable
+def _wheel_slip(vx, vy, w, x, y, u, d):
+    """``(cos δ, sin δ, longitudinal slip, lateral slip)`` of the wheel at ``(x, y)`` (m) steered
+    ``δ`` (rad) with surface speed ``u`` (m/s) under the body twist ``(vx, vy, w)``; m/s."""
+    c, s = math.cos(d), math.sin(d)
+    px, py = vx - w * y, vy + w * x
+    return c, s, c * px + s * py - u, -s * px + c * py
 
 
 @jitable
