@@ -60,22 +60,22 @@ class RunRequest:
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
+    from swerve.controller.gains_io import load_gains
     from swerve.controller.reference import load_trajectory
 
     traj = load_trajectory(trajectory, geom)
-    return traj, law_for(traj, gains_path, geom, limits, progress)
+    gains = load_gains(gains_path) if gains_path is not None else None
+    return traj, law_for(traj, gains, geom, limits, progress)
 
 
-def law_for(traj, gains_path, geom, limits, progress: bool = False):
-    """The :class:`TrackingLaw` of the loaded trajectory ``traj``: its gains loaded from
-    ``gains_path`` or synthesised (Riccati)."""
+def law_for(traj, gains, geom, limits, progress: bool = False):
+    """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
+    ``gains``, or with gains synthesised now (Riccati) for ``None``."""
     from swerve.controller.design import synthesize
-    from swerve.controller.gains_io import load_gains
     from swerve.controller.reference import build_reference
     from swerve.controller.tracking import TrackingLaw
 
-    if gains_path is not None:
-        gains = load_gains(gains_path)  # the reference must use the schedule's chained frames
+    if gains is not None:           # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
         ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
@@ -134,6 +134,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
     from swerve.configs.errors import ConfigError
+    from swerve.controller.gains_io import load_gains
     from swerve.controller.reference import load_trajectory
     from swerve.driver.bus import Bus
     from swerve.driver.wheelset import WheelSet
@@ -154,6 +155,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     cfg = wall_clock_guards(cfg, loop_scale)
     geom, limits = geometry_and_limits(cfg)
     traj = load_trajectory(req.trajectory, geom)
+    gains = load_gains(req.gains) if req.gains is not None else None   # bad input fails before any start
     start = traj.start_state(geom) if req.start is None else np.asarray(req.start, dtype=float)
 
     rate_hz = req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ
@@ -173,7 +175,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
                                       noise=req.noise, start_pose=tuple(start[:3]), rate_hz=rate_hz)
             stack.callback(emu.close)
             emu.launch()
-        law = law_for(traj, req.gains, geom, limits, req.progress)
+        law = law_for(traj, gains, geom, limits, req.progress)
         sim = simulated_poses(law, start) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
