@@ -34,8 +34,8 @@ import time
 from pathlib import Path
 
 CASES = (("ideal", "ideal", {}), ("realistic", "realistic", {}),
-         ("ideal, no numba", "ideal", {"SWERVE_NO_JIT": "1"}),
-         ("realistic, no numba", "realistic", {"SWERVE_NO_JIT": "1"}))
+         ("ideal-nojit", "ideal", {"SWERVE_NO_JIT": "1"}),
+         ("realistic-nojit", "realistic", {"SWERVE_NO_JIT": "1"}))
 
 
 def run_line(python: str, profile: str, env: dict[str, str], workdir: Path) -> dict[str, float]:
