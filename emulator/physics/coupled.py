@@ -8,7 +8,7 @@ tick by tick from Python (:meth:`RobotPhysics.step_body` after each servo's
 ticks (eight :func:`servo_ticks`, the backlash, :func:`contact_step`, the loads, the supply)
 with the same operations in the same order on arrays, compiled by numba (:mod:`.jit`), so it
 gives the same bits as the Python ticks. Without numba it is not used (:data:`ROBOT_TICKS` is
-``None``) and the ticks run one by one as before.
+``None``) and the ticks run one by one.
 
 Array layout (one row per servo, in the order of :attr:`RobotPhysics.servos`, which is the
 order the supply sums their currents in):
