@@ -13,10 +13,6 @@ with none writable, the kernel runs as Python (with a warning) rather than compi
 numba keys the cache on the kernel's own source file; :func:`compiled` adds this file (the compile
 options) and the files of the helpers the kernel calls (``depends``), so editing either
 recompiles the kernel.
-
-Loading a kernel (its first call) takes ~0.7 s even from the cache. Callers ask :func:`ready`
-before calling one, and run the Python function until it is loaded, so a kernel may load in
-another thread (:func:`warming` marks the thread doing it) while the emulator already serves.
 """
 from __future__ import annotations
 
