@@ -61,8 +61,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         _SHARED.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
     try:
-        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True,
-                             kernels_in_background=True, **kwargs)
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
         emu.observers.append(publish)
         emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text

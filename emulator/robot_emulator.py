@@ -29,7 +29,6 @@ import logging
 import math
 import os
 import struct
-import threading
 import time
 from pathlib import Path
 from typing import Iterable, Mapping, Sequence
@@ -275,8 +274,7 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                    faults: Faults | str | None = None, status_file: str | os.PathLike | None = None,
                    status_hz: float = 20.0, limit_error=None, lockstep: bool = False,
                    control_path: str | os.PathLike | None = None,
-                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S, kernels_in_background: bool = False,
-                   **link: object) -> Emulator:
+                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S, **link: object) -> Emulator:
     """The emulated bus, built from already-parsed configs (nothing is read from disk here).
 
     Parameters
@@ -309,10 +307,6 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         at ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is
         charged at its wire time plus ``reply_latency_s`` per answering servo
         (:class:`~swerve.emulator.clock.LockstepClock`). ``time_scale`` is then ignored.
-    kernels_in_background : bool
-        Load the compiled physics kernels (:mod:`.physics.jit`, ~0.7 s from numba's cache) in a
-        thread instead of before returning: the emulator serves at once and runs the same ticks
-        as Python (the same bits) until they are loaded.
     **link
         :class:`~swerve.emulator.server.LinkSettings` fields (``path``, ``wire_timing``, ...).
 
@@ -371,17 +365,10 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         centers = {w.steer_id: w.center_pulse for w in robot.wheels} if robot is not None else {}
         models = {i: wheel_servo(physics, model, steering=i in centers, center_pulse=centers.get(i), rng=rng)
                   for i in ids}            # steering shafts start at their centre
-    dt_s = 1.0 / rate_hz
     for m in models.values():           # SciPy's first expm would stall the bus at torque-on
-        m.prepare(dt_s, load_kernel=False)
-    loaders = [m.load_kernel for m in list(models.values())[:1]]
+        m.prepare(1.0 / rate_hz)
     if world is not None:
-        loaders.append(world.physics.load_kernel)
-    if kernels_in_background:
-        threading.Thread(target=lambda: [load(dt_s) for load in loaders], name="load-kernels", daemon=True).start()
-    else:
-        for load in loaders:
-            load(dt_s)
+        world.physics.prepare(1.0 / rate_hz)
     servos = make_servos(ids, model, baud, **extra,
                          dynamics=lambda s: _ServoDynamics(models[s.id], s) if s.id in models else None)
     for s in servos:                    # present items from the physics, not the table defaults

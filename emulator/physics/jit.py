@@ -16,10 +16,8 @@ recompiles the kernel.
 """
 from __future__ import annotations
 
-import contextlib
 import hashlib
 import os
-import threading
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -60,28 +58,3 @@ def compiled(fn: Callable, depends: tuple[str, ...] = ()) -> Callable | None:
             digest.update(Path(path).read_bytes())
         cache_file._source_stamp = (cache_file._source_stamp, digest.hexdigest())
     return kernel
-
-
-class _Warming(threading.local):
-    on = False          # this thread is loading a kernel (:func:`warming`)
-
-
-_WARMING = _Warming()
-
-
-@contextlib.contextmanager
-def warming():
-    """In this thread, :func:`ready` says yes to kernels not loaded yet: a warm-up call goes
-    to the kernel itself, which loads it (from the cache, or compiled)."""
-    _WARMING.on = True
-    try:
-        yield
-    finally:
-        _WARMING.on = False
-
-
-def ready(kernel) -> bool:
-    """Whether to call the compiled ``kernel`` (a :func:`compiled` result, or None): it exists
-    and is loaded, or this thread is loading it (:func:`warming`). Until a kernel loaded in
-    another thread is ready its callers run the same function as Python, with the same bits."""
-    return kernel is not None and (bool(kernel.signatures) or _WARMING.on)

@@ -19,7 +19,7 @@ import numpy as np
 from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_config
 
 from . import units as u
-from . import coupled, jit
+from . import coupled
 from .body import RobotBody
 from .contact import ContactBody
 from .params import PhysicsConfig
@@ -180,23 +180,18 @@ class RobotPhysics:
         return pose
 
 
-    def load_kernel(self, dt_s: float) -> None:
-        """Load the compiled :func:`.coupled.robot_ticks` if :meth:`run_coupled` would use it
-        (from numba's cache, or compiled the first time): by running it once on a spare copy of
-        this robot at rest. Until it is loaded (e.g. by another thread) the robot steps tick by
-        tick."""
-        if self._couples() and coupled.ROBOT_TICKS is not None and not coupled.ROBOT_TICKS.signatures:
+    def prepare(self, dt_s: float) -> None:
+        """Load the compiled :func:`.coupled.robot_ticks` now if :meth:`run_coupled` will run (from
+        numba's cache, or compiled the first time): loaded at the first coupled step it would
+        stall the bus. Runs it once on a spare copy of this robot at rest."""
+        if self.coupled() and not coupled.ROBOT_TICKS.signatures:
             spare = RobotPhysics(self.cfg, self.geometry)
-            with jit.warming():
-                spare.run_coupled(dt_s, 1, {m: (IDLE_ITEMS, False) for m in spare.servos.values()})
+            spare.run_coupled(dt_s, 1, {m: (IDLE_ITEMS, False) for m in spare.servos.values()})
 
     def coupled(self) -> bool:
         """Whether :meth:`run_coupled` runs here: tyre contact, no position noise, and the
-        compiled :func:`.coupled.robot_ticks` (numba), loaded."""
-        return jit.ready(coupled.ROBOT_TICKS) and self._couples()
-
-    def _couples(self) -> bool:
-        return (isinstance(self.body, ContactBody)
+        compiled :func:`.coupled.robot_ticks` (numba)."""
+        return (coupled.ROBOT_TICKS is not None and isinstance(self.body, ContactBody)
                 and not any(s.sensors.position_noise_std_pulse for s in self.servos.values()))
 
     def run_coupled(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]]) -> int:

@@ -16,7 +16,6 @@ from . import units as u
 from .bessel import BesselFilter, bessel_coefficients, bessel_reset, bessel_step
 from .firmware import (AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains, pi_step, position_profile_step,
                        profile_type, velocity_profile_step)
-from . import jit
 from .jit import compiled, jitable
 from . import motor as motor_module
 from . import protection as protection_module
@@ -142,24 +141,17 @@ class ServoModel:
         bits, self.pending_hardware_error = self.pending_hardware_error, 0
         return bits
 
-    def prepare(self, dt_s: float, load_kernel: bool = True) -> None:
+    def prepare(self, dt_s: float) -> None:
         """Compute the discretisations for steps of ``dt_s`` now (motor driven and coasting,
         Bessel filters): SciPy's first ``expm`` takes ~9 ms, which in a running emulator would
-        stall the bus when torque first goes on. Likewise (``load_kernel``) :meth:`load_kernel`."""
+        stall the bus when torque first goes on. Likewise load the compiled tick kernel
+        (:mod:`.jit`; ~0.1 s from numba's cache, a few seconds the first time it compiles)."""
         self.motor.prepare(dt_s)
         self.velocity_filter.prepare(dt_s)
         self.reference_filter.prepare(dt_s)
-        if load_kernel:
-            self.load_kernel(dt_s)
-
-    def load_kernel(self, dt_s: float) -> None:
-        """Load the compiled tick kernel (:mod:`.jit`; ~0.7 s from numba's cache, seconds the first
-        time it compiles) by running it once on a spare servo. Until it is loaded (e.g. by
-        another thread) :meth:`run` runs the same ticks as Python."""
         if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
             spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
-            with jit.warming():
-                spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])
+            spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])
 
     def set_shaft_angle(self, angle_rad: float) -> None:
         """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
@@ -254,7 +246,7 @@ class ServoModel:
         plan, plant, inputs = self.begin_run(dt_s, table, same_inputs)
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
-        if jit.ready(_COMPILED_TICKS) and not noisy:
+        if _COMPILED_TICKS is not None and not noisy:
             kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
