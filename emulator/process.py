@@ -21,29 +21,44 @@ bytes on the pty).
 """
 from __future__ import annotations
 
-import multiprocessing as mp
+import mmap
 import os
 import signal
+import socket
+import struct
+import subprocess
+import sys
+import tempfile
 import time
+from multiprocessing.connection import Connection
 
 from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError, SwerveError
 
 _START_TIMEOUT_S = 60.0
+#: How long :meth:`EmulatorProcess.close` waits for the child to exit after "stop", then after SIGTERM, s.
+_EXIT_TIMEOUT_S = 5.0
+#: The shared true-state block: ``[sim_time_s, x_m, y_m, theta_rad]`` as native doubles.
+_SHARED = struct.Struct("4d")
 
 
-def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) -> None:
-    """Child process: start the robot emulator, publish the pose, stop on request."""
+def child_main(conn_fd: int, shared_fd: int) -> None:
+    """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
+    the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
+    of the connection closes)."""
     for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
         signal.signal(s, signal.SIG_IGN)
+    conn = Connection(conn_fd)
+    shared = mmap.mmap(shared_fd, _SHARED.size)
+    robot_config, emulator_config, kwargs = conn.recv()
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.robot_emulator import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
-        shared[1], shared[2], shared[3] = emu.world.pose
-        shared[0] = emu.sim_time_s
+        x, y, theta = emu.world.pose
+        _SHARED.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
     try:
         emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
@@ -53,7 +68,11 @@ def _child(conn, shared, robot_config: str, emulator_config: str, kwargs: dict) 
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     freeze_startup_heap()
-    conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
+    try:
+        conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
+    except OSError:                    # the parent gave up while we started
+        emu.close()
+        return
     cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
@@ -89,6 +108,11 @@ class EmulatorProcess:
     ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
     path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
     after :meth:`close`, :attr:`final_stats`.
+
+    :meth:`launch` starts the child and returns at once (its interpreter and the physics then
+    load while the caller works on); :meth:`start` (or ``with``) launches if needed and waits
+    until the child serves its pty. :meth:`close` stops the child and waits for it to exit, so
+    no process is left behind.
     """
 
     def __init__(self, robot_config: str | os.PathLike | None = None,
@@ -96,23 +120,41 @@ class EmulatorProcess:
         self._robot = str(locate_robot_file(robot_config).path)
         self._emulator_config = str(emulator_config or shipped("emulator.yaml"))
         self._kwargs = kwargs
-        self._ctx = mp.get_context("spawn")
-        self._shared = self._ctx.RawArray("d", 4)
-        self._proc = None
-        self._conn = None
+        self._shared: mmap.mmap | None = None
+        self._proc: subprocess.Popen | None = None
+        self._conn: Connection | None = None
         self.port: str | None = None
         #: The lockstep control socket (``lockstep=True``), else None.
         self.control_path: str | None = None
         self.final_stats: dict | None = None
 
+    def launch(self) -> "EmulatorProcess":
+        """Start the child process without waiting for it to serve (idempotent)."""
+        if self._proc is not None:
+            return self
+        with tempfile.TemporaryFile() as block:
+            block.write(bytes(_SHARED.size))
+            block.flush()
+            self._shared = mmap.mmap(block.fileno(), _SHARED.size)
+            parent, child = socket.socketpair()
+            try:
+                self._proc = subprocess.Popen(
+                    [sys.executable, "-c", "import sys; from swerve.emulator.process import child_main; "
+                                           "child_main(int(sys.argv[1]), int(sys.argv[2]))",
+                     str(child.fileno()), str(block.fileno())],
+                    pass_fds=(child.fileno(), block.fileno()), stdin=subprocess.DEVNULL)
+            finally:
+                child.close()
+        self._conn = Connection(parent.detach())
+        self._conn.send((self._robot, self._emulator_config, self._kwargs))
+        return self
+
     def start(self) -> "EmulatorProcess":
-        parent, child = self._ctx.Pipe()
-        self._proc = self._ctx.Process(target=_child, name="swerve-emulator", daemon=True,
-                                       args=(child, self._shared, self._robot, self._emulator_config,
-                                             self._kwargs))
-        self._proc.start()
-        child.close()
-        self._conn = parent
+        """:meth:`launch` if not yet, then wait until the child serves its pty (raises on failure)."""
+        self.launch()
+        if self.port is not None:
+            return self
+        parent = self._conn
         if not parent.poll(_START_TIMEOUT_S):
             self.close()
             raise SwerveError(f"the emulator process did not start within {_START_TIMEOUT_S:.0f} s")
@@ -134,13 +176,13 @@ class EmulatorProcess:
     @property
     def pose(self) -> tuple[float, float, float]:
         """True body pose ``(x_m, y_m, theta_rad)`` after the emulator's latest physics steps."""
-        s = self._shared
-        return s[1], s[2], s[3]
+        _, x, y, theta = _SHARED.unpack_from(self._shared)
+        return x, y, theta
 
     @property
     def sim_time_s(self) -> float:
         """Simulated seconds of the emulator's clock at the last pose update."""
-        return self._shared[0]
+        return _SHARED.unpack_from(self._shared)[0]
 
     def fault(self, method: str, *args) -> None:
         """Call ``emu.faults.<method>(*args)`` in the child, e.g. ``fault("vanish", 3)``."""
@@ -154,11 +196,12 @@ class EmulatorProcess:
             raise ConfigError(f"emulator fault {method}{args}: {value}")
 
     def close(self) -> None:
-        """Stop the child (politely, then by force) and collect its final counters."""
+        """Stop the child (politely, then by force), collect its final counters and wait for it
+        to exit."""
         if self._proc is None:
             return
         try:
-            if self._conn is not None and self._proc.is_alive():
+            if self._conn is not None and self._proc.poll() is None:
                 self._conn.send("stop")
                 if self._conn.poll(10.0):
                     kind, value = self._conn.recv()
@@ -166,12 +209,17 @@ class EmulatorProcess:
                         self.final_stats = value
         except (EOFError, BrokenPipeError, OSError):
             pass
-        self._proc.join(timeout=5.0)
-        if self._proc.is_alive():
-            self._proc.terminate()
-            self._proc.join(timeout=5.0)
         if self._conn is not None:
-            self._conn.close()
+            self._conn.close()          # EOF: a child still starting stops at its next receive
+        try:
+            self._proc.wait(timeout=_EXIT_TIMEOUT_S)
+        except subprocess.TimeoutExpired:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=_EXIT_TIMEOUT_S)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
         self._proc = self._conn = None
 
     def __enter__(self) -> "EmulatorProcess":

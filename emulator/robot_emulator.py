@@ -30,7 +30,7 @@ import math
 import os
 import time
 from pathlib import Path
-from typing import Iterable, Mapping
+from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
@@ -106,10 +106,14 @@ class _ServoDynamics:
         after a step that raised a Hardware Error bit (:meth:`take_hardware_error`, for the
         caller to latch). ``traces[model]``: the ``(speeds, positions)`` lists the model
         appends to per step, if present. Returns the steps run."""
-        items = self._items
         speeds, positions = traces.get(self.model, (None, None)) if traces else (None, None)
-        return self.model.run(dt_s, self.inputs(), n, same_inputs=self._items is items,
-                              speeds=speeds, positions=positions)
+        table, same = self.current_inputs()
+        return self.model.run(dt_s, table, n, same_inputs=same, speeds=speeds, positions=positions)
+
+    def current_inputs(self) -> tuple[dict[str, int], bool]:
+        """``(items, same)``: :meth:`inputs`, and whether they are the mapping of the last call."""
+        items = self._items
+        return self.inputs(), self._items is items
 
     def take_hardware_error(self) -> int:
         """Hardware Error bits the physics raised since the last call (then cleared)."""
@@ -155,6 +159,26 @@ class RobotWorld:
     def step_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple]) -> None:
         """``n`` body steps from the servos' recorded ``traces`` (:meth:`RobotPhysics.step_body_many`)."""
         self.physics.step_body_many(dt_s, n, traces)
+
+    def run_coupled(self, servos: Sequence[VirtualServo], dt_s: float, n: int) -> int:
+        """Up to ``n`` steps of the ``servos`` (their timers, Bus Watchdog and physics) and the
+        body in one compiled call (:meth:`RobotPhysics.run_coupled`), where the servos and the
+        body must step together (tyre contact) and the compiled kernel exists; the same result as
+        ``n`` times each servo's :meth:`VirtualServo.advance` then :meth:`step`. Runs up to the
+        next watchdog trip or physics-raised Hardware Error. Returns the steps run (0: this world
+        cannot, step tick by tick)."""
+        physics = self.physics
+        dynamics = [s.dynamics for s in servos]
+        if n < 2 or not physics.coupled() or len(servos) != len(physics.servos) or not all(
+                isinstance(d, _ServoDynamics) and d.batchable for d in dynamics):
+            return 0
+        most = n
+        for s in servos:
+            most = min(most, s.begin_steps(dt_s, most))
+        ran = physics.run_coupled(dt_s, most, {d.model: d.current_inputs() for d in dynamics})
+        for s, d in zip(servos, dynamics):
+            s.end_steps(dt_s, ran, d.take_hardware_error())
+        return ran
 
 
 def status(emu: Emulator) -> dict:
@@ -347,6 +371,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                   for i in ids}            # steering shafts start at their centre
     for m in models.values():           # SciPy's first expm would stall the bus at torque-on
         m.prepare(1.0 / rate_hz)
+    if world is not None:
+        world.physics.prepare(1.0 / rate_hz)
     servos = make_servos(ids, model, baud, **extra,
                          dynamics=lambda s: _ServoDynamics(models[s.id], s) if s.id in models else None)
     for s in servos:                    # present items from the physics, not the table defaults

@@ -835,6 +835,7 @@ class Emulator:
         (:meth:`VirtualServo.advance_many`) and the body follows from their recorded states."""
         traces = self._batch_traces() if n > 1 else None
         if traces is None:
+            n -= self._coupled_ticks(dt_s, n)
             for _ in range(n):
                 self._tick(dt_s)
             return
@@ -845,6 +846,21 @@ class Emulator:
         for _ in range(n):                  # the same float sum as n single ticks
             self.sim_time_s += dt_s
         self.stats.clock_ticks += n
+
+    def _coupled_ticks(self, dt_s: float, n: int) -> int:
+        """Up to ``n`` :meth:`_tick` s run by a world whose servos and body step together in one
+        call (``world.run_coupled``, e.g. a robot on tyres); returns how many ran (0: none)."""
+        run = getattr(self.world, "run_coupled", None) if n > 1 else None
+        done = 0
+        while run is not None and done < n:
+            ran = run(self.servos, dt_s, n - done)
+            if not ran:
+                break
+            for _ in range(ran):            # the same float sum as single ticks
+                self.sim_time_s += dt_s
+            self.stats.clock_ticks += ran
+            done += ran
+        return done
 
     def _batch_traces(self) -> dict | None:
         """The trace lists for a batched run of steps (``{}`` without a world), or ``None`` if

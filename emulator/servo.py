@@ -371,15 +371,7 @@ class VirtualServo:
                 done += 1
                 continue
             ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
-            if ran > 1:                 # the timers of the quiet steps after the first (no trip to check)
-                tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
-                wrap = float(REALTIME_TICK_WRAP)
-                for _ in range(ran - 1):
-                    tick_ms += d_ms     # (t + d) % wrap, which is t + d below the wrap
-                    if tick_ms >= wrap:
-                        tick_ms %= wrap
-                    since += dt_s
-                self._tick_ms, self._since_traffic_s = tick_ms, since
+            self._advance_quiet_timers(dt_s, ran - 1)
             if done + ran > 1:                          # an earlier step of this call left the items stale
                 m.stale = True
             done += ran
@@ -387,6 +379,37 @@ class VirtualServo:
             if bits:                                    # the physics tripped a protection: latch it
                 self.raise_hardware_error(bits)
             m.stale = True
+
+    def begin_steps(self, dt_s: float, most: int) -> int:
+        """The first of up to ``most`` steps whose physics runs elsewhere (coupled with the other
+        servos: :meth:`~swerve.emulator.robot_emulator.RobotWorld.run_coupled`): this step's
+        timers (the Bus Watchdog may trip), then how many steps, this one included, pass
+        before the watchdog may trip. Finish with :meth:`end_steps`."""
+        self._advance_timers(dt_s)
+        return 1 + self._quiet_steps(dt_s, most - 1) if most > 1 else 1
+
+    def end_steps(self, dt_s: float, ran: int, bits: int) -> None:
+        """After ``ran`` steps begun by :meth:`begin_steps` (as :meth:`advance_many`): the timers
+        of the steps after the first, then latch the Hardware Error ``bits`` the physics raised."""
+        self._advance_quiet_timers(dt_s, ran - 1)
+        if ran > 1:                     # an earlier step left the items stale
+            self.memory.stale = True
+        if bits:
+            self.raise_hardware_error(bits)
+        self.memory.stale = True
+
+    def _advance_quiet_timers(self, dt_s: float, steps: int) -> None:
+        """The timers of ``steps`` steps known not to trip the watchdog (:meth:`_quiet_steps`)."""
+        if steps <= 0:
+            return
+        tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
+        wrap = float(REALTIME_TICK_WRAP)
+        for _ in range(steps):
+            tick_ms += d_ms             # (t + d) % wrap, which is t + d below the wrap
+            if tick_ms >= wrap:
+                tick_ms %= wrap
+            since += dt_s
+        self._tick_ms, self._since_traffic_s = tick_ms, since
 
     def _advance_timers(self, dt_s: float) -> None:
         """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""

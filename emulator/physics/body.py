@@ -27,6 +27,8 @@ import numpy as np
 
 from swerve.controller import small_linalg
 
+from .jit import jitable
+
 
 def contact_matrix(wheel_xy_m: np.ndarray) -> np.ndarray:
     """Map twist ``(vx, vy, ω)`` to stacked contact velocities ``[vx_1, vy_1, ..., vy_n]``, shape (2n, 3)."""
@@ -144,6 +146,7 @@ def se2_step(pose: tuple[float, float, float], twist, dt_s: float) -> tuple[floa
     return _se2_step(x, y, theta, vx, vy, w, dt_s)
 
 
+@jitable
 def _se2_step(x: float, y: float, theta: float, vx: float, vy: float, w: float,
               dt_s: float) -> tuple[float, float, float]:
     """:func:`se2_step` on plain floats."""

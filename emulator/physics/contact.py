@@ -32,7 +32,8 @@ import numpy as np
 
 from swerve.controller import small_linalg
 
-from .body import se2_step
+from .body import _se2_step
+from .jit import jitable
 from .params import ContactParams
 
 
@@ -78,6 +79,7 @@ class ContactBody:
         self.limit_n = params.friction_coefficient * self.normal_n
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
         self._xy = self.wheel_xy_m.tolist()      # Python floats for the per-step scalar arithmetic
+        self._x, self._y = [x for x, _ in self._xy], [y for _, y in self._xy]
         self._limits = self.limit_n.tolist()
         # last step's twist, slip, forces (x, y per wheel) and longitudinal forces, as floats
         self._twist = (0.0, 0.0, 0.0)
@@ -94,51 +96,18 @@ class ContactBody:
         times more for four wheels.
         """
         p = self.params
-        kl = p.lateral_stiffness_ratio
-        m, iz = self.mass_kg, self.yaw_inertia_kg_m2
-        vx, vy, w = self._twist
-        a11, a12, a22, a13, a23, a33 = m, 0.0, m, 0.0, 0.0, iz
-        r1, r2, r3 = m * vx + dt_s * m * w * vy, m * vy - dt_s * m * w * vx, iz * w
-        wheels = []
-        for (x, y), u, d, limit in zip(self._xy, speeds_mps, steer_rad, self._limits):
-            u = float(u)
-            c, s = math.cos(d), math.sin(d)
-            px, py = vx - w * y, vy + w * x
-            sl, st = c * px + s * py - u, -s * px + c * py
-            f0 = p.slip_stiffness_n_s_per_m * _norm(sl, kl * st)
-            saturated = f0 > limit
-            k = p.slip_stiffness_n_s_per_m * (limit / f0 if saturated else 1.0)   # secant stiffness
-            ka, kb, kd = k * (c * c + kl * s * s), k * (1.0 - kl) * c * s, k * (s * s + kl * c * c)
-            kx, ky = -ka * y + kb * x, -kb * y + kd * x          # K · (−y, x)
-            a11 += dt_s * ka
-            a12 += dt_s * kb
-            a22 += dt_s * kd
-            a13 += dt_s * kx
-            a23 += dt_s * ky
-            a33 += dt_s * (-y * kx + x * ky)
-            fu = k * u
-            r1 += dt_s * fu * c
-            r2 += dt_s * fu * s
-            r3 += dt_s * fu * (-y * c + x * s)
-            wheels.append((x, y, u, c, s, k, saturated))
-        vx, vy, w = _solve_sym3(a11, a12, a13, a22, a23, a33, r1, r2, r3)
-        slip, fx, fy, flong, power, sat = [], [], [], [], 0.0, 0
-        for x, y, u, c, s, k, saturated in wheels:
-            px, py = vx - w * y, vy + w * x
-            sl, st = c * px + s * py - u, -s * px + c * py
-            fl, ft = -k * sl, -k * kl * st                     # force on the body, wheel frame
-            slip.append(_norm(sl, st))
-            flong.append(fl)
-            fx.append(c * fl - s * ft)
-            fy.append(s * fl + c * ft)
-            power -= fl * sl + ft * st
-            sat += saturated
+        n = len(self._xy)
+        slip, fx, fy, flong = [0.0] * n, [0.0] * n, [0.0] * n, [0.0] * n
+        vx, vy, w, power, sat = contact_step(
+            dt_s, p.lateral_stiffness_ratio, p.slip_stiffness_n_s_per_m, self.mass_kg, self.yaw_inertia_kg_m2,
+            *self._twist, self._x, self._y, self._limits, [float(u) for u in speeds_mps], steer_rad,
+            slip, fx, fy, flong)
         self._slip, self._fx, self._fy, self._flong = slip, fx, fy, flong
         self.slip_energy_j += dt_s * power
         self.saturated_steps += sat
-        self.wheel_steps += len(wheels)
+        self.wheel_steps += n
         self._twist = (vx, vy, w)
-        self.x_m, self.y_m, self.theta_rad = se2_step(self.pose, (vx, vy, w), dt_s)
+        self.x_m, self.y_m, self.theta_rad = _se2_step(self.x_m, self.y_m, self.theta_rad, vx, vy, w, dt_s)
         return self.pose
 
     @property
@@ -172,11 +141,70 @@ class ContactBody:
         return self.x_m, self.y_m, self.theta_rad
 
 
+@jitable
+def contact_step(dt_s, kl, stiffness, m, iz, vx, vy, w, xs, ys, limits, speeds, steer, slip, fx, fy, flong):
+    """One :meth:`ContactBody.step` of the twist on plain numbers (sequences of floats per wheel).
+
+    ``kl``: lateral stiffness ratio; ``stiffness``: slip stiffness, N·s/m; ``m`` (kg), ``iz``
+    (kg·m²); ``(vx, vy, w)``: the twist before the step; ``xs``, ``ys``: wheel positions, m;
+    ``limits``: friction limits, N; ``speeds`` (m/s), ``steer`` (rad) held over the step.
+    Writes each wheel's slip speed and force on the body (body frame, and along the wheel) into
+    ``slip``, ``fx``, ``fy``, ``flong``. Returns ``(vx, vy, w, tyre power, wheels saturated)``.
+    """
+    a11, a12, a22, a13, a23, a33 = m, 0.0, m, 0.0, 0.0, iz
+    r1, r2, r3 = m * vx + dt_s * m * w * vy, m * vy - dt_s * m * w * vx, iz * w
+    n = len(xs)
+    sat = 0
+    for j in range(n):
+        x, y, u, limit = xs[j], ys[j], speeds[j], limits[j]
+        c, s, sl, st = _wheel_slip(vx, vy, w, x, y, u, steer[j])
+        f0 = stiffness * _norm(sl, kl * st)
+        saturated = f0 > limit
+        k = stiffness * (limit / f0 if saturated else 1.0)      # secant stiffness on the friction circle
+        sat += saturated
+        ka, kb, kd = k * (c * c + kl * s * s), k * (1.0 - kl) * c * s, k * (s * s + kl * c * c)
+        kx, ky = -ka * y + kb * x, -kb * y + kd * x          # K · (−y, x)
+        a11 += dt_s * ka
+        a12 += dt_s * kb
+        a22 += dt_s * kd
+        a13 += dt_s * kx
+        a23 += dt_s * ky
+        a33 += dt_s * (-y * kx + x * ky)
+        fu = k * u
+        r1 += dt_s * fu * c
+        r2 += dt_s * fu * s
+        r3 += dt_s * fu * (-y * c + x * s)
+        flong[j] = k                 # (the wheel's stiffness until the twist is solved)
+    vx, vy, w = _solve_sym3(a11, a12, a13, a22, a23, a33, r1, r2, r3)
+    power = 0.0
+    for j in range(n):
+        k = flong[j]
+        c, s, sl, st = _wheel_slip(vx, vy, w, xs[j], ys[j], speeds[j], steer[j])
+        fl, ft = -k * sl, -k * kl * st                     # force on the body, wheel frame
+        slip[j] = _norm(sl, st)
+        flong[j] = fl
+        fx[j] = c * fl - s * ft
+        fy[j] = s * fl + c * ft
+        power -= fl * sl + ft * st
+    return vx, vy, w, power, sat
+
+
+@jitable
+def _wheel_slip(vx, vy, w, x, y, u, d):
+    """``(cos δ, sin δ, longitudinal slip, lateral slip)`` of the wheel at ``(x, y)`` (m) steered
+    ``δ`` (rad) with surface speed ``u`` (m/s) under the body twist ``(vx, vy, w)``; m/s."""
+    c, s = math.cos(d), math.sin(d)
+    px, py = vx - w * y, vy + w * x
+    return c, s, c * px + s * py - u, -s * px + c * py
+
+
+@jitable
 def _norm(x: float, y: float) -> float:
     """``√(x² + y²)`` in three correctly rounded operations (no overflow at these magnitudes)."""
     return math.sqrt(x * x + y * y)
 
 
+@jitable
 def _solve_sym3(a11, a12, a13, a22, a23, a33, b1, b2, b3) -> tuple[float, float, float]:
     """Solve the symmetric 3×3 system ``A x = b`` (Cramer's rule; ``A`` positive definite)."""
     c11 = a22 * a33 - a23 * a23

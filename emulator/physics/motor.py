@@ -26,6 +26,7 @@ from functools import lru_cache
 import numpy as np
 
 from .discrete import zoh
+from .jit import jitable
 from .params import GearFrictionParams, MotorParams
 
 
@@ -112,35 +113,14 @@ class GearedMotor:
         if self.friction is None and not self.blocked:
             self._step_linear(dt_s, voltage_v, self.load_torque_nm)
             return
-        f = self.friction
-        if self.blocked or self.stuck:
-            self._step_electrical(dt_s, voltage_v)
-            drive = self.gear_ratio * self.params.torque_nm_per_a * self.current_a - self.load_torque_nm
-            if self.blocked or abs(drive) <= f.breakaway_nm:
-                self.friction_torque_nm = 0.0 if self.blocked else drive
-                return
-            self.stuck = False          # breakaway: slip from rest in the direction of the drive
-            direction = math.copysign(1.0, drive)
-        else:
-            direction = math.copysign(1.0, self.speed_radps)
-        w_out = self.speed_radps / self.gear_ratio
-        tf = direction * (f.coulomb_nm + (f.breakaway_nm - f.coulomb_nm)
-                          * math.exp(-(w_out / f.stribeck_speed_radps) ** 2)) + f.viscous_nm_s_per_rad * w_out
-        self.friction_torque_nm = tf
-        self._step_linear(dt_s, voltage_v, self.load_torque_nm + tf)
-        if self.speed_radps * direction <= 0.0:     # friction stopped the shaft within the step
-            self.speed_radps = 0.0
-            self.stuck = True
-
-    def _step_electrical(self, dt_s: float, voltage_v: float | None) -> None:
-        """Armature circuit alone with the shaft at rest (exact for a held voltage)."""
-        if voltage_v is None:
-            self.current_a = 0.0
-        else:
-            p = self.params
-            decay = math.exp(-p.resistance_ohm / p.inductance_h * dt_s)
-            self.current_a = self.current_a * decay + (1.0 - decay) * voltage_v / p.resistance_ohm
-        self.speed_radps = 0.0
+        (ad, bd), (cd, cb) = self.coefficients(dt_s, False), self.coefficients(dt_s, True)
+        p, f = self.params, self.friction
+        (self.current_a, self.speed_radps, self.angle_rad, self.stuck, self.friction_torque_nm) = friction_step(
+            voltage_v is not None, 0.0 if voltage_v is None else voltage_v, self.current_a, self.speed_radps,
+            self.angle_rad, self.load_torque_nm, self.blocked, self.stuck, self.friction_torque_nm,
+            self.gear_ratio, self.gear_ratio * p.torque_nm_per_a, electrical_decay(p, dt_s), p.resistance_ohm,
+            *((0.0, 0.0, 1.0, 0.0) if f is None else friction_terms(f)), *ad[0][:2], *ad[1][:2], *ad[2][:2],
+            *bd[0], *bd[1], *bd[2], *cd[0], *cd[1], cb[0][0], cb[1][0])
 
     def _step_linear(self, dt_s: float, voltage_v: float | None, load_torque_nm: float) -> None:
         tau = load_torque_nm / self.gear_ratio
@@ -167,3 +147,51 @@ class GearedMotor:
         w = voltage_v * p.torque_nm_per_a / (p.resistance_ohm * p.friction_nm_s_per_rad
                                              + p.torque_nm_per_a * p.back_emf_v_s_per_rad)
         return w / self.gear_ratio
+
+
+def electrical_decay(p: MotorParams, dt_s: float) -> float:
+    """``exp(-R/L dt)``: the armature current's decay over a step with the shaft at rest."""
+    return math.exp(-p.resistance_ohm / p.inductance_h * dt_s)
+
+
+def friction_terms(f: GearFrictionParams) -> tuple[float, float, float, float]:
+    """``(coulomb, breakaway, stribeck speed, viscous)`` of ``f`` as :func:`friction_step` takes them."""
+    return float(f.coulomb_nm), float(f.breakaway_nm), float(f.stribeck_speed_radps), float(f.viscous_nm_s_per_rad)
+
+
+@jitable
+def friction_step(driven, voltage, i, w, th, load, blocked, stuck, friction_torque, gear, gear_km, decay, r,
+                  coulomb, breakaway, stribeck, viscous, a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20,
+                  b21, c00, c01, c10, c11, cb0, cb1):
+    """One step of :meth:`GearedMotor.step` with gearbox friction or a held shaft, on plain floats.
+
+    ``driven``: the bridge applies ``voltage`` (V), else it is open. State: current (A), motor
+    speed (rad/s) and angle (rad); ``load``: output-side load torque (N·m); ``blocked``,
+    ``stuck``, ``friction_torque`` (N·m). Constants: gear ratio, ``gear·Km`` (N·m/A), the
+    current's decay at rest (:func:`electrical_decay`), R (Ω), :func:`friction_terms`, and the
+    driven ``(a, b)`` / coasting ``(c, cb)`` discretisations (:meth:`GearedMotor.coefficients`).
+    Returns ``(i, w, th, stuck, friction_torque)``.
+    """
+    if blocked or stuck:            # armature circuit alone with the shaft at rest (exact for a held voltage)
+        i = i * decay + (1.0 - decay) * voltage / r if driven else 0.0
+        w = 0.0
+        drive = gear_km * i - load
+        if blocked or abs(drive) <= breakaway:
+            return i, w, th, stuck, 0.0 if blocked else drive
+        stuck = False               # breakaway: slip from rest in the direction of the drive
+        direction = math.copysign(1.0, drive)
+    else:
+        direction = math.copysign(1.0, w)
+    w_out = w / gear
+    ratio = w_out / stribeck        # (squared as a product: ** is libm's pow, not always x·x)
+    tf = direction * (coulomb + (breakaway - coulomb) * math.exp(-(ratio * ratio))) + viscous * w_out
+    tau = (load + tf) / gear
+    if driven:
+        i, w, th = (a00 * i + a01 * w + b00 * voltage + b01 * tau, a10 * i + a11 * w + b10 * voltage + b11 * tau,
+                    a20 * i + a21 * w + th + b20 * voltage + b21 * tau)
+    else:
+        i, w, th = 0.0, c00 * w + c01 * th + cb0 * tau, c10 * w + c11 * th + cb1 * tau
+    if w * direction <= 0.0:        # friction stopped the shaft within the step
+        w = 0.0
+        stuck = True
+    return i, w, th, stuck, tf

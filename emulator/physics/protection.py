@@ -16,7 +16,10 @@ from typing import Mapping
 
 from swerve.driver.control_table import HardwareError
 
+from .jit import jitable
 from .params import ProtectionParams
+
+OVERLOAD, OVERHEATING, INPUT_VOLTAGE = HardwareError.OVERLOAD, HardwareError.OVERHEATING, HardwareError.INPUT_VOLTAGE
 
 #: Control-table defaults of the X series (docs/reference/protocol.md §3), raw units.
 DEFAULT_LIMITS = {"temperature_limit": 80, "max_voltage_limit": 160, "min_voltage_limit": 95}
@@ -49,19 +52,34 @@ class Protection:
         missing items take the e-Manual defaults.
         """
         p = self.params
-        bits = 0
-        if abs(current_a) > p.overload_current_a:
-            self.overload_timer_s += dt_s
-            if self.overload_timer_s >= p.overload_time_s:
-                bits |= HardwareError.OVERLOAD
-        else:
-            self.overload_timer_s = max(0.0, self.overload_timer_s - dt_s)
-        if temperature_c > table.get("temperature_limit", DEFAULT_LIMITS["temperature_limit"]):
-            bits |= HardwareError.OVERHEATING
-        volts_raw = voltage_v * 10.0
-        if not (table.get("min_voltage_limit", DEFAULT_LIMITS["min_voltage_limit"]) <= volts_raw
-                <= table.get("max_voltage_limit", DEFAULT_LIMITS["max_voltage_limit"])):
-            bits |= HardwareError.INPUT_VOLTAGE
-        new = bits & ~self.raised
-        self.raised |= bits
+        new, self.overload_timer_s, self.raised = protection_step(
+            dt_s, current_a, temperature_c, voltage_v, self.overload_timer_s, self.raised, p.overload_current_a,
+            p.overload_time_s, *limits(table))
         return new
+
+
+def limits(table: Mapping[str, int]) -> tuple[float, float, float]:
+    """``(temperature limit °C, min, max voltage limit in 0.1 V)`` from the raw items ``table``,
+    the e-Manual defaults where an item is missing, as floats (exact: small integers)."""
+    return (float(table.get("temperature_limit", DEFAULT_LIMITS["temperature_limit"])),
+            float(table.get("min_voltage_limit", DEFAULT_LIMITS["min_voltage_limit"])),
+            float(table.get("max_voltage_limit", DEFAULT_LIMITS["max_voltage_limit"])))
+
+
+@jitable
+def protection_step(dt_s, current_a, temperature_c, voltage_v, timer_s, raised, overload_current_a,
+                    overload_time_s, temperature_limit, min_voltage, max_voltage):
+    """:meth:`Protection.update` on plain numbers: returns ``(new bits, timer_s, raised)``."""
+    bits = 0
+    if abs(current_a) > overload_current_a:
+        timer_s += dt_s
+        if timer_s >= overload_time_s:
+            bits |= OVERLOAD
+    else:
+        timer_s = max(0.0, timer_s - dt_s)
+    if temperature_c > temperature_limit:
+        bits |= OVERHEATING
+    volts_raw = voltage_v * 10.0
+    if not (min_voltage <= volts_raw <= max_voltage):
+        bits |= INPUT_VOLTAGE
+    return bits & ~raised, timer_s, raised | bits

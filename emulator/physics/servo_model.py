@@ -17,16 +17,18 @@ from .bessel import BesselFilter, bessel_coefficients, bessel_reset, bessel_step
 from .firmware import (AntiWindupPI, PositionGains, ProfileGenerator, VelocityGains, pi_step, position_profile_step,
                        profile_type, velocity_profile_step)
 from .jit import compiled, jitable
-from .motor import GearedMotor
+from . import motor as motor_module
+from . import protection as protection_module
+from .motor import GearedMotor, electrical_decay, friction_step, friction_terms
 from .params import (FirmwareParams, GearFrictionParams, MotorParams, PhysicsConfig, ProtectionParams,
                      SensorParams, ThermalParams)
-from .protection import Protection
+from .protection import Protection, limits, protection_step
 
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
 PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
 #: The items of a servo with torque off (what :meth:`ServoModel.prepare` runs the kernel on once).
-_IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
+IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
                "goal_position": 0, "goal_pwm": 0, "pwm_limit": 0, "current_limit": 0, "bus_watchdog": 0}
 GOAL_KEYS = ("goal_velocity", "goal_position", "goal_pwm", "goal_current")
 OUTPUT_KEYS = ("present_pwm", "present_current", "present_velocity", "present_position",
@@ -149,7 +151,7 @@ class ServoModel:
         self.reference_filter.prepare(dt_s)
         if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
             spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
-            spare.run(dt_s, _IDLE_ITEMS, 1, speeds=[], positions=[])
+            spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])
 
     def set_shaft_angle(self, angle_rad: float) -> None:
         """Place the output shaft at ``angle_rad`` (physical frame) at rest; for initial conditions."""
@@ -235,29 +237,16 @@ class ServoModel:
         (rad/s) / :attr:`true_position_pulse` (pulse) after the tick (what the body needs).
         Returns the ticks run (1..n).
 
-        Without gearbox friction, a held shaft, protection or position noise (the ``ideal``
-        profile) the ticks run in the compiled kernel when numba is installed (:mod:`.jit`);
-        otherwise, and with ``SWERVE_NO_JIT=1``, in the same function as plain Python.
+        Without position noise the ticks run in the compiled kernel when numba is installed
+        (:mod:`.jit`), gearbox friction, a held shaft and the protection included; otherwise, and
+        with ``SWERVE_NO_JIT=1``, in the same function as plain Python.
         """
         if n < 1:
             return 0
-        plan = self._plan
-        if not same_inputs or plan is None or table is not self._plan_table:
-            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
-            self._plan_table = table
-        motor = self.motor
-        inputs = self._inputs
-        if inputs is None or inputs[0] is not plan:
-            inputs = self._inputs = self._derive_inputs(plan)
-        plant = self._plant
-        if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
-            plant = self._plant = self._derive_plant(dt_s)
-        self._sign, self._homing = sign, homing = plan.sign, plan.homing
-        linear = motor.friction is None and not motor.blocked
-        protection = self.protection
+        plan, plant, inputs = self.begin_run(dt_s, table, same_inputs)
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
-        if _COMPILED_TICKS is not None and linear and protection is None and not noisy:
+        if _COMPILED_TICKS is not None and not noisy:
             kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
@@ -266,33 +255,68 @@ class ServoModel:
             kernel, plant_coef, input_coef = servo_ticks, plant[2], inputs[1]
             speed_trace = [0.0] * n if record_speeds else None
             position_trace = [0.0] * n if record_positions else None
-        vf, rf, prof = self.velocity_filter, self.reference_filter, self.profile
-        hold = self._hold_position
-        key = plan.key
-        switched = key != self._prev_key
-        (ran, bits, motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
-         present, v_meas) = kernel(
-            n, dt_s, plant_coef, input_coef, homing, record_speeds, speed_trace, record_positions, position_trace,
-            self.rng if noisy else None, None if linear else motor, protection,
-            None if protection is None else table,
-            motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-            prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-            self.temperature_c, self.duty, self._wrap_pulse, self._started, switched,
-            switched or plan.goal_position != self._prev_goal_position, hold is not None,
-            0.0 if hold is None else hold, self._goal_pulse, float(self.encoder_offset_pulse), self.supply_voltage_v,
-            motor.load_torque_nm)
+        switched, new_goal = self.run_flags(plan)
+        state = self.run_state()
+        out = kernel(n, dt_s, plant_coef, input_coef, plan.homing, record_speeds, speed_trace, record_positions,
+                     position_trace, self.rng if noisy else None, self.motor.blocked, *state[:17], switched, new_goal,
+                     *state[17:], float(self.encoder_offset_pulse), self.supply_voltage_v, self.motor.load_torque_nm)
+        ran = out[0]
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
+        self.finish_run(table, plan, out[1], out[2:])
+        return ran
+
+    def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
+        """Before a run of ticks under ``table`` (:meth:`run`): ``(plan, plant, inputs)``, what the
+        firmware derives from the items and the discretised plant, each kept while unchanged
+        (``plant`` / ``inputs``: ``[2]`` floats, ``[3]`` / ``[2]`` float64 array or None)."""
+        plan = self._plan
+        if not same_inputs or plan is None or table is not self._plan_table:
+            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+            self._plan_table = table
+        inputs = self._inputs
+        if inputs is None or inputs[0] is not plan:
+            inputs = self._inputs = self._derive_inputs(plan)
+        plant = self._plant
+        if plant is None or plant[0] != dt_s or plant[1] != self.motor.load_inertia_kg_m2:
+            plant = self._plant = self._derive_plant(dt_s)
+        self._sign, self._homing = plan.sign, plan.homing
+        return plan, plant, inputs
+
+    def run_flags(self, plan: "_InputPlan") -> tuple[bool, bool]:
+        """``(switched, new_goal)`` of :func:`servo_ticks` for a run under ``plan``: the mode (or
+        torque, Drive Mode) changed since the last run, the goal position did."""
+        switched = plan.key != self._prev_key
+        return switched, switched or plan.goal_position != self._prev_goal_position
+
+    def run_state(self) -> tuple:
+        """The state :func:`servo_ticks` takes, in its order, without ``switched`` and ``new_goal``
+        (which go between the 17th and 18th entries)."""
+        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
+        hold, protection = self._hold_position, self.protection
+        return (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+                prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+                self.temperature_c, self.duty, self._wrap_pulse, self._started, hold is not None,
+                0.0 if hold is None else hold, self._goal_pulse, motor.stuck, motor.friction_torque_nm,
+                0.0 if protection is None else protection.overload_timer_s, 0 if protection is None else protection.raised)
+
+    def finish_run(self, table: Mapping[str, int], plan: "_InputPlan", bits: int, state: tuple) -> None:
+        """After a run: store :func:`servo_ticks`'s returned ``state`` (its return value after
+        ``ran`` and ``bits``) and note the Hardware Error ``bits`` it raised."""
+        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
+        (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
+         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
+         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
+         motor.stuck, motor.friction_torque_nm, overload_s, raised, present, v_meas) = state
+        if self.protection is not None:
+            self.protection.overload_timer_s, self.protection.raised = overload_s, raised
         if bits:
             self.pending_hardware_error |= bits
         self._hold_position = hold if holding else None
-        self._prev_key, self._prev_goal_position = key, plan.goal_position
-        self._last = (table, plan.mode, plan.torque, present, v_meas, sign)
-        return ran
+        self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
+        self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
 
     def _derive_inputs(self, plan: "_InputPlan") -> tuple:
         """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
@@ -314,7 +338,7 @@ class ServoModel:
                 unused if plan.position_goal is None else plan.position_goal,
                 unused if plan.position_current_limit is None else plan.position_current_limit,
                 unused if plan.pwm_counts is None else plan.pwm_counts,
-                unused if plan.current_ref is None else plan.current_ref)
+                unused if plan.current_ref is None else plan.current_ref, *plan.limits)
         return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def _derive_plant(self, dt_s: float) -> tuple:
@@ -323,6 +347,9 @@ class ServoModel:
         constants, as ``(dt_s, inertia, floats, float64 array or None without the compiled kernel)``."""
         motor, fw, th = self.motor, self.fw, self.thermal
         p = motor.params
+        friction = (0.0, 0.0, 1.0, 0.0) if motor.friction is None else friction_terms(motor.friction)
+        overload = (1.0, 1.0) if self.protection is None else (self.protection.params.overload_current_a,
+                                                                self.protection.params.overload_time_s)
         vf = self.velocity_filter
         if dt_s != vf._dt_s:
             vf.prepare(dt_s)
@@ -336,7 +363,8 @@ class ServoModel:
             fa00, fa01, fa10, fa11, fb0, fb1, *bessel_coefficients(vf.cutoff_radps, vf.norm),
             a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
             math.exp(-dt_s / th.time_constant_s), th.ambient_c, th.thermal_resistance_k_per_w,
-            self.sensors.position_noise_std_pulse)))
+            self.sensors.position_noise_std_pulse, motor.friction is not None, motor.gear_ratio * p.torque_nm_per_a,
+            electrical_decay(p, dt_s), *friction, self.protection is not None, *overload)))
         return dt_s, motor.load_inertia_kg_m2, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
     def outputs(self) -> dict[str, int]:
@@ -404,7 +432,7 @@ class _InputPlan:
                  "current_margin_v", "pwm_counts", "current_ref", "velocity_goal", "velocity_a_max",
                  "velocity_gains", "position_goal", "position_v_max", "position_a_max", "position_gains",
                  "position_current_limit", "position_mode", "velocity_mode", "pwm_mode", "current_position_mode",
-                 "firmware_mode", "rewrap_on_switch")
+                 "firmware_mode", "rewrap_on_switch", "limits")
 
     def __init__(self, t: Mapping[str, int], resistance_ohm: float, gains):
         self.sign = -1 if t["drive_mode"] & 1 else 1
@@ -421,6 +449,7 @@ class _InputPlan:
                                               or mode == u.MODE_CURRENT)
         self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
         self.goal_position = t["goal_position"]
+        self.limits = limits(t)
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])
         self.tripped = tripped = t["bus_watchdog"] == u.WATCHDOG_TRIPPED
@@ -465,25 +494,27 @@ def wrapped_pulse(raw_pulse: int) -> int:
     return u.PULSES_PER_REV * (raw_pulse // u.PULSES_PER_REV)
 
 
-def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, motor,
-                protection, table, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
-                temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, enc_off, supply,
-                load_torque_nm):
+@jitable
+def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_positions, positions, rng, blocked,
+                i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral,
+                temp, duty, wrap, started, switched, new_goal, holding, hold, goal_pulse, stuck, friction_torque,
+                overload_s, raised, enc_off, supply, load_torque_nm):
     """Up to ``n`` ticks of one servo (:meth:`ServoModel.run`): state in, state out, on plain numbers.
 
     ``plant`` / ``inputs``: the constants of :meth:`ServoModel._derive_plant` /
     :meth:`ServoModel._derive_inputs` (tuples, or float64 arrays when compiled); ``homing``:
     Homing Offset, pulse. ``speeds`` / ``positions``: buffers of ``n``
     entries that get the output speed (rad/s) / true position (pulse) after each tick when
-    ``record_speeds`` / ``record_positions``. ``rng`` (position noise), ``motor`` (its own step:
-    gearbox friction, a held shaft) and ``protection`` (with the raw limit items ``table``) are
-    ``None`` unless the configuration needs them; compiled, they are always ``None`` (numba
-    removes their branches). The state: motor current (A), speed and angle (motor side, rad/s,
+    ``record_speeds`` / ``record_positions``. ``rng`` (position noise) is ``None`` unless the
+    configuration needs it (compiled, always). ``blocked``: the shaft is held (a stall test).
+    The state: motor current (A), speed and angle (motor side, rad/s,
     rad); velocity and reference filter states; profile position, velocity, acceleration, ongoing
     and type; PI integral; winding temperature (°C); duty; the wrap of Present Position (pulse);
     whether the encoder was read before; whether the mode / the goal changed before this run;
-    the watchdog's held goal (``holding``, ``hold``); the goal after limits (pulse). Then the
-    encoder offset (pulse), supply (V) and load torque (output side, N·m) of the run.
+    the watchdog's held goal (``holding``, ``hold``); the goal after limits (pulse); the gearbox's
+    stick state and friction torque (N·m, :func:`.motor.friction_step`); the protection's overload
+    timer (s) and reported bits (:func:`.protection.protection_step`). Then the encoder offset
+    (pulse), supply (V) and load torque (output side, N·m) of the run.
 
     Returns ``(ran, hardware_error_bits)``, the new state in the order of the arguments (without
     ``switched`` and ``new_goal``), then the last Present Position (pulse) and measured velocity
@@ -491,10 +522,13 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
     """
     (gear, ke, r_arm, tick, ticks, ka, l_over_tc, fa00, fa01, fa10, fa11, fb0, fb1, bessel_a1, bessel_a0,
      a00, a01, a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1,
-     decay, ambient, r_th, noise) = plant
+     decay, ambient, r_th, noise, has_friction, gear_km, decay_e, coulomb, breakaway, stribeck, viscous, protect,
+     overload_a, overload_time_s) = plant
     (velocity_mode, position_mode, pwm_mode, firmware_mode, rewrap_on_switch, current_position, tripped,
      reference_filter, measure_filtered, d_or_ff, torque, fsign, pwm_lim, margin, v_goal, v_a_max, kp, ki, kd, ff1,
-     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref) = inputs
+     ff2, p_v_max, p_a_max, position_goal, position_current_limit, pwm_counts, current_ref, temperature_limit,
+     min_voltage, max_voltage) = inputs
+    own_step = has_friction != 0.0 or blocked     # the motor's friction step, else its linear one inline
     neg_supply = -supply
     tau = load_torque_nm / gear
     # the load's terms of the motor step, the same every tick of the run
@@ -595,10 +629,12 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             integral = 0.0
             duty = 0.0
             ppos, pvel, pacc, pongoing = float(present) if position_mode else 0.0, 0.0, 0.0, False
-        if motor is not None:       # gearbox friction or a held shaft: the motor's own step
-            motor.current_a, motor.speed_radps, motor.angle_rad = i_a_, w, th
-            motor.step(dt_s, voltage if firmware_mode else None)
-            i_a_, w, th = motor.current_a, motor.speed_radps, motor.angle_rad
+        if own_step:                # gearbox friction or a held shaft (:meth:`GearedMotor.step`)
+            applied = voltage if firmware_mode else 0.0
+            i_a_, w, th, stuck, friction_torque = friction_step(
+                firmware_mode, applied, i_a_, w, th, load_torque_nm, blocked, stuck,
+                friction_torque, gear, gear_km, decay_e, r_arm, coulomb, breakaway, stribeck, viscous, a00, a01,
+                a10, a11, a20, a21, b00, b01, b10, b11, b20, b21, c00, c01, c10, c11, cb0, cb1)
         elif not firmware_mode:     # bridge open (:meth:`GearedMotor._step_linear`)
             i_a_, w, th = 0.0, c00 * w + c01 * th + cb0_tau, c10 * w + c11 * th + cb1_tau
         else:
@@ -615,16 +651,19 @@ def servo_ticks(n, dt_s, plant, inputs, homing, record_speeds, speeds, record_po
             speeds[ran - 1] = fsign * (w / gear)
         if record_positions:
             positions[ran - 1] = (x - wrap_f + homing_f) - sign_off
-        if protection is not None:
-            bits = protection.update(dt_s, i_a_, temp, supply, table)
+        if protect:
+            bits, overload_s, raised = protection_step(dt_s, i_a_, temp, supply, overload_s, raised, overload_a,
+                                                       overload_time_s, temperature_limit, min_voltage, max_voltage)
             if bits:
                 break
     return (ran, bits, i_a_, w, th, fy, fdy, ry, rdy, ppos, pvel, pacc, pongoing, ptype, integral, temp, duty,
-            wrap, started, holding, hold, goal_pulse, present, v_meas)
+            wrap, started, holding, hold, goal_pulse, stuck, friction_torque, overload_s, raised, present, v_meas)
 
 
 #: :func:`servo_ticks` compiled (:mod:`.jit`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
-_COMPILED_TICKS = compiled(servo_ticks, depends=(firmware.__file__, bessel.__file__, u.__file__))
+#: Source files of the :func:`.jit.jitable` helpers :func:`servo_ticks` calls (the kernel's cache stamp).
+KERNEL_SOURCES = (firmware.__file__, bessel.__file__, u.__file__, motor_module.__file__, protection_module.__file__)
+_COMPILED_TICKS = compiled(servo_ticks, depends=KERNEL_SOURCES)
 
 
 def wheel_servo(cfg: PhysicsConfig, model: str, *, steering: bool, center_pulse: int | None = None,

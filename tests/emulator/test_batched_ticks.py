@@ -23,7 +23,7 @@ from swerve.configs import shipped
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.clock import LockstepClock
-from swerve.emulator.physics import jit, servo_model
+from swerve.emulator.physics import coupled, jit, servo_model
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
@@ -273,3 +273,41 @@ def test_no_jit_switch_selects_the_python_function():
     out = subprocess.run([sys.executable, "-c", code], env={**os.environ, "SWERVE_NO_JIT": "1"},
                          capture_output=True, text=True, check=True).stdout
     assert out.split() == ["False", "None"]
+
+
+STALLED_DRIVE_ID = 2    # a held drive shaft on the robot: its overload protection trips
+
+
+@pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
+@pytest.mark.parametrize("stall", [False, True], ids=["free", "stalled"])
+def test_coupled_ticks_equal_single_ticks(monkeypatch, stall):
+    """The compiled coupled loop (:func:`swerve.emulator.physics.coupled.robot_ticks`: servos,
+    backlash, tyre forces and supply sag in one call) against one tick at a time: velocity and
+    position modes, profile changes, the watchdog's trip, torque off and on, D and feed-forward
+    gains; with a held drive shaft also the overload protection (the run stops at the tick it
+    trips). Every state variable, published byte and the pose equal (``==``)."""
+    calls = []
+    kernel = coupled.ROBOT_TICKS
+
+    def counting(n, *args):
+        calls.append(n)
+        return kernel(n, *args)
+
+    counting.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
+    monkeypatch.setattr(coupled, "ROBOT_TICKS", counting)
+    build = _emulator
+
+    def emulator(*args, **kwargs):
+        emu, modes = build(*args, **kwargs)
+        if stall:
+            {s.id: s for s in emu.servos}[STALLED_DRIVE_ID].dynamics.model.motor.blocked = True
+        return emu, modes
+
+    monkeypatch.setitem(globals(), "_emulator", emulator)
+    a, b, _ = _runs(monkeypatch, _by_advance, profile="realistic", body=True)
+    assert len(calls) >= 70 and max(calls) > 1       # the coupled loop ran every cycle
+    assert a == b
+    final = {row[0]: row for row in a[-1][3:]}
+    assert final[WATCHDOG_ID][4] == -1                 # the watchdog tripped
+    if stall:
+        assert final[STALLED_DRIVE_ID][3]              # Overload latched

@@ -1,4 +1,7 @@
 """The emulated robot in a child process: port, shared true pose, fault commands, final stats."""
+import os
+import subprocess
+import sys
 import time
 
 import pytest
@@ -54,3 +57,34 @@ def test_emulator_process_freezes_its_start_up_heap():
         assert gc.get_freeze_count() > 0
     finally:
         gc.unfreeze()
+
+
+def test_closed_emulator_process_is_waited_for():
+    emu = EmulatorProcess("configs/robot.yaml", lockstep=True).start()
+    pid = emu.pid
+    emu.close()
+    with pytest.raises(ChildProcessError):      # reaped: no longer our child, not even a zombie
+        os.waitpid(pid, os.WNOHANG)
+
+
+#: Runs ``swerve run`` as a child subreaper (Linux ``PR_SET_CHILD_SUBREAPER``): any process the
+#: command leaves behind, running or defunct, is re-parented to this script instead of init.
+_SUBREAPER = """
+import ctypes, os, subprocess, sys
+if ctypes.CDLL(None, use_errno=True).prctl(36, 1, 0, 0, 0) != 0:
+    sys.exit(3)
+rc = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "line",
+                     "--emulate", "--lockstep", "--no-log", "--json"], capture_output=True).returncode
+try:
+    os.waitpid(-1, os.WNOHANG)
+    print(rc, "left-behind")
+except ChildProcessError:
+    print(rc, "none")
+"""
+
+
+@pytest.mark.skipif(sys.platform != "linux", reason="PR_SET_CHILD_SUBREAPER is Linux only")
+def test_swerve_run_emulate_leaves_no_process_behind():
+    out = subprocess.run([sys.executable, "-c", _SUBREAPER], capture_output=True, text=True, timeout=300)
+    assert out.returncode == 0, out.stderr
+    assert out.stdout.split() == ["0", "none"]

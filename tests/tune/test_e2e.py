@@ -1,5 +1,8 @@
 """``swerve tune`` end to end on the emulator: experiments over the pty through driver.bus.Bus,
-identification, design and verification; bad input leaves the torque off."""
+identification, design and verification; bad input leaves the torque off. The emulator runs in
+lockstep (it owns time), so every run samples at the same robot instants and the verdicts do
+not depend on the host's speed."""
+import contextlib
 import json
 import math
 import shutil
@@ -13,6 +16,8 @@ from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.tools import cli
+from swerve.tools.commands.tune import TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
+from swerve.tools.run.lockstep import LockstepClock
 from swerve.tools.tune.design import DesignError, Spec
 from swerve.tools.tune.emulated import make_emulator
 from swerve.tools.tune.experiments import Limits, NotMovingError, StallError
@@ -75,36 +80,43 @@ def rc():
     return load_robot_config(ROBOT)
 
 
-def _bus(emu):
-    return Bus(emu.port, emu.baud, retries=3, timeout_margin_s=0.2)
+@contextlib.contextmanager
+def _session(rc, cfg, **kw):
+    """``(emulator, bus, clock)``: the emulator in lockstep and a bus on it; tuning with ``clock``
+    runs on robot time, the same on a busy or an idle host."""
+    with make_emulator(rc, cfg, lockstep=True, **kw) as emu, LockstepClock(emu.control.path) as clock, \
+            Bus(emu.port, emu.baud, retries=3, timeout_margin_s=TUNE_LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+        clock.attach(bus)
+        yield emu, bus, clock
 
 
 def test_servo_that_does_not_move_leaves_torque_off(rc):
-    with make_emulator(rc, None) as emu, _bus(emu) as bus:     # no physics: a dead motor
+    with _session(rc, None) as (emu, bus, clock):     # no physics: a dead motor
         mode = emu.servo(1).read("operating_mode")
         with pytest.raises(NotMovingError, match="servo ID 1 did not move"):
             tune_servo(bus, 1, "drive", Spec(), load_config(EMULATOR).drive_motor,
-                       limits=Limits(speed_max_radps=rc.drive_max_radps))
+                       limits=Limits(speed_max_radps=rc.drive_max_radps), clock=clock)
         assert emu.servo(1).read("torque_enable") == 0
         assert emu.servo(1).read("operating_mode") == mode       # put back
 
 
 def test_stall_is_detected_and_torque_left_off(rc):
     cfg = load_config(EMULATOR)
-    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:
+    with _session(rc, cfg) as (emu, bus, clock):
         emu.servo(1).dynamics.model.external_load(0.0, 10.0)         # a blocked wheel: huge load inertia
         with pytest.raises(StallError, match="servo ID 1 stalled"):
-            tune_servo(bus, 1, "drive", Spec(), cfg.drive_motor, limits=Limits(speed_max_radps=rc.drive_max_radps))
+            tune_servo(bus, 1, "drive", Spec(), cfg.drive_motor, limits=Limits(speed_max_radps=rc.drive_max_radps),
+                       clock=clock)
         assert emu.servo(1).read("torque_enable") == 0
 
 
 def test_unreachable_spec_keeps_original_gains_and_torque_off(rc):
     cfg = load_config(EMULATOR)
-    with make_emulator(rc, cfg, noise=True, seed=1) as emu, _bus(emu) as bus:
+    with _session(rc, cfg, noise=True, seed=1) as (emu, bus, clock):
         before = {g: emu.servo(1).read(g) for g in ("velocity_p_gain", "velocity_i_gain")}
         with pytest.raises(DesignError, match="no velocity gains meet the spec.*torque is off"):
             tune_servo(bus, 1, "drive", Spec(velocity_settle_max_s=0.005), cfg.drive_motor,
-                       limits=Limits(speed_max_radps=rc.drive_max_radps))
+                       limits=Limits(speed_max_radps=rc.drive_max_radps), clock=clock)
         assert emu.servo(1).read("torque_enable") == 0
         assert {g: emu.servo(1).read(g) for g in before} == before
         assert bus.read(1, Reg.BUS_WATCHDOG) == 0
@@ -113,10 +125,10 @@ def test_unreachable_spec_keeps_original_gains_and_torque_off(rc):
 def test_range_limit_stops_the_experiment(rc):
     cfg = load_config(EMULATOR)
     center = 2048 * 2 * math.pi / 4096
-    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:
+    with _session(rc, cfg) as (emu, bus, clock):
         with pytest.raises(Exception, match="safe range|no room"):
             tune_servo(bus, 5, "steering", Spec(), cfg.steering_motor, center_rad=center,
-                       limits=Limits(position_min_rad=center - 0.01, position_max_rad=center + 0.01))
+                       limits=Limits(position_min_rad=center - 0.01, position_max_rad=center + 0.01), clock=clock)
         assert emu.servo(5).read("torque_enable") == 0
 
 
@@ -126,10 +138,10 @@ def test_gains_failing_verification_are_not_kept(rc, monkeypatch):
     monkeypatch.setattr(pipeline, "check_spec", lambda *a, **k: (False, ["forced failure"]))
     cfg = load_config(EMULATOR)
     center = 2048 * 2 * math.pi / 4096
-    with make_emulator(rc, cfg, noise=True, seed=2) as emu, _bus(emu) as bus:
+    with _session(rc, cfg, noise=True, seed=2) as (emu, bus, clock):
         before = emu.servo(5).read("position_p_gain")
         res = tune_servo(bus, 5, "steering", Spec(), cfg.steering_motor, center_rad=center,
-                         limits=Limits(position_min_rad=center - 1.5, position_max_rad=center + 1.5))
+                         limits=Limits(position_min_rad=center - 1.5, position_max_rad=center + 1.5), clock=clock)
         assert not res.meets_spec and res.design.gains["position_p_gain"] != before
         assert emu.servo(5).read("position_p_gain") == before
         assert emu.servo(5).read("torque_enable") == 0
@@ -141,10 +153,10 @@ def test_leaving_the_range_mid_experiment_turns_the_torque_off(rc):
     cfg = load_config(EMULATOR)
     center = 2048 * 2 * math.pi / 4096
     slow_prior = replace(cfg.steering_motor, back_emf_v_s_per_rad=3 * cfg.steering_motor.back_emf_v_s_per_rad)
-    with make_emulator(rc, cfg) as emu, _bus(emu) as bus:   # the motor is 3x faster than the prior says
+    with _session(rc, cfg) as (emu, bus, clock):   # the motor is 3x faster than the prior says
         with pytest.raises(Exception, match="servo ID 5 left its safe range.*torque turned off"):
             tune_servo(bus, 5, "steering", Spec(), slow_prior, center_rad=center,
-                       limits=Limits(position_min_rad=center - 0.45, position_max_rad=center + 0.45))
+                       limits=Limits(position_min_rad=center - 0.45, position_max_rad=center + 0.45), clock=clock)
         assert emu.servo(5).read("torque_enable") == 0
         assert abs(emu.servo(5).read("present_position") - 2048) < 0.6 / (2 * math.pi / 4096)
 
@@ -177,3 +189,17 @@ def test_realistic_gearbox_friction_is_identified_as_coulomb(tmp_path, capsys):
     assert fr.coulomb_nm < est["coulomb_nm"]["value"] < fr.static_nm + 0.003
     assert res["identification"]["residual_rms"]["position_pulse"] < 0.8
     assert res["meets_spec"]
+
+
+def test_two_lockstep_runs_print_the_same_json(tmp_path, capsys):
+    """``--json``: the identified parameters and designed gains, the same bits every run."""
+    printed = []
+    for run in ("a", "b"):
+        code = cli.main(["tune", "--emulate", "--id", "1", "--json", "--no-progress", "--out", str(tmp_path / run)])
+        assert code == 0
+        printed.append(capsys.readouterr().out)
+    assert printed[0] == printed[1]
+    doc = json.loads(printed[0])
+    assert doc["meets_spec"] and set(doc["gains"]) == {"velocity_p_gain", "velocity_i_gain"}
+    truth = load_config(EMULATOR).drive_motor
+    assert doc["parameters"]["resistance_ohm"]["value"] == pytest.approx(truth.resistance_ohm, rel=0.05)

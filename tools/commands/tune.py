@@ -8,8 +8,10 @@ in the servo's RAM; ``--write-config`` also stores them in the robot config.
 from __future__ import annotations
 
 import argparse
+import json
 import math
 from pathlib import Path
+import sys
 
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
@@ -17,6 +19,12 @@ from swerve.tools.cli import add_config_option
 
 NAME = "tune"
 HELP = "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec"
+
+
+#: Bus reply slack against the lockstep emulator, wall s: its replies are never late in robot
+#: time, so this only rides out a loaded host; a reply given up for lost would change the
+#: samples (and a missing servo costs this per try).
+TUNE_LOCKSTEP_TIMEOUT_MARGIN_S = 1.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -51,11 +59,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "drive shafts as in configs/emulator.yaml body.load_enabled)")
     parser.add_argument("--noise", action="store_true",
                         help="--emulate: sensor noise on (0.5 pulse encoder, 4 mA current, std)")
-    parser.add_argument("--seed", type=int_range(0, 2**32 - 1), default=None, help="--emulate: noise seed")
+    parser.add_argument("--seed", type=int_range(0, 2**32 - 1), default=0,
+                        help="--emulate: noise seed (default 0: the same noise every run)")
     parser.add_argument("--write-config", action="store_true",
                         help="store the gains in the robot file (drive.gains or steering.gains)")
     parser.add_argument("--out", default="out/tune", help="directory for PNG/JSON/YAML results")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--json", action="store_true",
+                        help="print the identified parameters, designed gains and step metrics as JSON")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -80,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
     choice = locate_robot_file(args.config)
     robot_file = choice.path
     emulator_file = resolve_emulator_config(args.emulator_config or "ideal")
-    print(f"config: {choice.describe()}")
+    print(f"config: {choice.describe()}", file=sys.stderr if args.json else sys.stdout)
     rc = load_robot_config(robot_file)
     # a read-only or full robot file or report folder is refused before the servo moves
     check_writable(Path(args.out) / f"tune_{args.id}.json")
@@ -109,21 +120,26 @@ def run(args: argparse.Namespace) -> int:
         center_rad = rc.table[Reg.PRESENT_POSITION].to_si(pulse)
 
     with contextlib.ExitStack() as stack:
-        if args.emulate:
+        clock = None
+        if args.emulate:            # in lockstep: the emulator owns time, every run samples alike
+            from swerve.tools.run.lockstep import LockstepClock
             from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
                 from swerve.emulator.robot_emulator import robot_emulator
 
-                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud,
+                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, lockstep=True,
                                                          noise=noise_spec(args.seed) if args.noise else None))
             else:
                 emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
-                                                        seed=args.seed, baud=args.baud))
-            port, margin = emu.port, 0.2     # a software servo on a loaded machine may answer late
+                                                        seed=args.seed, baud=args.baud, lockstep=True))
+            clock = stack.enter_context(LockstepClock(emu.control.path))
+            port, margin = emu.port, TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
         else:
             port, margin = args.port, 0.002
         bus = stack.enter_context(Bus(port, args.baud or rc.link.baud, retries=3, timeout_margin_s=margin))
+        if clock is not None:
+            clock.attach(bus)
         try:
             found = bus.ping(args.id)
         except DxlTimeoutError:
@@ -144,17 +160,39 @@ def run(args: argparse.Namespace) -> int:
             return bar.update
 
         res = tune_servo(bus, args.id, group, spec, prior, limits=limits, firmware=prior_cfg.firmware,
-                         center_rad=center_rad, duty_max=args.pwm, progress=progress)
+                         center_rad=center_rad, duty_max=args.pwm, progress=progress, clock=clock)
     with files_into(args.out) as tmp:       # the whole report or none of it
         paths = [Path(args.out) / p.name for p in write_report(res, tmp)]
-    _print(res, paths)
+    if args.json:
+        print(json.dumps(identified(res), sort_keys=True, allow_nan=False))
+    else:
+        _print(res, paths)
     if not res.meets_spec:
         raise SwerveError("the designed gains do not meet the spec when measured ("
                           + "; ".join(res.spec_notes) + "); original gains kept, torque off, config untouched")
     if args.write_config:
         write_gains(robot_file, group, res.design.gains)
-        print(f"gains written to {robot_file} ({group}.gains)")
+        print(f"gains written to {robot_file} ({group}.gains)", file=sys.stderr if args.json else sys.stdout)
     return 0
+
+
+def identified(res) -> dict:
+    """``--json``: the identified parameters (value, 95 % interval, identified or fixed), the
+    designed gains, the step metrics before and after, and whether the spec is met."""
+    ident = res.identification
+    return {"id": res.id, "group": res.group, "clock": res.clock, "samples": ident.n_samples,
+            "parameters": {name: {"value": _finite(e.value), "ci_low": _finite(e.ci_low),
+                                  "ci_high": _finite(e.ci_high), "identified": e.identified, "unit": e.unit}
+                           for name, e in ident.estimates.items()},
+            "gains": dict(res.design.gains), "meets_spec": res.meets_spec,
+            "steps": {name: {"overshoot_pct": loop.measured.overshoot_pct, "rise_s": loop.measured.rise_s,
+                             "settle_s": loop.measured.settle_s}
+                      for name, loop in (("before", res.before), ("after", res.after))}}
+
+
+def _finite(x: float) -> float | None:
+    """``x``, or None for NaN / infinity (an interval a fixed parameter does not have)."""
+    return float(x) if math.isfinite(x) else None
 
 
 def _print(res, paths) -> None:

@@ -65,18 +65,26 @@ class RunRequest:
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
-    from swerve.controller.design import synthesize
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.reference import build_reference, load_trajectory
-    from swerve.controller.tracking import TrackingLaw
+    from swerve.controller.reference import load_trajectory
 
     traj = load_trajectory(trajectory, geom)
-    if gains_path is not None:
-        gains = load_gains(gains_path)  # the reference must use the schedule's chained frames
+    gains = load_gains(gains_path) if gains_path is not None else None
+    return traj, law_for(traj, gains, geom, limits, progress)
+
+
+def law_for(traj, gains, geom, limits, progress: bool = False):
+    """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
+    ``gains``, or with gains synthesised now (Riccati) for ``None``."""
+    from swerve.controller.design import synthesize
+    from swerve.controller.reference import build_reference
+    from swerve.controller.tracking import TrackingLaw
+
+    if gains is not None:           # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
         ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
-    return traj, TrackingLaw(ref, gains, limits)
+    return TrackingLaw(ref, gains, limits)
 
 
 def simulated_poses(law, start) -> np.ndarray:
@@ -130,12 +138,13 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     were written with the cycle's fields (as the log gets them) and the run's lockstep clock
     (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
+    from swerve.configs.errors import ConfigError
+    from swerve.controller.gains_io import load_gains
+    from swerve.controller.reference import load_trajectory
     from swerve.driver.bus import Bus
     from swerve.driver.wheelset import WheelSet
     from swerve.tools.recovery import policy
     from swerve.tools.run.loop import TrackingLoop
-
-    from swerve.configs.errors import ConfigError
 
     if req.lockstep and not (req.emulate or (req.control and req.port)):
         raise ConfigError("lockstep needs the emulator (--emulate); a real bus runs on the wall clock")
@@ -150,39 +159,44 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     loop_scale = 1.0 if req.lockstep else req.time_scale     # robot s per loop-clock s
     cfg = wall_clock_guards(cfg, loop_scale)
     geom, limits = geometry_and_limits(cfg)
-    traj, law = prepare_law(req.trajectory, req.gains, geom, limits, req.progress)
+    traj = load_trajectory(req.trajectory, geom)
+    gains = load_gains(req.gains) if req.gains is not None else None   # bad input fails before any start
     start = traj.start_state(geom) if req.start is None else np.asarray(req.start, dtype=float)
-    sim = simulated_poses(law, start) if req.log is not None else None
 
     rate_hz = req.physics_rate_hz or EMULATOR_PHYSICS_RATE_HZ
     with contextlib.ExitStack() as stack:
+        emu = None
+        if req.emulate:     # launched first: the child starts while the gains are synthesised
+            from swerve.emulator.physics.profiles import resolve_emulator_config
+            from swerve.emulator.process import EmulatorProcess
+
+            physics = resolve_emulator_config(req.emulator_config or "ideal")
+            if req.lockstep:
+                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, lockstep=True,
+                                      faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
+                                      start_pose=tuple(start[:3]), rate_hz=rate_hz,
+                                      adapter_latency_ms=req.adapter_latency_ms)
+            else:
+                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, time_scale=req.time_scale,
+                                      faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
+                                      rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms)
+            stack.callback(emu.close)
+            emu.launch()
+        law = law_for(traj, gains, geom, limits, req.progress)
+        sim = simulated_poses(law, start) if req.log is not None else None
         true_pose = clock = None
-        if req.lockstep and not req.emulate:      # an emulator someone else started
+        if req.lockstep:
             from swerve.tools.run.lockstep import LockstepClock
 
-            clock = stack.enter_context(LockstepClock(str(req.control), req.time_scale))
-            port = req.port
+            if emu is not None:
+                emu.start()
+                port, control = emu.port, emu.control_path
+            else:                                 # an emulator someone else started
+                port, control = req.port, str(req.control)
+            clock = stack.enter_context(LockstepClock(control, req.time_scale))
             true_pose = clock.pose
-        elif req.lockstep:
-            from swerve.emulator.physics.profiles import resolve_emulator_config
-            from swerve.emulator.process import EmulatorProcess
-            from swerve.tools.run.lockstep import LockstepClock
-
-            emu = stack.enter_context(EmulatorProcess(
-                req.emulated_robot or cfg_path, resolve_emulator_config(req.emulator_config or "ideal"), lockstep=True,
-                faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
-                start_pose=tuple(start[:3]), rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms))
-            clock = stack.enter_context(LockstepClock(emu.control_path, req.time_scale))
-            port = emu.port
-            true_pose = clock.pose
-        elif req.emulate:
-            from swerve.emulator.physics.profiles import resolve_emulator_config
-            from swerve.emulator.process import EmulatorProcess
-
-            emu = stack.enter_context(EmulatorProcess(
-                req.emulated_robot or cfg_path, resolve_emulator_config(req.emulator_config or "ideal"),
-                time_scale=req.time_scale, faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
-                rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms))
+        elif emu is not None:
+            emu.start()
             port = emu.port
             true_pose = lambda: emu.pose  # noqa: E731
         else:

@@ -15,7 +15,7 @@ from swerve.emulator.robot_emulator import build_emulator
 
 #: ``--noise``: encoder noise before quantisation (pulse) and current-sensor noise (A), std.
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
-#: Clock of the tuning bus: real time at 1 kHz (the identification runs on the wall clock).
+#: Physics rate of the tuning bus, Hz.
 RATE_HZ = 1000.0
 
 
@@ -28,8 +28,10 @@ def noise_spec(seed: int | None = None) -> dict[str, float]:
 
 
 def make_emulator(rc: RobotConfig, cfg: PhysicsConfig | None, *, noise: bool = False, seed: int | None = None,
-                  baud: int | None = None, **link) -> Emulator:
-    """An (unstarted) :class:`Emulator` with every servo of ``rc``, unloaded, clocked at 1 kHz in
-    real time; ``cfg=None``: static servos. ``link``: :class:`LinkSettings` fields."""
-    return build_emulator(rc, cfg, body=False, time_scale=1.0, rate_hz=RATE_HZ, baud=baud,
+                  baud: int | None = None, lockstep: bool = False, **link) -> Emulator:
+    """An (unstarted) :class:`Emulator` with every servo of ``rc``, unloaded, at 1 kHz; ``cfg=None``:
+    static servos. ``lockstep``: the emulator owns time (``emu.control.path``: its control
+    socket for :class:`swerve.tools.run.lockstep.LockstepClock`), else it runs in real time.
+    ``link``: :class:`LinkSettings` fields."""
+    return build_emulator(rc, cfg, body=False, time_scale=1.0, rate_hz=RATE_HZ, baud=baud, lockstep=lockstep,
                           noise=noise_spec(seed) if noise and cfg is not None else None, **link)

@@ -3,9 +3,9 @@
 Three experiments: open-loop PWM steps (Operating Mode 16), a closed-loop velocity step (mode 1)
 and a closed-loop position step (mode 3). Each reads the state block Realtime Tick (120) ..
 Present Input Voltage (144) in one Sync Read as fast as the bus answers. Sample times come from
-the servo's Realtime Tick (its own clock, 1 ms) when it advances, else from the host's monotonic
-clock; write times are host midpoints mapped onto the servo clock by interpolating between the
-samples around them.
+the servo's Realtime Tick (its own clock, 1 ms) when it advances, else from the experimenter's
+clock (the host's monotonic clock, or robot time in lockstep); write times are clock midpoints
+mapped onto the servo clock by interpolating between the samples around them.
 
 Safety: :func:`servo_session` turns the torque off on every exit and puts the operating mode
 back; every sample is checked against :class:`Limits` (position range, speed, current) and a
@@ -15,7 +15,6 @@ integers stay inside this module; records are SI.
 from __future__ import annotations
 
 import math
-import time
 from contextlib import contextmanager
 from dataclasses import dataclass, field, replace
 from typing import Callable
@@ -25,6 +24,7 @@ import numpy as np
 from swerve.driver.control_table import OperatingMode, Reg
 from swerve.driver.errors import DxlError, SwerveError
 from swerve.emulator.physics.params import MotorParams
+from swerve.tools.run.ticker import Clock, WallClock
 from swerve.tools.signals import safe_stop
 from swerve.tools.tune.identify import PwmRecord
 
@@ -124,26 +124,32 @@ class Experimenter:
         Safety envelope.
     progress : callable, optional
         Called with the seconds of experiment time just spent (a progress bar's ``update``).
+    clock : swerve.tools.run.ticker.Clock, optional
+        Where experiment time comes from: the host's monotonic clock (default), or robot time
+        of a lockstep emulator (:class:`swerve.tools.run.lockstep.LockstepClock`), with which
+        every run samples at the same robot instants and identifies the same numbers.
     """
 
-    def __init__(self, bus, id_: int, limits: Limits, progress: Callable[[float], None] | None = None):
+    def __init__(self, bus, id_: int, limits: Limits, progress: Callable[[float], None] | None = None,
+                 clock: Clock | None = None):
         self.bus, self.id, self.limits = bus, int(id_), limits
+        self.clock = clock if clock is not None else WallClock()
         self.table = bus.table(self.id)
         self.progress = progress or (lambda s: None)
 
     # ---- primitives ----------------------------------------------------------------------------
     def write(self, reg: Reg, raw: int, trace: Trace | None = None) -> None:
         """Write ``raw`` to ``reg``; log the host midpoint in ``trace``."""
-        t0 = time.monotonic()
+        t0 = self.clock.now()
         self.bus.write(self.id, reg, int(raw))
         if trace is not None:
-            trace.writes.append((0.5 * (t0 + time.monotonic()), str(reg), int(raw)))
+            trace.writes.append((0.5 * (t0 + self.clock.now()), str(reg), int(raw)))
 
     def sample(self, trace: Trace) -> dict[str, int]:
         """Read the state block once into ``trace`` and check it against the limits."""
-        t0 = time.monotonic()
+        t0 = self.clock.now()
         row = self.bus.sync_read([self.id], STATE_FIRST, STATE_LAST)[self.id]
-        trace.host_t_s.append(0.5 * (t0 + time.monotonic()))
+        trace.host_t_s.append(0.5 * (t0 + self.clock.now()))
         trace.rows.append(row)
         self._check(row)
         return row
@@ -165,8 +171,8 @@ class Experimenter:
 
     def hold(self, duration_s: float, trace: Trace, check: Callable[[Trace], None] | None = None) -> None:
         """Sample for ``duration_s`` (host clock), calling ``check(trace)`` after every sample."""
-        start = last = time.monotonic()
-        while (now := time.monotonic()) - start < duration_s:
+        start = last = self.clock.now()
+        while (now := self.clock.now()) - start < duration_s:
             self.sample(trace)
             if check is not None:
                 check(trace)
@@ -182,9 +188,9 @@ class Experimenter:
         SafetyError
             If the shaft is still moving after ``timeout_s``.
         """
-        trace, start = Trace(), time.monotonic()
+        trace, start = Trace(), self.clock.now()
         since, ref = start, None
-        while (now := time.monotonic()) - start < timeout_s:
+        while (now := self.clock.now()) - start < timeout_s:
             pos = self.sample(trace)[Reg.PRESENT_POSITION]
             if ref is None or abs(pos - ref) > 3:
                 since, ref = now, pos
@@ -220,8 +226,8 @@ class Experimenter:
         saved, self.limits = self.limits, replace(self.limits, position_min_rad=-math.inf,
                                                    position_max_rad=math.inf)
         try:
-            trace, start = Trace(), time.monotonic()
-            while time.monotonic() - start < timeout_s:
+            trace, start = Trace(), self.clock.now()
+            while self.clock.now() - start < timeout_s:
                 row = self.sample(trace)
                 if abs(row[Reg.PRESENT_POSITION] - goal) * scale < tolerance_rad:
                     break

@@ -16,6 +16,7 @@ from swerve.emulator.physics.steptest import StepMetrics, step_metrics
 from swerve.tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
 from swerve.tools.tune.design import predict_position, predict_velocity
 from swerve.tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
+from swerve.tools.run.ticker import Clock
 from swerve.tools.tune.identify import FITTED, Identification, PwmRecord, identify
 
 BRAKE_S = 0.08                 # PWM 0 (motor short-circuited) between the driven steps
@@ -96,7 +97,8 @@ def _measured(record: dict) -> StepMetrics:
 def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, limits: Limits,
                firmware: FirmwareParams = FirmwareParams(), center_rad: float | None = None,
                duty_max: float = 0.5, ci_target: float = 0.02, max_pwm_runs: int = 4,
-               progress: Callable[[str], Callable[[float], None]] | None = None) -> TuneResult:
+               progress: Callable[[str], Callable[[float], None]] | None = None,
+               clock: Clock | None = None) -> TuneResult:
     """Run the experiments on servo ``id_``, identify its motor, design and verify gains.
 
     Parameters
@@ -126,6 +128,9 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
         its value: a slow or busy bus gives sparse samples.
     progress : callable, optional
         ``progress(phase)`` returns an ``update(seconds)`` callback.
+    clock : swerve.tools.run.ticker.Clock, optional
+        Experiment time (:class:`~swerve.tools.tune.experiments.Experimenter`): the host's
+        monotonic clock by default; a lockstep emulator's robot time makes runs repeatable.
 
     Returns
     -------
@@ -139,7 +144,7 @@ def tune_servo(bus, id_: int, group: str, spec: Spec, prior: MotorParams, *, lim
     _check_steps(group, spec, limits, center_rad)
     table = bus.table(id_)
     gear = float(table.gear_ratio)
-    exp = Experimenter(bus, id_, limits)
+    exp = Experimenter(bus, id_, limits, clock=clock)
     with servo_session(bus, id_) as state:
         names = VELOCITY_GAINS if group == "drive" else POSITION_GAINS
         original = {n: int(state[n]) for n in names}
