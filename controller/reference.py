@@ -25,8 +25,9 @@ from swerve.controller.chained import to_chained, wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.mathmap import elementwise
-from swerve.controller.paths import (CirclePath, CurvilinearPath, LinePath, fit_samples,
-                                     read_csv_path, read_csv_samples)
+from swerve.controller.path_csv import read_csv_samples
+from swerve.controller.path_fit import fit_samples, read_csv_path
+from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
 TRAJECTORY_DIR = shipped("trajectories")

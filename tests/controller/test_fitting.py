@@ -5,7 +5,9 @@ import numpy as np
 import pytest
 
 from swerve.controller.errors import ControllerError
-from swerve.controller.paths import FittedPath, draw_primitives, read_csv_samples
+from swerve.controller.path_csv import read_csv_samples
+from swerve.controller.path_fit import FittedPath
+from swerve.controller.paths import draw_primitives
 from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
 
 S_CURVE = [("line", 0.3), ("arc", 0.3, math.pi / 2), ("arc", 0.3, -math.pi / 2), ("line", 0.3)]

@@ -1,0 +1,655 @@
+"""A path through drawn ``t, x, y`` samples that keeps their geometry, fitted in time linear in their number.
+
+The samples are split into straight runs, circular arcs and free samples
+(:mod:`controller.path_segments`). The path is described by its curvature over arc length,
+``kappa(s)``, a quadratic B-spline: on a line its coefficients are fixed at 0, on an arc they
+share one value, in a free stretch each is its own. A B-spline lies within the range of the
+coefficients around it, so ``kappa`` is exactly 0 on straight runs, never exceeds an arc's
+value, and between two primitives rises monotonically over ``blend_m``, centred on their
+geometric junction, with the same total turn as the drawn corner. ``kappa`` is C1, so the desired
+steering rate is continuous.
+
+Heading is ``kappa``'s antiderivative (exact); position is integrated with 4-point
+Gauss-Legendre on cells of a few millimetres. The coefficients, start point and start heading
+are fitted to the samples by Levenberg-Marquardt over sliding windows of at most
+:data:`WINDOW_PARAMS` parameters: each window starts from the state (point, heading) the
+committed part of the path ends in, fits the samples up to the next window's first parameter
+(so a straight run after it counts), projects the samples onto the curve and fits again, then
+commits the first half of its parameters. The Jacobian is analytic (a curvature change at
+``u`` turns the rest of the path about ``P(u)``), so a window costs ``O(samples x params)`` and
+the whole fit ``O(n)``.
+
+No BLAS or LAPACK call (``@``, ``np.linalg``) and no NumPy loop picked per CPU (``sin``,
+``arctan2``, ``sum``): sums of products are sequential (``np.cumsum``) or
+:func:`math.fsum`, the small normal equations are solved by :mod:`controller.small_linalg`,
+sines and cosines are :mod:`math`'s (:mod:`controller.mathmap`). The fit's decisions and
+bits are the same on every machine.
+"""
+from __future__ import annotations
+
+import math
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.interpolate import BSpline, UnivariateSpline
+from tqdm import tqdm
+
+from swerve.controller import small_linalg as sl
+from swerve.controller.errors import ControllerError
+from swerve.controller.kinematics import Limits
+from swerve.controller.mathmap import cos_sin, elementwise
+from swerve.controller.path_csv import PathSamples, read_csv_samples
+from swerve.controller.path_segments import Run, junctions, menger, segment_samples
+
+#: Most parameters one window of the fit solves for (plus start point and heading in the first).
+WINDOW_PARAMS = 24
+#: Integration cell of the fit, m (Gauss-Legendre error far below a micrometre at 40 1/m).
+FIT_CELL_M = 5e-3
+#: Free curvature coefficients are spaced so the heading turns at most this much between them, rad.
+FREE_TURN_RAD = 0.25
+#: Levenberg-Marquardt iterations per round and rounds (fit, project, fit) per window.
+LM_ITERATIONS = 12
+ROUNDS = 2
+#: Samples closer than this along the path (m) mark a cusp check's scale: chords between
+#: samples at least this far apart must not turn back.
+CUSP_SCALE_M = 5e-3
+#: A fit expected to take longer than about two seconds shows a progress bar (samples).
+PROGRESS_SAMPLES = 20_000
+
+
+def _gauss_legendre_4():
+    """4-point Gauss-Legendre nodes (4,) and weights (4 floats) on [0, 1], in closed form."""
+    a, b = (math.sqrt(3 / 7 + sg * 2 / 7 * math.sqrt(6 / 5)) for sg in (-1, 1))
+    wa, wb = (18 + math.sqrt(30)) / 36, (18 - math.sqrt(30)) / 36
+    nodes = np.array([0.5 * (1 - b), 0.5 * (1 - a), 0.5 * (1 + a), 0.5 * (1 + b)])
+    return nodes, (0.5 * wb, 0.5 * wa, 0.5 * wa, 0.5 * wb)
+
+
+_GL_X, _GL_W = _gauss_legendre_4()
+
+
+def _gl_sum(f):
+    """``sum_k f[..., k] _GL_W[k]`` added in index order, shape ``f.shape[:-1]``."""
+    out = f[..., 0] * _GL_W[0]
+    for k in range(1, len(_GL_W)):
+        out = out + f[..., k] * _GL_W[k]
+    return out
+
+
+def _colsum(a):
+    """Sum over axis 0 added in index order (``np.cumsum``'s last row): the same bits on every CPU."""
+    return np.cumsum(a, axis=0)[-1]
+
+
+class CurvatureCurve:
+    """A planar curve given by its curvature ``kappa(s)`` over arc length ``s`` (m).
+
+    Parameters
+    ----------
+    knots : ndarray, shape (m + 3,)
+        Knot vector of the quadratic B-spline ``kappa``, m; the first and last three equal.
+    coef : ndarray, shape (m,)
+        Its coefficients, 1/m.
+    start_m : (2,) start point, m.  theta0_rad : start heading, rad.  length_m : length, m.
+    cell_m : integration cell of the position table, m.
+    """
+
+    def __init__(self, knots, coef, start_m, theta0_rad, length_m, cell_m=2e-3):
+        self.knots = np.asarray(knots, float)
+        self.coef = np.asarray(coef, float)
+        self.length_m = float(length_m)
+        self._k = BSpline(self.knots, self.coef, 2, extrapolate=True)
+        self._dk = self._k.derivative()
+        self._th = self._k.antiderivative()
+        self._th0 = float(theta0_rad) - float(self._th(0.0))
+        m = max(int(math.ceil(self.length_m / cell_m)), 1)
+        self._grid = np.linspace(0.0, self.length_m, m + 1)
+        steps = self._integrate(self._grid[:-1], np.diff(self._grid))
+        self._P = np.asarray(start_m, float)[:, None] + np.concatenate(
+            [np.zeros((2, 1)), np.cumsum(steps, axis=1)], axis=1)
+
+    def _integrate(self, s0, ds):
+        """``int_{s0}^{s0+ds} (cos, sin) theta``, arrays (n,) -> (2, n)."""
+        c, s = cos_sin(self.heading(s0[:, None] + ds[:, None] * _GL_X))
+        return np.stack([_gl_sum(c) * ds, _gl_sum(s) * ds])
+
+    def heading(self, s):
+        """Heading of travel ``theta(s)``, rad (unwrapped), shape of ``s``."""
+        return self._th0 + self._th(s)
+
+    def curvature(self, s):
+        """``kappa(s)``, 1/m."""
+        return self._k(s)
+
+    def curvature_slope(self, s):
+        """``d kappa / d s``, 1/m^2."""
+        return self._dk(s)
+
+    def position(self, s):
+        """``P(s)``, m, shape (2, n), for ``0 <= s <= length_m``."""
+        s = np.clip(np.atleast_1d(np.asarray(s, float)), 0.0, self.length_m)
+        k = np.clip(np.searchsorted(self._grid, s, side="right") - 1, 0, len(self._grid) - 2)
+        return self._P[:, k] + self._integrate(self._grid[k], s - self._grid[k])
+
+    def project(self, p, s, iterations: int = 3):
+        """Arc length (m, (n,)) of the points ``p`` (n, 2) nearest the curve, Newton from ``s``."""
+        s = np.array(s, float)
+        for _ in range(iterations):
+            c, sn = cos_sin(self.heading(s))
+            d = p.T - self.position(s)
+            s = np.clip(s + d[0] * c + d[1] * sn, 0.0, self.length_m)
+        return s
+
+
+@dataclass(frozen=True)
+class FitReport:
+    """How far a fitted path is from its samples (all maxima over the samples).
+
+    ``position_m``: distance of a sample from the curve. ``heading_rad``: curve heading versus
+    the chord between consecutive samples, at the chord's middle. ``curvature_1pm``: fitted
+    versus drawn curvature (0 on lines, the circle fit's on arcs, three-point estimates on free
+    samples) outside the blends between primitives. ``overshoot``: largest
+    ``|kappa| / |kappa_drawn| - 1`` over the arcs and their blends (``kappa_drawn``: the largest
+    of the arc and its neighbours). ``lines``, ``arcs``, ``free``: counts of runs.
+    ``evaluations``: curve evaluations the fit made (its work, summed over the windows).
+    """
+
+    position_m: float
+    heading_rad: float
+    curvature_1pm: float
+    overshoot: float
+    lines: int
+    arcs: int
+    free: int
+    evaluations: int = 0
+
+    def as_dict(self) -> dict:
+        """The report under the keys that ``swerve sim`` prints."""
+        return dict(fit_max_position_deviation_m=self.position_m,
+                    fit_max_heading_deviation_rad=self.heading_rad,
+                    fit_max_curvature_deviation_1pm=self.curvature_1pm,
+                    fit_curvature_overshoot=self.overshoot,
+                    fit_runs=dict(lines=self.lines, arcs=self.arcs, free=self.free))
+
+
+def check_advances(t, p) -> None:
+    """Refuse samples that stop or turn back (a cusp), before any fitting.
+
+    ``t`` (n,) s, ``p`` (n, 2) m. Chords are taken between samples at least
+    :data:`CUSP_SCALE_M` apart (finer steps are drawing noise); two consecutive chords that turn
+    by 90 degrees or more are a cusp.
+    """
+    seg = np.hypot(*np.diff(p, axis=0).T)
+    if np.any(seg == 0):
+        i = int(np.argmax(seg == 0))
+        raise ControllerError(f"samples {i + 1} and {i + 2} are at the same point (t = {t[i]:.3f} "
+                              "s): the path stops there, which the tracking law cannot follow")
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = [0]
+    for i in range(1, len(p)):
+        if s[i] - s[keep[-1]] >= CUSP_SCALE_M or i == len(p) - 1:
+            keep.append(i)
+    k = np.array(keep)
+    if len(k) < 3:
+        return
+    d = np.diff(p[k], axis=0)
+    back = d[1:, 0] * d[:-1, 0] + d[1:, 1] * d[:-1, 1] <= 0
+    if np.any(back):
+        m = int(np.argmax(back))
+        # the turning point: the sample farthest along the chord before the turn
+        seg_i = np.arange(k[m + 1], k[m + 2] + 1)
+        along = (p[seg_i, 0] - p[k[m], 0]) * d[m, 0] + (p[seg_i, 1] - p[k[m], 1]) * d[m, 1]
+        i = int(seg_i[int(np.argmax(along))])
+        raise ControllerError(f"the path stops at t = {t[i]:.3f} s (sample {i + 1}) and turns back "
+                              "(a cusp): the tracking law needs a direction of travel; split the "
+                              "path there and mark the part driven backwards as reverse")
+
+
+def _curvature_estimate(p, s, scale_m):
+    """Curvature at every sample from its neighbours ``scale_m`` before and after (1/m, (n,))."""
+    n = len(p)
+    i = np.arange(n)
+    a = np.clip(np.searchsorted(s, s - scale_m, side="right") - 1, 0, n - 1)
+    b = np.clip(np.searchsorted(s, s + scale_m, side="left"), 0, n - 1)
+    a = np.minimum(a, np.maximum(i - 1, 0))
+    b = np.maximum(b, np.minimum(i + 1, n - 1))
+    A, B, C = p[a], p[i], p[b]
+    cross = (B[:, 0] - A[:, 0]) * (C[:, 1] - A[:, 1]) - (B[:, 1] - A[:, 1]) * (C[:, 0] - A[:, 0])
+    den = (np.hypot(*(B - A).T) * np.hypot(*(C - B).T) * np.hypot(*(C - A).T))
+    out = np.zeros(n)
+    ok = den > 0
+    out[ok] = 2.0 * cross[ok] / den[ok]
+    return out
+
+
+@dataclass(frozen=True)
+class _Zone:
+    """Runs of one kind merged: arc length ``lo_m``..``hi_m``, ``kind``, arc ``curvature_1pm``."""
+
+    lo_m: float
+    hi_m: float
+    kind: str
+    curvature_1pm: float
+
+
+class _Layout:
+    """Knots, coefficients and parameters of ``kappa``: coefficient ``j`` is 0 when
+    ``param[j] < 0``, else the value of parameter ``param[j]``."""
+
+    def __init__(self, zones, length_m, blend_m, kappa_at, spacing_at):
+        half = 0.5 * blend_m
+        knots = []
+        for z in zones[1:]:
+            knots += [z.lo_m - half, z.lo_m, z.lo_m + half]
+        for z in zones:
+            if z.kind != "free":
+                continue
+            u = z.lo_m
+            while True:
+                u += min(max(FREE_TURN_RAD / max(abs(kappa_at(u)), 1e-9), 2.0 * spacing_at(u)), half)
+                if u >= z.hi_m:
+                    break
+                knots.append(u)
+        knots = np.sort(np.clip(np.asarray(knots, float), 0.0, length_m))
+        gap = blend_m / 20
+        inner, last = [], 0.0
+        for u in knots.tolist():
+            if u - last >= gap and length_m - u >= gap:
+                inner.append(u)
+                last = u
+        self.knots = np.array([0.0] * 3 + inner + [length_m] * 3)
+        m = len(self.knots) - 3
+        greville = 0.5 * (self.knots[1:m + 1] + self.knots[2:m + 2])
+        bounds = np.array([z.lo_m for z in zones[1:]])
+        zone_of = np.searchsorted(bounds, greville, side="right")
+        param, init, arc_param = np.full(m, -1), [], {}
+        for j, zi in enumerate(zone_of.tolist()):
+            z = zones[zi]
+            if z.kind == "line":
+                continue
+            if z.kind == "arc":
+                if zi not in arc_param:
+                    arc_param[zi] = len(init)
+                    init.append(z.curvature_1pm)
+                param[j] = arc_param[zi]
+            else:
+                param[j] = len(init)
+                init.append(float(kappa_at(greville[j])))
+        self.param = param
+        self.init = np.array(init, float)
+        # first and last coefficient of each parameter (an arc's coefficients are consecutive)
+        n_par = len(init)
+        self.first = np.full(n_par, m, int)
+        self.last = np.full(n_par, -1, int)
+        for j, q in enumerate(param.tolist()):
+            if q >= 0:
+                self.first[q] = min(self.first[q], j)
+                self.last[q] = max(self.last[q], j)
+
+    def coefficients(self, x):
+        """Coefficients (m,) for parameter values ``x`` (n_par,)."""
+        c = np.zeros(len(self.param))
+        sel = self.param >= 0
+        c[sel] = np.asarray(x, float)[self.param[sel]]
+        return c
+
+
+class _Window:
+    """The curve from ``s_a`` on, given its start point and heading there: positions at
+    arc lengths and their derivatives with respect to some parameters, in ``O(cells + queries)``."""
+
+    def __init__(self, knots, s_a, s_b, cell_m):
+        self.knots = knots
+        self.s_a = float(s_a)
+        i0 = int(np.searchsorted(knots, s_a, side="right")) - 1
+        i1 = int(np.searchsorted(knots, s_b, side="right")) - 1
+        m = len(knots) - 3
+        self.ja = max(min(i0, m - 1) - 2, 0)
+        self.jb = min(max(i1, 2) + 1, m)
+        self.s_b = float(min(max(s_b, s_a), knots[-1]))
+        n = max(int(math.ceil((self.s_b - self.s_a) / cell_m)), 1)
+        self.edges = np.linspace(self.s_a, self.s_b, n + 1)
+
+    def _antiderivative(self, c):
+        spl = BSpline(self.knots[self.ja:self.jb + 3], c[self.ja:self.jb], 2, extrapolate=True)
+        return spl.antiderivative()
+
+    def nodes(self, s):
+        """Integration nodes: full cells (n_cells, 4), and the partial cell before each ``s``
+        (n, 4) with its cell index (n,) and length (n,)."""
+        e = self.edges
+        h = np.diff(e)
+        full = e[:-1, None] + h[:, None] * _GL_X
+        s = np.clip(s, self.s_a, self.s_b)
+        k = np.clip(np.searchsorted(e, s, side="right") - 1, 0, len(h) - 1)
+        part = e[k][:, None] + (s - e[k])[:, None] * _GL_X
+        return full, h, part, k, s - e[k]
+
+    def evaluate(self, c, P_a, th_a, s, columns=()):
+        """Positions (n, 2) at ``s`` (n,), heading and tangent there, and for each coefficient
+        indicator in ``columns`` (arrays (m,)) the derivative of the positions (n, 2)."""
+        full, h, part, k, dl = self.nodes(s)
+        A = self._antiderivative(c)
+        a0 = float(A(self.s_a))
+        th_full = th_a + (A(full) - a0)
+        th_part = th_a + (A(part) - a0)
+        cf, sf = cos_sin(th_full)
+        cp, sp = cos_sin(th_part)
+        cell = np.stack([_gl_sum(cf) * h, _gl_sum(sf) * h], axis=-1)
+        P_edges = np.concatenate([[[0.0, 0.0]], np.cumsum(cell, axis=0)]) + P_a
+        P = P_edges[k] + np.stack([_gl_sum(cp) * dl, _gl_sum(sp) * dl], axis=-1)
+        th_s = th_a + (A(s) - a0)
+        derivs = []
+        for ind in columns:
+            B = self._antiderivative(ind)
+            b0 = float(B(self.s_a))
+            gf = B(full) - b0
+            gp = B(part) - b0
+            dcell = np.stack([-_gl_sum(gf * sf) * h, _gl_sum(gf * cf) * h], axis=-1)
+            D_edges = np.concatenate([[[0.0, 0.0]], np.cumsum(dcell, axis=0)])
+            derivs.append(D_edges[k] + np.stack([-_gl_sum(gp * sp) * dl,
+                                                 _gl_sum(gp * cp) * dl], axis=-1))
+        return P, th_s, derivs
+
+    def state_at(self, c, P_a, th_a, s):
+        """Point (2,) and heading at ``s`` (one arc length)."""
+        P, th, _ = self.evaluate(c, P_a, th_a, np.array([s]))
+        return P[0], float(th[0])
+
+
+def _fsum_sq(r) -> float:
+    return math.fsum((r * r).ravel().tolist())
+
+
+class FittedPath:
+    """A path through ``t, x, y`` samples that keeps the drawn geometry.
+
+    Parameters
+    ----------
+    t_s, x_m, y_m : array_like, shape (n,)
+        Sample times (s, strictly increasing) and positions (m).
+    tolerance_m : float
+        Lines and arcs are recognised within this distance of the samples, m.
+    blend_m : float
+        Length over which curvature blends between two primitives, m.
+    direction : int
+        +1: the body faces the direction of travel; -1: driven in reverse (v1 < 0).
+    progress : bool or None
+        Progress bar on stderr for a fit of more than :data:`PROGRESS_SAMPLES` samples
+        (``None``: only on a terminal).
+
+    Time enters only through the arc length travelled, ``s(t)``: a quintic smoothing spline of
+    the samples' projections onto the curve. ``report`` is a :class:`FitReport`.
+
+    Raises
+    ------
+    ControllerError
+        Samples at one point, a cusp (the time and sample), or samples that do not advance
+        along the fitted curve.
+    """
+
+    def __init__(self, t_s, x_m, y_m, tolerance_m: float = 2e-5, blend_m: float = 0.05,
+                 direction: int = 1, progress: bool | None = None):
+        t = np.asarray(t_s, dtype=float)
+        t = t - t[0]
+        p = np.column_stack([np.asarray(x_m, float), np.asarray(y_m, float)])
+        check_advances(t, p)
+        seg = np.hypot(*np.diff(p, axis=0).T)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        self.direction = 1 if direction >= 0 else -1
+        self.tolerance_m, self.blend_m = float(tolerance_m), float(blend_m)
+        runs = segment_samples(p, tol_m=self.tolerance_m, min_run_m=self.blend_m)
+        # a lone free sample between two primitives straddles their junction: drop it
+        runs = [r for k, r in enumerate(runs)
+                if not (r.kind == "free" and 0 < k < len(runs) - 1
+                        and runs[k - 1].kind != "free" and runs[k + 1].kind != "free")]
+        self.runs = runs
+        zones, junc = self._zones(runs, p, s)
+        L = float(s[-1]) + self.blend_m
+        kap = _curvature_estimate(p, s, 0.25 * self.blend_m)
+        spacing = np.concatenate([seg, seg[-1:]])
+
+        def at(arr):
+            return lambda u: arr[min(int(np.searchsorted(s, u)), len(s) - 1)]
+        layout = _Layout(zones, L, self.blend_m, at(kap), at(spacing))
+        self._layout = layout
+        d0 = p[1] - p[0]
+        x, start, th0, s_fit, evals = self._fit(layout, p, s, np.array(p[0]),
+                                                math.atan2(d0[1], d0[0]), progress)
+        curve = CurvatureCurve(layout.knots, layout.coefficients(x), start, th0, L)
+        s_fit = curve.project(p, s_fit)
+        s_fit[0] = 0.0
+        back = np.diff(s_fit) <= 0
+        if np.any(back):
+            i = int(np.argmax(back))
+            raise ControllerError(f"samples {i + 1} and {i + 2} (t = {t[i]:.3f} s) do not advance "
+                                  "along the fitted path (a cusp, or a turn sharper than the "
+                                  "samples resolve)")
+        self.curve = CurvatureCurve(layout.knots, layout.coefficients(x), start, th0,
+                                    float(s_fit[-1]))
+        self.sample_arc_m = s_fit
+        self.t_end_s = float(t[-1])
+        n = len(t)
+        resid = p.T - self.curve.position(s_fit)
+        rms = max(math.sqrt(_fsum_sq(resid) / n), 0.1 * self.tolerance_m)
+        self._s_of_t = UnivariateSpline(t, s_fit, k=5, s=n * (rms * rms))
+        self.samples = (t, p)
+        self.report = self._report(p, s_fit, junc, evals)
+
+    @staticmethod
+    def _zones(runs, p, s):
+        """Merge consecutive free runs and place the zone boundaries at the geometric junctions."""
+        merged: list[Run] = []
+        for r in runs:
+            if merged and r.kind == "free" and merged[-1].kind == "free":
+                merged[-1] = Run(merged[-1].first, r.last, "free", 0.0)
+            else:
+                merged.append(r)
+        junc = junctions(merged, p, s)
+        bounds = [0.0] + junc + [float(s[-1])]
+        zones = [_Zone(bounds[k], bounds[k + 1], r.kind, r.curvature_1pm)
+                 for k, r in enumerate(merged)]
+        return zones, junc
+
+    def _fit(self, layout, p, s, start, th0, progress):
+        """Sliding-window Levenberg-Marquardt: parameter values (n_par,), start point (2,),
+        start heading, the samples' arc lengths (n,) and the number of curve evaluations."""
+        x = layout.init.copy()
+        n_par = len(x)
+        knots = layout.knots
+        s_fit = s.copy()
+        P_a, th_a, s_a = start.astype(float), float(th0), 0.0
+        first_window = True
+        q0 = 0
+        evals = 0
+        if progress is None:
+            progress = len(p) > PROGRESS_SAMPLES and sys.stderr.isatty()
+        bar = tqdm(total=max(n_par, 1), desc="fitting path", unit="param", leave=False,
+                   disable=not progress)
+        while True:
+            q1 = min(q0 + WINDOW_PARAMS, n_par)
+            final = q1 == n_par
+            s_end = knots[-1] if final else float(knots[layout.first[q1]])
+            sel = np.nonzero((s_fit >= s_a) & (s_fit <= s_end))[0]
+            if first_window:
+                sel = np.arange(0, sel[-1] + 1 if len(sel) else 1)
+            if len(sel) == 0:
+                sel = np.array([int(np.searchsorted(s_fit, s_a))]).clip(0, len(p) - 1)
+            qs = list(range(q0, q1))
+            for _ in range(ROUNDS):
+                span_b = min(max(float(s_fit[sel].max()) + self.blend_m, s_end), knots[-1])
+                win = _Window(knots, s_a, span_b, FIT_CELL_M)
+                x, P_a, th_a, n_ev = self._solve(win, layout, x, qs, P_a, th_a, p[sel],
+                                                 s_fit[sel], first_window)
+                evals += n_ev
+                c = layout.coefficients(x)
+                ss = s_fit[sel]
+                for _ in range(3):
+                    P, th, _ = win.evaluate(c, P_a, th_a, ss)
+                    cs, sn = cos_sin(th)
+                    d = p[sel] - P
+                    ss = np.clip(ss + d[:, 0] * cs + d[:, 1] * sn, win.s_a, win.s_b)
+                    evals += 1
+                s_fit[sel] = ss
+                if first_window:
+                    s_fit[0] = 0.0
+            bar.update(q1 - q0 if final else (q1 - q0) // 2 or (q1 - q0))
+            if final:
+                break
+            qn = q0 + max((q1 - q0) // 2, 1)
+            s_next = float(knots[layout.first[qn]])
+            c = layout.coefficients(x)
+            win = _Window(knots, s_a, max(s_next, s_a), FIT_CELL_M)
+            P_a, th_a = win.state_at(c, P_a, th_a, s_next)
+            evals += 1
+            s_a, q0, first_window = s_next, qn, False
+        bar.close()
+        if first_window:
+            start, th0 = P_a, th_a
+        else:
+            start, th0 = self._start
+        return x, start, th0, s_fit, evals
+
+    def _solve(self, win, layout, x, qs, P_a, th_a, pts, ss, with_start):
+        """Levenberg-Marquardt on parameters ``qs`` (and the start point and heading when
+        ``with_start``) for the samples ``pts`` (k, 2) at arc lengths ``ss`` (k,)."""
+        x = x.copy()
+        n_q = len(qs)
+        m = n_q + (3 if with_start else 0)
+        inds = []
+        for q in qs:
+            ind = np.zeros(len(layout.param))
+            ind[layout.param == q] = 1.0
+            inds.append(ind)
+        evals = 0
+
+        def unpack(z):
+            xx = x.copy()
+            xx[qs] = z[:n_q]
+            if with_start:
+                return xx, z[n_q:n_q + 2], float(z[n_q + 2])
+            return xx, P_a, th_a
+
+        z = np.concatenate([x[qs], list(P_a) + [th_a]] if with_start else [x[qs]])
+
+        def resid(zz):
+            xx, Pa, tha = unpack(zz)
+            P, _, _ = win.evaluate(layout.coefficients(xx), Pa, tha, ss)
+            return P - pts
+
+        lam = 1e-3
+        r = None
+        for _ in range(LM_ITERATIONS):
+            xx, Pa, tha = unpack(z)
+            P, _, D = win.evaluate(layout.coefficients(xx), Pa, tha, ss, inds)
+            evals += 1
+            r = P - pts
+            cols = list(D)
+            if with_start:
+                ones, zeros = np.ones(len(ss)), np.zeros(len(ss))
+                cols += [np.stack([ones, zeros], -1), np.stack([zeros, ones], -1),
+                         np.stack([-(P[:, 1] - Pa[1]), P[:, 0] - Pa[0]], -1)]
+            J = np.stack([c_.ravel() for c_ in cols], axis=1) if cols else np.zeros((2 * len(ss), 0))
+            if m == 0:
+                break
+            rv = r.ravel()
+            A = _colsum(J[:, :, None] * J[:, None, :]).tolist()
+            g = _colsum(J * rv[:, None]).tolist()
+            cost = _fsum_sq(rv)
+            dmax = max(A[i][i] for i in range(m))
+            if dmax == 0.0:
+                break
+            improved = False
+            while lam < 1e10:
+                M = [[A[i][j] + (lam * (A[i][i] + 1e-12 * dmax) if i == j else 0.0)
+                      for j in range(m)] for i in range(m)]
+                try:
+                    dz = np.array(sl.solve(M, [[-v] for v in g]))[:, 0]
+                except sl.SingularMatrixError:
+                    lam *= 10
+                    continue
+                r_new = resid(z + dz)
+                evals += 1
+                new = _fsum_sq(r_new)
+                if new < cost:
+                    z = z + dz
+                    lam = max(lam * 0.1, 1e-12)
+                    improved = True
+                    break
+                lam *= 10
+            if not improved or cost - new <= 1e-12 * cost + 1e-30:
+                break
+        xx, Pa, tha = unpack(z)
+        if with_start:
+            self._start = (np.asarray(Pa, float), tha)
+        return xx, np.asarray(Pa, float), tha, evals
+
+    def _report(self, p, s_fit, junc, evals):
+        c = self.curve
+        d = p.T - c.position(s_fit)
+        pos = float(np.hypot(*d).max())
+        chord = np.diff(p, axis=0)
+        hd = elementwise(math.atan2, chord[:, 1], chord[:, 0])
+        mid = 0.5 * (s_fit[1:] + s_fit[:-1])
+        dev = (c.heading(mid) - hd + np.pi) % (2 * np.pi) - np.pi
+        head = float(np.abs(dev).max())
+        half = 0.5 * self.blend_m
+        jj = np.asarray(junc, float)
+        near = np.zeros(len(p), bool)
+        if len(jj):
+            k = np.clip(np.searchsorted(jj, s_fit), 1, len(jj)) - 1
+            near = np.abs(s_fit - jj[k]) <= half
+            k2 = np.clip(k + 1, 0, len(jj) - 1)
+            near |= np.abs(s_fit - jj[k2]) <= half
+        kap = c.curvature(s_fit)
+        drawn = np.zeros(len(p))
+        over = 0.0
+        for k, run in enumerate(self.runs):
+            drawn[run.first:run.last + 1] = run.curvature_1pm
+            if run.kind == "arc":
+                lo, hi = s_fit[run.first] - half, s_fit[run.last] + half
+                ss = np.linspace(lo, hi, 200)
+                peak = max(abs(r.curvature_1pm) for r in self.runs[max(k - 1, 0):k + 2])
+                over = max(over, float(np.abs(c.curvature(ss)).max() / peak) - 1.0)
+        for run in self.runs:       # end samples shared with a neighbour keep their own run's
+            if run.kind != "free":
+                drawn[run.first + 1:run.last] = run.curvature_1pm
+        err = np.abs(kap - drawn)[~near]
+        n = {k: sum(r.kind == k for r in self.runs) for k in ("line", "arc", "free")}
+        return FitReport(pos, head, float(err.max()) if err.size else 0.0, max(over, 0.0),
+                         n["line"], n["arc"], n["free"], evals)
+
+    def derivatives(self, t):
+        """Position, velocity, acceleration and jerk at times ``t`` (s): shape (4, 2, len(t))."""
+        t = np.clip(np.atleast_1d(np.asarray(t, dtype=float)), 0.0, self.t_end_s)
+        c = self.curve
+        s = np.clip(self._s_of_t(t), 0.0, c.length_m)
+        v, a, j = (self._s_of_t(t, nu) for nu in (1, 2, 3))
+        th = c.heading(s)
+        k, dk = c.curvature(s), c.curvature_slope(s)
+        T = np.array(cos_sin(th))
+        N = np.array([-T[1], T[0]])
+        P = c.position(s)
+        vel = v * T
+        acc = a * T + v * v * k * N
+        v3 = v * v * v
+        jerk = (j - v3 * k * k) * T + (3 * v * a * k + v3 * dk) * N
+        return np.array([P, vel, acc, jerk])
+
+
+def fit_samples(smp: PathSamples, tolerance_m: float = 2e-5, blend_m: float = 0.05,
+                source: str = "path", progress: bool | None = None) -> FittedPath:
+    """:class:`FittedPath` of :class:`~controller.path_csv.PathSamples`; errors name ``source``."""
+    try:
+        return FittedPath(smp.t_s, smp.x_m, smp.y_m, tolerance_m, blend_m, smp.direction, progress)
+    except ControllerError as exc:
+        raise ControllerError(f"{source}: {exc}", file=source) from None
+
+
+def read_csv_path(path: str | Path, tolerance_m: float = 2e-5, blend_m: float = 0.05,
+                  limits: Limits = Limits()) -> FittedPath:
+    """A :class:`FittedPath` through the samples of a trajectory CSV file, checked first
+    (:func:`controller.path_csv.read_csv_samples`)."""
+    return fit_samples(read_csv_samples(path, limits), tolerance_m, blend_m, str(path))
