@@ -44,14 +44,21 @@ from swerve.controller.path_csv import PathSamples, read_csv_samples
 from swerve.controller.path_segments import Run, junctions, menger, segment_samples
 
 #: Most parameters one window of the fit solves for (plus start point and heading in the first).
-WINDOW_PARAMS = 24
+WINDOW_PARAMS = 12
 #: Integration cell of the fit, m (Gauss-Legendre error far below a micrometre at 40 1/m).
 FIT_CELL_M = 5e-3
 #: Free curvature coefficients are spaced so the heading turns at most this much between them, rad.
 FREE_TURN_RAD = 0.25
 #: Levenberg-Marquardt iterations per round and rounds (fit, project, fit) per window.
 LM_ITERATIONS = 12
-ROUNDS = 2
+ROUNDS = 1
+#: A window's iterations stop when one lowers the squared residuals by less than this fraction.
+LM_RELATIVE_GAIN = 1e-2
+#: Damping increases (each a curve evaluation) tried before a window's iterations stop.
+LM_TRIALS = 4
+#: A window's iterations stop once the rms distance of its samples is below this fraction of
+#: the tolerance.
+FLOOR_FRACTION = 0.05
 #: Samples closer than this along the path (m) mark a cusp check's scale: chords between
 #: samples at least this far apart must not turn back.
 CUSP_SCALE_M = 5e-3
@@ -297,73 +304,180 @@ class _Layout:
 
 
 class _Window:
-    """The curve from ``s_a`` on, given its start point and heading there: positions at
-    arc lengths and their derivatives with respect to some parameters, in ``O(cells + queries)``."""
+    """The curve from ``s_a`` on, given its start point and heading there, at fixed arc lengths.
 
-    def __init__(self, knots, s_a, s_b, cell_m):
-        self.knots = knots
-        self.s_a = float(s_a)
-        i0 = int(np.searchsorted(knots, s_a, side="right")) - 1
-        i1 = int(np.searchsorted(knots, s_b, side="right")) - 1
+    Heading is linear in the coefficients: ``theta(u) = theta_a + sum_j c_j (IB_j(u) - IB_j(s_a))``
+    with ``IB_j`` the antiderivative of the ``j``-th quadratic B-spline. The cubic basis that
+    gives ``IB_j`` is evaluated once at the integration nodes (cells from ``s_a`` and the
+    partial cell before each query), so each evaluation costs ``O(nodes)`` and the derivative of
+    the positions with respect to a parameter ``O(nodes)`` more.
+
+    Parameters
+    ----------
+    knots : (m + 3,) knot vector of ``kappa``, m.  s_a : start, m.  s_q : (n,) query arc lengths, m.
+    s_b : end of the cells, m (at least ``max(s_q)``).  cell_m : cell length, m.
+    """
+
+    def __init__(self, knots, s_a, s_q, s_b, cell_m):
         m = len(knots) - 3
+        self.s_a = float(s_a)
+        self.s_b = float(min(max(s_b, s_a), knots[-1]))
+        i0 = int(np.searchsorted(knots, self.s_a, side="right")) - 1
+        i1 = int(np.searchsorted(knots, self.s_b, side="right")) - 1
         self.ja = max(min(i0, m - 1) - 2, 0)
         self.jb = min(max(i1, 2) + 1, m)
-        self.s_b = float(min(max(s_b, s_a), knots[-1]))
-        n = max(int(math.ceil((self.s_b - self.s_a) / cell_m)), 1)
-        self.edges = np.linspace(self.s_a, self.s_b, n + 1)
+        tl = knots[self.ja:self.jb + 3]
+        self.dt3 = (tl[3:] - tl[:-3]) / 3.0                 # (n_loc,)
+        n_cells = max(int(math.ceil((self.s_b - self.s_a) / cell_m)), 1)
+        e = np.linspace(self.s_a, self.s_b, n_cells + 1)
+        self.h = np.diff(e)
+        s_q = np.clip(np.asarray(s_q, float), self.s_a, self.s_b)
+        self.k = np.clip(np.searchsorted(e, s_q, side="right") - 1, 0, n_cells - 1)
+        self.dl = s_q - e[self.k]
+        full = e[:-1, None] + self.h[:, None] * _GL_X
+        part = e[self.k][:, None] + self.dl[:, None] * _GL_X
+        self.n_full, self.n_q = n_cells, len(s_q)
+        u = np.concatenate([full.ravel(), part.ravel(), s_q, [self.s_a]])
+        te = np.concatenate([tl[:1], tl, tl[-1:]])
+        D = BSpline.design_matrix(u, te, 3, extrapolate=True)
+        self._idx = D.indices.reshape(len(u), 4)
+        self._val = D.data.reshape(len(u), 4)
+        self._n_anti = len(te) - 4
 
-    def _antiderivative(self, c):
-        spl = BSpline(self.knots[self.ja:self.jb + 3], c[self.ja:self.jb], 2, extrapolate=True)
-        return spl.antiderivative()
+    def _basis_sum(self, w):
+        """``sum_i w_i N_i(u)`` at every node for weights ``w`` (n_anti,), added in index order."""
+        out = self._val[:, 0] * w[self._idx[:, 0]]
+        for r in range(1, 4):
+            out = out + self._val[:, r] * w[self._idx[:, r]]
+        return out
 
-    def nodes(self, s):
-        """Integration nodes: full cells (n_cells, 4), and the partial cell before each ``s``
-        (n, 4) with its cell index (n,) and length (n,)."""
-        e = self.edges
-        h = np.diff(e)
-        full = e[:-1, None] + h[:, None] * _GL_X
-        s = np.clip(s, self.s_a, self.s_b)
-        k = np.clip(np.searchsorted(e, s, side="right") - 1, 0, len(h) - 1)
-        part = e[k][:, None] + (s - e[k])[:, None] * _GL_X
-        return full, h, part, k, s - e[k]
+    def sensitivities(self, indicators):
+        """``d theta / d x_q`` at the nodes, minus its value at ``s_a``, for each parameter's
+        coefficient indicator (arrays (m,)): shape (nodes, len(indicators))."""
+        cols = []
+        for ind in indicators:
+            w = np.cumsum(ind[self.ja:self.jb] * self.dt3)
+            g = self._basis_sum(np.concatenate([[0.0], w]))
+            cols.append(g - g[-1])
+        return np.stack(cols, axis=1) if cols else np.zeros((self._val.shape[0], 0))
 
-    def evaluate(self, c, P_a, th_a, s, columns=()):
-        """Positions (n, 2) at ``s`` (n,), heading and tangent there, and for each coefficient
-        indicator in ``columns`` (arrays (m,)) the derivative of the positions (n, 2)."""
-        full, h, part, k, dl = self.nodes(s)
-        A = self._antiderivative(c)
-        a0 = float(A(self.s_a))
-        th_full = th_a + (A(full) - a0)
-        th_part = th_a + (A(part) - a0)
-        cf, sf = cos_sin(th_full)
-        cp, sp = cos_sin(th_part)
+    def _split(self, a):
+        nf, nq = 4 * self.n_full, 4 * self.n_q
+        return (a[:nf].reshape(self.n_full, 4, *a.shape[1:]),
+                a[nf:nf + nq].reshape(self.n_q, 4, *a.shape[1:]), a[nf + nq:nf + nq + self.n_q])
+
+    def evaluate(self, c, P_a, th_a, G=None):
+        """Positions (n, 2) and headings (n,) at the queries for coefficients ``c`` (m,); with
+        ``G`` (nodes, p) from :meth:`sensitivities`, also their derivatives (n, 2, p)."""
+        w = np.cumsum(c[self.ja:self.jb] * self.dt3)
+        A = self._basis_sum(np.concatenate([[0.0], w]))
+        th = th_a + (A - A[-1])
+        cs, sn = cos_sin(th)
+        cf, cp, _ = self._split(cs)
+        sf, sp, _ = self._split(sn)
+        h, dl = self.h, self.dl
         cell = np.stack([_gl_sum(cf) * h, _gl_sum(sf) * h], axis=-1)
-        P_edges = np.concatenate([[[0.0, 0.0]], np.cumsum(cell, axis=0)]) + P_a
-        P = P_edges[k] + np.stack([_gl_sum(cp) * dl, _gl_sum(sp) * dl], axis=-1)
-        th_s = th_a + (A(s) - a0)
-        derivs = []
-        for ind in columns:
-            B = self._antiderivative(ind)
-            b0 = float(B(self.s_a))
-            gf = B(full) - b0
-            gp = B(part) - b0
-            dcell = np.stack([-_gl_sum(gf * sf) * h, _gl_sum(gf * cf) * h], axis=-1)
-            D_edges = np.concatenate([[[0.0, 0.0]], np.cumsum(dcell, axis=0)])
-            derivs.append(D_edges[k] + np.stack([-_gl_sum(gp * sp) * dl,
-                                                 _gl_sum(gp * cp) * dl], axis=-1))
-        return P, th_s, derivs
+        edges = np.concatenate([np.zeros((1, 2)), np.cumsum(cell, axis=0)])
+        P = edges[self.k] + np.stack([_gl_sum(cp) * dl, _gl_sum(sp) * dl], axis=-1) + P_a
+        if G is None:
+            return P, self._split(th)[2], None
+        gf, gp, _ = self._split(G)
+        hh, dd = h[:, None], dl[:, None]
+        cell = np.stack([-_gl_sum_mid(gf * sf[:, :, None]) * hh,
+                         _gl_sum_mid(gf * cf[:, :, None]) * hh], axis=1)
+        edges = np.concatenate([np.zeros((1,) + cell.shape[1:]), np.cumsum(cell, axis=0)])
+        dP = edges[self.k] + np.stack([-_gl_sum_mid(gp * sp[:, :, None]) * dd,
+                                       _gl_sum_mid(gp * cp[:, :, None]) * dd], axis=1)
+        return P, self._split(th)[2], dP
 
-    def state_at(self, c, P_a, th_a, s):
-        """Point (2,) and heading at ``s`` (one arc length)."""
-        P, th, _ = self.evaluate(c, P_a, th_a, np.array([s]))
-        return P[0], float(th[0])
+
+def _gl_sum_mid(f):
+    """``sum_k f[:, k, ...] _GL_W[k]`` added in index order (nodes on axis 1)."""
+    out = f[:, 0] * _GL_W[0]
+    for k in range(1, len(_GL_W)):
+        out = out + f[:, k] * _GL_W[k]
+    return out
 
 
 def _fsum_sq(r) -> float:
     return math.fsum((r * r).ravel().tolist())
 
 
+def _solve(win, layout, x, qs, P_a, th_a, pts, with_start, floor_m):
+    """Levenberg-Marquardt on the parameters ``qs`` (and the start point and heading when
+    ``with_start``) for the samples ``pts`` (k, 2) at the window's query arc lengths, until the
+    rms distance is below ``floor_m`` or an iteration gains less than :data:`LM_RELATIVE_GAIN`.
+
+    Returns the parameters (n_par,), the window's start point (2,) and heading, and the number
+    of curve evaluations."""
+    x = x.copy()
+    n_q = len(qs)
+    m = n_q + (3 if with_start else 0)
+    inds = []
+    for q in qs:
+        ind = np.zeros(len(layout.param))
+        ind[layout.param == q] = 1.0
+        inds.append(ind)
+    G = win.sensitivities(inds)
+    evals = 0
+
+    def unpack(z):
+        xx = x.copy()
+        xx[qs] = z[:n_q]
+        if with_start:
+            return xx, z[n_q:n_q + 2], float(z[n_q + 2])
+        return xx, np.asarray(P_a, float), th_a
+
+    z = np.concatenate([x[qs], [P_a[0], P_a[1], th_a]] if with_start else [x[qs]])
+    lam = 1e-3
+    for _ in range(LM_ITERATIONS if m else 0):
+        xx, Pa, tha = unpack(z)
+        P, _, dP = win.evaluate(layout.coefficients(xx), Pa, tha, G)
+        evals += 1
+        r = (P - pts).ravel()
+        J = dP.reshape(2 * len(P), n_q)
+        if with_start:
+            ones, zeros = np.ones(len(P)), np.zeros(len(P))
+            extra = np.stack([np.stack([ones, zeros], -1).ravel(),
+                              np.stack([zeros, ones], -1).ravel(),
+                              np.stack([-(P[:, 1] - Pa[1]), P[:, 0] - Pa[0]], -1).ravel()], axis=1)
+            J = np.concatenate([J, extra], axis=1)
+        A = [[0.0] * m for _ in range(m)]
+        for a_ in range(m):
+            row = _colsum(J[:, a_:a_ + 1] * J[:, a_:]).tolist()
+            for b_, v in enumerate(row, start=a_):
+                A[a_][b_] = A[b_][a_] = v
+        g = _colsum(J * r[:, None]).tolist()
+        cost = _fsum_sq(r)
+        dmax = max(A[i][i] for i in range(m))
+        if dmax == 0.0 or cost <= len(P) * floor_m * floor_m:
+            break
+        new = cost
+        for _ in range(LM_TRIALS):
+            M = [[A[i][j] + (lam * (A[i][i] + 1e-12 * dmax) if i == j else 0.0)
+                  for j in range(m)] for i in range(m)]
+            try:
+                dz = np.array(sl.solve(M, [[-v] for v in g]))[:, 0]
+            except sl.SingularMatrixError:
+                lam *= 10
+                continue
+            xx, Pa, tha = unpack(z + dz)
+            P, _, _ = win.evaluate(layout.coefficients(xx), Pa, tha)
+            evals += 1
+            new = _fsum_sq(P - pts)
+            if new < cost:
+                z = z + dz
+                lam = max(lam * 0.1, 1e-12)
+                break
+            lam *= 10
+        if not new < cost or cost - new <= LM_RELATIVE_GAIN * cost:
+            break
+    xx, Pa, tha = unpack(z)
+    return xx, np.asarray(Pa, float), tha, evals
+
+
 class FittedPath:
+
     """A path through ``t, x, y`` samples that keeps the drawn geometry.
 
     Parameters
@@ -461,9 +575,8 @@ class FittedPath:
         knots = layout.knots
         s_fit = s.copy()
         P_a, th_a, s_a = start.astype(float), float(th0), 0.0
-        first_window = True
-        q0 = 0
-        evals = 0
+        start_state = (P_a, th_a)
+        first_window, q0, evals = True, 0, 0
         if progress is None:
             progress = len(p) > PROGRESS_SAMPLES and sys.stderr.isatty()
         bar = tqdm(total=max(n_par, 1), desc="fitting path", unit="param", leave=False,
@@ -472,119 +585,42 @@ class FittedPath:
             q1 = min(q0 + WINDOW_PARAMS, n_par)
             final = q1 == n_par
             s_end = knots[-1] if final else float(knots[layout.first[q1]])
-            sel = np.nonzero((s_fit >= s_a) & (s_fit <= s_end))[0]
-            if first_window:
-                sel = np.arange(0, sel[-1] + 1 if len(sel) else 1)
-            if len(sel) == 0:
-                sel = np.array([int(np.searchsorted(s_fit, s_a))]).clip(0, len(p) - 1)
+            lo = 0 if first_window else int(np.searchsorted(s_fit, s_a, side="left"))
+            hi = int(np.searchsorted(s_fit, s_end, side="right"))
+            sel = slice(lo, max(hi, lo + 1))
             qs = list(range(q0, q1))
             for _ in range(ROUNDS):
-                span_b = min(max(float(s_fit[sel].max()) + self.blend_m, s_end), knots[-1])
-                win = _Window(knots, s_a, span_b, FIT_CELL_M)
-                x, P_a, th_a, n_ev = self._solve(win, layout, x, qs, P_a, th_a, p[sel],
-                                                 s_fit[sel], first_window)
+                ss = s_fit[sel]
+                s_b = max(min(float(ss.max()) + self.blend_m, float(knots[-1])), s_end)
+                win = _Window(knots, s_a, ss, s_b, FIT_CELL_M)
+                x, P_a, th_a, n_ev = _solve(win, layout, x, qs, P_a, th_a, p[sel], first_window,
+                                            FLOOR_FRACTION * self.tolerance_m)
                 evals += n_ev
                 c = layout.coefficients(x)
-                ss = s_fit[sel]
                 for _ in range(3):
-                    P, th, _ = win.evaluate(c, P_a, th_a, ss)
+                    P, th, _ = win.evaluate(c, P_a, th_a)
                     cs, sn = cos_sin(th)
                     d = p[sel] - P
                     ss = np.clip(ss + d[:, 0] * cs + d[:, 1] * sn, win.s_a, win.s_b)
+                    win = _Window(knots, s_a, ss, s_b, FIT_CELL_M)
                     evals += 1
                 s_fit[sel] = ss
                 if first_window:
                     s_fit[0] = 0.0
-            bar.update(q1 - q0 if final else (q1 - q0) // 2 or (q1 - q0))
+                    start_state = (P_a, th_a)
             if final:
+                bar.update(q1 - q0)
                 break
             qn = q0 + max((q1 - q0) // 2, 1)
+            bar.update(qn - q0)
             s_next = float(knots[layout.first[qn]])
-            c = layout.coefficients(x)
-            win = _Window(knots, s_a, max(s_next, s_a), FIT_CELL_M)
-            P_a, th_a = win.state_at(c, P_a, th_a, s_next)
+            win = _Window(knots, s_a, [s_next], s_next, FIT_CELL_M)
+            P, th, _ = win.evaluate(layout.coefficients(x), P_a, th_a)
+            P_a, th_a = P[0], float(th[0])
             evals += 1
             s_a, q0, first_window = s_next, qn, False
         bar.close()
-        if first_window:
-            start, th0 = P_a, th_a
-        else:
-            start, th0 = self._start
-        return x, start, th0, s_fit, evals
-
-    def _solve(self, win, layout, x, qs, P_a, th_a, pts, ss, with_start):
-        """Levenberg-Marquardt on parameters ``qs`` (and the start point and heading when
-        ``with_start``) for the samples ``pts`` (k, 2) at arc lengths ``ss`` (k,)."""
-        x = x.copy()
-        n_q = len(qs)
-        m = n_q + (3 if with_start else 0)
-        inds = []
-        for q in qs:
-            ind = np.zeros(len(layout.param))
-            ind[layout.param == q] = 1.0
-            inds.append(ind)
-        evals = 0
-
-        def unpack(z):
-            xx = x.copy()
-            xx[qs] = z[:n_q]
-            if with_start:
-                return xx, z[n_q:n_q + 2], float(z[n_q + 2])
-            return xx, P_a, th_a
-
-        z = np.concatenate([x[qs], list(P_a) + [th_a]] if with_start else [x[qs]])
-
-        def resid(zz):
-            xx, Pa, tha = unpack(zz)
-            P, _, _ = win.evaluate(layout.coefficients(xx), Pa, tha, ss)
-            return P - pts
-
-        lam = 1e-3
-        r = None
-        for _ in range(LM_ITERATIONS):
-            xx, Pa, tha = unpack(z)
-            P, _, D = win.evaluate(layout.coefficients(xx), Pa, tha, ss, inds)
-            evals += 1
-            r = P - pts
-            cols = list(D)
-            if with_start:
-                ones, zeros = np.ones(len(ss)), np.zeros(len(ss))
-                cols += [np.stack([ones, zeros], -1), np.stack([zeros, ones], -1),
-                         np.stack([-(P[:, 1] - Pa[1]), P[:, 0] - Pa[0]], -1)]
-            J = np.stack([c_.ravel() for c_ in cols], axis=1) if cols else np.zeros((2 * len(ss), 0))
-            if m == 0:
-                break
-            rv = r.ravel()
-            A = _colsum(J[:, :, None] * J[:, None, :]).tolist()
-            g = _colsum(J * rv[:, None]).tolist()
-            cost = _fsum_sq(rv)
-            dmax = max(A[i][i] for i in range(m))
-            if dmax == 0.0:
-                break
-            improved = False
-            while lam < 1e10:
-                M = [[A[i][j] + (lam * (A[i][i] + 1e-12 * dmax) if i == j else 0.0)
-                      for j in range(m)] for i in range(m)]
-                try:
-                    dz = np.array(sl.solve(M, [[-v] for v in g]))[:, 0]
-                except sl.SingularMatrixError:
-                    lam *= 10
-                    continue
-                r_new = resid(z + dz)
-                evals += 1
-                new = _fsum_sq(r_new)
-                if new < cost:
-                    z = z + dz
-                    lam = max(lam * 0.1, 1e-12)
-                    improved = True
-                    break
-                lam *= 10
-            if not improved or cost - new <= 1e-12 * cost + 1e-30:
-                break
-        xx, Pa, tha = unpack(z)
-        if with_start:
-            self._start = (np.asarray(Pa, float), tha)
-        return xx, np.asarray(Pa, float), tha, evals
+        return x, start_state[0], start_state[1], s_fit, evals
 
     def _report(self, p, s_fit, junc, evals):
         c = self.curve

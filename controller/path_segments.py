@@ -111,10 +111,13 @@ def menger(p: np.ndarray, i: int) -> float:
     return 2.0 * cross / den if den > 0 else 0.0
 
 
-def _grow(p: np.ndarray, i: int, fits) -> int:
-    """Largest ``j`` with ``fits(p[i:j + 1])``, searched by doubling then bisection."""
+def _grow(p: np.ndarray, i: int, j0: int, fits) -> int:
+    """Largest ``j >= j0`` with ``fits(p[i:j + 1])`` (``fits(p[i:j0 + 1])`` holds), searched by
+    doubling the span then bisection."""
     n = len(p)
-    good, span = i + 1, 2
+    good, span = j0, 2 * max(j0 - i, 1)
+    if good == n - 1:
+        return good
     while True:
         j = min(i + span, n - 1)
         if not fits(p[i:j + 1]):
@@ -133,6 +136,19 @@ def _grow(p: np.ndarray, i: int, fits) -> int:
     return good
 
 
+def three_point_curvatures(p: np.ndarray) -> np.ndarray:
+    """:func:`menger` at every sample of ``p`` (n, 2), 1/m, shape (n,)."""
+    n = len(p)
+    i = np.clip(np.arange(n), 1, n - 2)
+    a, b, c = p[i - 1], p[i], p[i + 1]
+    cross = (b[:, 0] - a[:, 0]) * (c[:, 1] - a[:, 1]) - (b[:, 1] - a[:, 1]) * (c[:, 0] - a[:, 0])
+    den = np.hypot(*(b - a).T) * np.hypot(*(c - b).T) * np.hypot(*(c - a).T)
+    out = np.zeros(n)
+    ok = den > 0
+    out[ok] = 2.0 * cross[ok] / den[ok]
+    return out
+
+
 def _extend_back(p, runs, i, j, fits) -> int:
     """Move the start ``i`` of a primitive ending at ``j`` back over the free samples before it
     while it still fits (free samples skipped in bulk may hold its first samples); the free runs
@@ -147,19 +163,28 @@ def _extend_back(p, runs, i, j, fits) -> int:
 def segment_samples(p: np.ndarray, tol_m: float, min_run_m: float) -> list[Run]:
     """Split samples ``p`` (n, 2), m, into runs on lines, circular arcs and free samples.
 
-    From a sample the longest run within ``tol_m`` of a line and of a circle are grown; a line
-    shorter than ``min_run_m`` or an arc shorter than ``3 min_run_m`` (chord) is not a
-    primitive (on a smooth free-form curve short arcs fit anywhere). A line wins over an arc
-    that is not longer. Where neither is long enough, the first half of the samples the longer
-    attempt covered (at least one) become free runs of one interval each; a primitive found after
-    them takes back those of its samples that fit it. Consecutive runs share their end sample.
+    A line shorter than ``min_run_m`` or an arc shorter than ``3 min_run_m`` is not a primitive
+    (on a smooth free-form curve short arcs fit anywhere). From a sample, the shortest line and
+    arc that would be primitives are tried; one that fits within ``tol_m`` is grown to the
+    longest that does. A line wins over an arc that is not longer. Where neither fits, the
+    samples over the first half of the shortest line become free runs of one interval each (at
+    least one); a primitive found after them takes back those of its samples that fit it.
+    Consecutive runs share their end sample.
     """
     n = len(p)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(*np.diff(p, axis=0).T))])
+    kap = three_point_curvatures(p)
     runs: list[Run] = []
     i = 0
     while i < n - 1:
-        jl = _grow(p, i, lambda q: line_fits(q, tol_m)) if line_fits(p[i:i + 2], tol_m) else i + 1
-        ja = _grow(p, i, lambda q: _arc_fits(q, tol_m))
+        # the shortest line and arc that would be primitives; grown only if they fit
+        jl0 = min(int(np.searchsorted(s, s[i] + min_run_m)), n - 1)
+        ja0 = min(int(np.searchsorted(s, s[i] + 3 * min_run_m)), n - 1)
+        jl = ja = i + 1
+        if jl0 - i >= 2 and line_fits(p[i:jl0 + 1], tol_m):
+            jl = _grow(p, i, jl0, lambda q: line_fits(q, tol_m))
+        if ja0 - i >= 4 and _arc_fits(p[i:ja0 + 1], tol_m):
+            ja = _grow(p, i, ja0, lambda q: _arc_fits(q, tol_m))
         long_l = math.hypot(*(p[jl] - p[i])) >= min_run_m and jl - i >= 2
         long_a = math.hypot(*(p[ja] - p[i])) >= 3 * min_run_m and ja - i >= 4
         if long_l and jl >= ja - 1:
@@ -172,9 +197,9 @@ def segment_samples(p: np.ndarray, tol_m: float, min_run_m: float) -> list[Run]:
             runs.append(Run(b, ja, "arc", arc_curvature(p[b:ja + 1], c)))
             i = ja
         else:
-            stop = min(i + max(1, (max(jl, ja) - i) // 2), n - 1)
+            stop = min(i + max(1, (jl0 - i) // 2), n - 1)
             for k in range(i, stop):
-                runs.append(Run(k, k + 1, "free", menger(p, k)))
+                runs.append(Run(k, k + 1, "free", float(kap[k])))
             i = stop
     return runs
 

@@ -119,3 +119,27 @@ def draw_primitives(segments, start=(0.0, 0.0, 0.0), spacing_m: float = 0.01):
             th += k * length
         s0 += length
     return out[0], out[1], out[2], out[3]
+
+
+def draw_sines(t_s, terms_x, terms_y):
+    """Sample a smooth free-form curve drawn as sums of sines, as a user's sketch tool might.
+
+    Parameters
+    ----------
+    t_s : array_like, shape (n,)
+        Sample times, s.
+    terms_x, terms_y : sequences of ``(amplitude_m, angular_rate_radps, phase_rad)``
+        ``x(t) = sum a sin(w t + phi)``, likewise ``y``.
+
+    Returns
+    -------
+    x_m, y_m : ndarrays, shape (n,)
+    """
+    t = np.asarray(t_s, dtype=float)
+    out = []
+    for terms in (terms_x, terms_y):
+        v = np.zeros_like(t)
+        for a, w, ph in terms:
+            v = v + a * cos_sin(w * t + ph)[1]
+        out.append(v)
+    return out[0], out[1]
