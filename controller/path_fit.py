@@ -41,7 +41,7 @@ from swerve.controller.errors import ControllerError
 from swerve.controller.kinematics import Limits
 from swerve.controller.mathmap import cos_sin, elementwise
 from swerve.controller.path_csv import PathSamples, read_csv_samples
-from swerve.controller.path_segments import Run, junctions, menger, segment_samples
+from swerve.controller.path_segments import Run, junctions, segment_samples, three_point_curvatures
 
 #: Most parameters one window of the fit solves for (plus start point and heading in the first).
 WINDOW_PARAMS = 12
@@ -476,6 +476,30 @@ def _solve(win, layout, x, qs, P_a, th_a, pts, with_start, floor_m):
     return xx, np.asarray(Pa, float), tha, evals
 
 
+def _free_ends(runs, s, blend_m, kappa):
+    """Free the primitive next to a free end of the path shorter than ``blend_m`` (m): bending
+    onto that end's samples within less than a blend would ask for a steering-rate spike.
+    ``s`` (n,) arc lengths, m; ``kappa`` (n,) three-point curvatures, 1/m."""
+    def short_free(run_list):
+        k = 0
+        while k < len(run_list) and run_list[k].kind == "free":
+            k += 1
+        if 0 < k < len(run_list) and abs(s[run_list[k - 1].last] - s[run_list[0].first]) < blend_m:
+            nxt = run_list[k]
+            lo, hi = sorted((nxt.first, nxt.last))
+            return k, [Run(j, j + 1, "free", float(kappa[j])) for j in range(lo, hi)]
+        return 0, None
+
+    k, free = short_free(runs)
+    if free is not None:
+        runs = runs[:k] + free + runs[k + 1:]
+    rev = [Run(r.last, r.first, r.kind, r.curvature_1pm) for r in reversed(runs)]
+    k, free = short_free(rev)
+    if free is not None:
+        runs = runs[:len(runs) - k - 1] + free + runs[len(runs) - k:]
+    return runs
+
+
 class FittedPath:
 
     """A path through ``t, x, y`` samples that keeps the drawn geometry.
@@ -519,9 +543,10 @@ class FittedPath:
         runs = [r for k, r in enumerate(runs)
                 if not (r.kind == "free" and 0 < k < len(runs) - 1
                         and runs[k - 1].kind != "free" and runs[k + 1].kind != "free")]
+        runs = _free_ends(runs, s, self.blend_m, three_point_curvatures(p))
         self.runs = runs
         zones, junc = self._zones(runs, p, s)
-        L = float(s[-1]) + self.blend_m
+        L = float(s[-1])
         kap = _curvature_estimate(p, s, 0.25 * self.blend_m)
         spacing = np.concatenate([seg, seg[-1:]])
 
