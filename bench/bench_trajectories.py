@@ -143,7 +143,7 @@ def r_sign_table() -> str:
     """Both readings of R's lost exponent signs on the paper's three cases, Riccati gains."""
     import dataclasses
 
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
 
     readings = [("line", None, (1e-4, 1e-2, 1e-2), (1e4, 1e2, 1e2)),
                 ("circle", None, (1e-2, 1e-6, 1e-6), (1e2, 1e6, 1e6)),
@@ -192,7 +192,7 @@ def tracking_table() -> str:
 
     from swerve.controller.design import GainCheckError, check_gains, synthesize
     from swerve.controller.kinematics import load_robot
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
 

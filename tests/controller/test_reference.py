@@ -8,8 +8,8 @@ from swerve.controller.chained import chained_inputs, to_chained
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits, state_derivative
 from swerve.controller.paths import LinePath
-from swerve.controller.reference import (TRAJECTORY_DIR, build_reference, desired_states,
-                                         frame_schedule, load_trajectory, sample_at)
+from swerve.controller.reference import build_reference, desired_states, frame_schedule, sample_at
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory
 
 
 @pytest.mark.parametrize("name,tf,n,q0,r0", [("line", 40, 2500, 1e3, 1e4),

@@ -42,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from swerve.controller.design import synthesize
     from swerve.controller.gains_io import save_gains
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
     from swerve.tools.logs.bag import read_log
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     rows, t_start = [], time.monotonic()
     for name in names:
         print(f"[{name}] synthesising gains (Riccati) ...", flush=True)
-        traj = load_trajectory(name, geom)
+        traj = load_trajectory(name, geom, limits)
         ref, gains = synthesize(traj, "riccati", geom, limits)
         stem = Path(name).stem
         gains_file = save_gains(out / "gains" / f"{stem}.npz", gains)

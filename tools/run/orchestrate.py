@@ -62,10 +62,11 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
     from swerve.controller.design import synthesize
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.reference import build_reference
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.tracking import TrackingLaw
 
-    traj = load_trajectory(trajectory, geom)
+    traj = load_trajectory(trajectory, geom, limits)
     if gains_path is not None:
         gains = load_gains(gains_path)  # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
