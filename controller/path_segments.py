@@ -96,9 +96,10 @@ def _arc_fits(p: np.ndarray, tol_m: float) -> bool:
 
 def arc_curvature(p: np.ndarray, centre) -> float:
     """Signed curvature of travel along ``p`` (n, 2) around ``centre`` (2,), 1/m (+: left)."""
-    r0, r1 = p[0] - centre, p[-1] - centre
-    turn = r0[0] * r1[1] - r0[1] * r1[0]
-    return math.copysign(1.0 / math.hypot(*r0), turn)
+    r = p - np.asarray(centre, float)
+    # the signed angle swept about the centre (a half turn or more has no sign in its ends)
+    turn = math.fsum((r[:-1, 0] * r[1:, 1] - r[:-1, 1] * r[1:, 0]).tolist())
+    return math.copysign(1.0 / math.hypot(*r[0]), turn)
 
 
 def menger(p: np.ndarray, i: int) -> float:
