@@ -38,7 +38,7 @@ from tqdm import tqdm
 
 from swerve.controller import small_linalg as sl
 from swerve.controller.errors import ControllerError
-from swerve.controller.kinematics import Limits
+from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.mathmap import cos_sin, elementwise
 from swerve.controller.path_csv import PathSamples, read_csv_samples
 from swerve.controller.path_segments import Run, junctions, segment_samples, three_point_curvatures
@@ -710,7 +710,7 @@ def fit_samples(smp: PathSamples, tolerance_m: float = 2e-5, blend_m: float = 0.
 
 
 def read_csv_path(path: str | Path, tolerance_m: float = 2e-5, blend_m: float = 0.05,
-                  limits: Limits = Limits()) -> FittedPath:
+                  limits: Limits = Limits(), geom: Geometry = Geometry()) -> FittedPath:
     """A :class:`FittedPath` through the samples of a trajectory CSV file, checked first
     (:func:`controller.path_csv.read_csv_samples`)."""
-    return fit_samples(read_csv_samples(path, limits), tolerance_m, blend_m, str(path))
+    return fit_samples(read_csv_samples(path, limits, geom), tolerance_m, blend_m, str(path))

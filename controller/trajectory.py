@@ -89,7 +89,7 @@ def _diag(sec: Section, key: str, n: int, default) -> np.ndarray:
     return np.diag(sec.numbers(key, n, default, positive=True, max=WEIGHT_MAX))
 
 
-def _path_from_spec(sec: Section, tf_s: float, base: Path, limits: Limits):
+def _path_from_spec(sec: Section, tf_s: float, base: Path, geom: Geometry, limits: Limits):
     kind = sec.raw("type")
     if not isinstance(kind, str) or kind not in PATH_TYPES:
         sec.fail(f"path type must be {', '.join(PATH_TYPES[:-1])} or {PATH_TYPES[-1]}, got {kind!r}", "type")
@@ -107,7 +107,7 @@ def _path_from_spec(sec: Section, tf_s: float, base: Path, limits: Limits):
     else:
         path = read_csv_path(base / sec.string("file"),
                              sec.number("tolerance_m", CSV_TOLERANCE_M, positive=True, max=1.0),
-                             sec.number("blend_m", CSV_BLEND_M, positive=True, max=10.0), limits)
+                             sec.number("blend_m", CSV_BLEND_M, positive=True, max=10.0), limits, geom)
     sec.check_unknown()
     return path
 
@@ -149,12 +149,12 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry(),
     if not p.is_file():
         raise ControllerError(f"trajectory file {p} does not exist")
     if p.suffix.lower() == ".csv":
-        return load_csv_trajectory(p, limits)
+        return load_csv_trajectory(p, geom, limits)
     top = read_yaml(p, ControllerError, "trajectory file").root()
     tau = top.number("tau_s", DEFAULT_TAU_S, positive=True, max=10.0)
     tf_given = top.number("tf_s", None, positive=True, max=TRAJ_DURATION_MAX_S)
     spec = top.section("path")
-    path0 = _path_from_spec(spec, tf_given or 1.0, p.parent, limits)
+    path0 = _path_from_spec(spec, tf_given or 1.0, p.parent, geom, limits)
     tf = tf_given if tf_given is not None else path0.t_end_s
     n_float = tf / tau
     if n_float > N_STEPS_MAX and "n_steps" not in top:
@@ -177,11 +177,12 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry(),
     return Trajectory(name, path0, tf, n, tau, Q, R, start, str(p), direction)
 
 
-def load_csv_trajectory(p: Path, limits: Limits = Limits()) -> Trajectory:
-    """A trajectory CSV file (format: ``docs/trajectories.md``), checked against ``limits``, with
+def load_csv_trajectory(p: Path, geom: Geometry = Geometry(),
+                        limits: Limits = Limits()) -> Trajectory:
+    """A trajectory CSV file (format: ``docs/trajectories.md``), checked against ``geom`` and ``limits``, with
     ``tau = 0.016 s``, ``N = floor(tf / tau)``, :data:`DEFAULT_Q_DIAG`,
     :data:`DEFAULT_R_DIAG`, its ``# start`` line (else on the path) and its direction."""
-    smp = read_csv_samples(p, limits, DEFAULT_TAU_S)
+    smp = read_csv_samples(p, limits, geom, DEFAULT_TAU_S)
     path = fit_samples(smp, CSV_TOLERANCE_M, CSV_BLEND_M, str(p))
     tf = path.t_end_s
     n = int(np.floor(tf / DEFAULT_TAU_S + 1e-9))
