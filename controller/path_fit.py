@@ -49,19 +49,34 @@ WINDOW_PARAMS = 12
 FIT_CELL_M = 5e-3
 #: Free curvature coefficients are spaced so the heading turns at most this much between them, rad.
 FREE_TURN_RAD = 0.25
+#: ... and hold at least this many samples between them (so noise is averaged, not fitted).
+FREE_SAMPLES = 3
 #: Levenberg-Marquardt iterations per round and rounds (fit, project, fit) per window.
-LM_ITERATIONS = 12
+LM_ITERATIONS = 30
 ROUNDS = 1
-#: A window's iterations stop when one lowers the squared residuals by less than this fraction.
+#: A window's iterations stop when a nearly undamped step (damping at most the second number)
+#: lowers the squared residuals by less than this fraction.
 LM_RELATIVE_GAIN = 1e-2
+LM_SMALL_DAMPING = 1e-2
+#: Weight of the smoothness prior: a change of curvature of 1/m between neighbouring
+#: coefficients costs as much as a sample this far (m) from the curve.
+PRIOR_M = 2e-5
+#: Least damping (relative to the normal matrix's diagonal).
+LM_MIN_DAMPING = 1e-6
 #: Damping increases (each a curve evaluation) tried before a window's iterations stop.
-LM_TRIALS = 4
+LM_TRIALS = 8
 #: A window's iterations stop once the rms distance of its samples is below this fraction of
 #: the tolerance.
 FLOOR_FRACTION = 0.05
 #: Samples closer than this along the path (m) mark a cusp check's scale: chords between
 #: samples at least this far apart must not turn back.
 CUSP_SCALE_M = 5e-3
+#: The first estimate of the samples' arc length sums chords about this long, m (longer ones cut
+#: tight turns short, shorter ones count drawing noise as length).
+ARC_CHORD_M = 1e-2
+#: Projections of consecutive samples onto the fitted path may step back by at most this many
+#: rms distances of the samples from it (noise along the path); a longer step back is refused.
+BACKSTEP_RMS = 4.0
 #: A fit expected to take longer than about two seconds shows a progress bar (samples).
 PROGRESS_SAMPLES = 20_000
 
@@ -255,7 +270,7 @@ class _Layout:
                 continue
             u = z.lo_m
             while True:
-                u += min(max(FREE_TURN_RAD / max(abs(kappa_at(u)), 1e-9), 2.0 * spacing_at(u)), half)
+                u += max(min(FREE_TURN_RAD / max(abs(kappa_at(u)), 1e-9), half), FREE_SAMPLES * spacing_at(u))
                 if u >= z.hi_m:
                     break
                 knots.append(u)
@@ -420,6 +435,16 @@ def _solve(win, layout, x, qs, P_a, th_a, pts, with_start, floor_m):
         inds.append(ind)
     G = win.sensitivities(inds)
     evals = 0
+    # smoothness prior: PRIOR_M times the change of kappa between neighbouring coefficients
+    # that a window parameter moves (so a sparse or noisy stretch does not chase its noise)
+    pairs = [j for j in range(max(win.ja, 1), win.jb)
+             if any(ind[j] != ind[j - 1] for ind in inds)]
+    Dp = np.array([[PRIOR_M * (ind[j] - ind[j - 1]) for ind in inds] + [0.0] * (m - n_q)
+                   for j in pairs]).reshape(len(pairs), m)
+
+    def prior(xx):
+        c = layout.coefficients(xx)
+        return np.array([PRIOR_M * (c[j] - c[j - 1]) for j in pairs])
 
     def unpack(z):
         xx = x.copy()
@@ -442,6 +467,9 @@ def _solve(win, layout, x, qs, P_a, th_a, pts, with_start, floor_m):
                               np.stack([zeros, ones], -1).ravel(),
                               np.stack([-(P[:, 1] - Pa[1]), P[:, 0] - Pa[0]], -1).ravel()], axis=1)
             J = np.concatenate([J, extra], axis=1)
+        rp = prior(xx)
+        J = np.concatenate([J, Dp])
+        r = np.concatenate([r, rp])
         A = [[0.0] * m for _ in range(m)]
         for a_ in range(m):
             row = _colsum(J[:, a_:a_ + 1] * J[:, a_:]).tolist()
@@ -464,13 +492,13 @@ def _solve(win, layout, x, qs, P_a, th_a, pts, with_start, floor_m):
             xx, Pa, tha = unpack(z + dz)
             P, _, _ = win.evaluate(layout.coefficients(xx), Pa, tha)
             evals += 1
-            new = _fsum_sq(P - pts)
+            new = _fsum_sq(np.concatenate([(P - pts).ravel(), prior(xx)]))
             if new < cost:
                 z = z + dz
-                lam = max(lam * 0.1, 1e-12)
+                lam = max(lam * 0.3, LM_MIN_DAMPING)
                 break
             lam *= 10
-        if not new < cost or cost - new <= LM_RELATIVE_GAIN * cost:
+        if not new < cost or (cost - new <= LM_RELATIVE_GAIN * cost and lam <= LM_SMALL_DAMPING):
             break
     xx, Pa, tha = unpack(z)
     return xx, np.asarray(Pa, float), tha, evals
@@ -498,6 +526,29 @@ def _free_ends(runs, s, blend_m, kappa):
     if free is not None:
         runs = runs[:len(runs) - k - 1] + free + runs[len(runs) - k:]
     return runs
+
+
+def _arc_length_estimate(p, seg, chord_m):
+    """Arc length of the samples ``p`` (n, 2), m, shape (n,): chords between samples about
+    ``chord_m`` apart, shared out within each by the samples' own steps ``seg`` (n - 1,). Summing
+    the samples' own steps would count drawing noise as length (a 1 mm jitter on samples 1 mm
+    apart doubles it)."""
+    raw = np.concatenate([[0.0], np.cumsum(seg)])
+    keep = [0]
+    for i in range(1, len(p)):
+        if raw[i] - raw[keep[-1]] >= chord_m:
+            keep.append(i)
+    if keep[-1] != len(p) - 1:
+        keep.append(len(p) - 1)
+    k = np.array(keep)
+    chords = np.hypot(*np.diff(p[k], axis=0).T)
+    out = np.empty(len(p))
+    out[k] = np.concatenate([[0.0], np.cumsum(chords)])
+    for a, b, c in zip(k[:-1].tolist(), k[1:].tolist(), chords.tolist()):
+        if b - a > 1:
+            frac = (raw[a + 1:b] - raw[a]) / (raw[b] - raw[a])
+            out[a + 1:b] = out[a] + frac * c
+    return out
 
 
 class FittedPath:
@@ -535,7 +586,7 @@ class FittedPath:
         p = np.column_stack([np.asarray(x_m, float), np.asarray(y_m, float)])
         check_advances(t, p)
         seg = np.hypot(*np.diff(p, axis=0).T)
-        s = np.concatenate([[0.0], np.cumsum(seg)])
+        s = _arc_length_estimate(p, seg, ARC_CHORD_M)
         self.direction = 1 if direction >= 0 else -1
         self.tolerance_m, self.blend_m = float(tolerance_m), float(blend_m)
         runs = segment_samples(p, tol_m=self.tolerance_m, min_run_m=self.blend_m)
@@ -547,32 +598,36 @@ class FittedPath:
         self.runs = runs
         zones, junc = self._zones(runs, p, s)
         L = float(s[-1])
-        kap = _curvature_estimate(p, s, 0.25 * self.blend_m)
-        spacing = np.concatenate([seg, seg[-1:]])
+        kap = _curvature_estimate(p, s, 0.5 * self.blend_m)
+        spacing = np.concatenate([np.diff(s), np.diff(s)[-1:]])
 
         def at(arr):
             return lambda u: arr[min(int(np.searchsorted(s, u)), len(s) - 1)]
         layout = _Layout(zones, L, self.blend_m, at(kap), at(spacing))
         self._layout = layout
-        d0 = p[1] - p[0]
+        # start heading along the chord to the first sample half a blend away (noise-proof)
+        d0 = p[min(max(int(np.searchsorted(s, 0.5 * self.blend_m)), 1), len(p) - 1)] - p[0]
         x, start, th0, s_fit, evals = self._fit(layout, p, s, np.array(p[0]),
                                                 math.atan2(d0[1], d0[0]), progress)
         curve = CurvatureCurve(layout.knots, layout.coefficients(x), start, th0, L)
         s_fit = curve.project(p, s_fit)
         s_fit[0] = 0.0
-        back = np.diff(s_fit) <= 0
-        if np.any(back):
+        n = len(t)
+        resid = p.T - curve.position(s_fit)
+        # the drawing noise, robustly (the blends' systematic deviation is not noise)
+        rms = max(1.4826 * float(np.median(np.hypot(*resid))), 0.1 * self.tolerance_m)
+        # drawing noise moves samples along the path too: a step back within it is smoothed
+        # by s(t) below; a longer one is a turn back
+        back = np.diff(s_fit) <= -BACKSTEP_RMS * rms
+        if np.any(back) or s_fit[-1] <= 0.0:
             i = int(np.argmax(back))
             raise ControllerError(f"samples {i + 1} and {i + 2} (t = {t[i]:.3f} s) do not advance "
                                   "along the fitted path (a cusp, or a turn sharper than the "
                                   "samples resolve)")
         self.curve = CurvatureCurve(layout.knots, layout.coefficients(x), start, th0,
-                                    float(s_fit[-1]))
+                                    float(s_fit.max()))
         self.sample_arc_m = s_fit
         self.t_end_s = float(t[-1])
-        n = len(t)
-        resid = p.T - self.curve.position(s_fit)
-        rms = max(math.sqrt(_fsum_sq(resid) / n), 0.1 * self.tolerance_m)
         self._s_of_t = UnivariateSpline(t, s_fit, k=5, s=n * (rms * rms))
         self.samples = (t, p)
         self.report = self._report(p, s_fit, junc, evals)
