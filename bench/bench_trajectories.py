@@ -4,7 +4,7 @@ the paper's CG gains track them in simulation.
 Run ``.venv/bin/python bench/bench_trajectories.py`` from the repository root.
 ``--write-csv`` regenerates the drawn CSV files in ``configs/trajectories/`` from their line and
 arc primitives (:data:`DRAWN`). ``--fit-only`` measures only the fit, comparing the shipped
-method (:class:`controller.paths.FittedPath`) with the former quintic smoothing spline of x(t),
+method (:class:`controller.path_fit.FittedPath`) with the former quintic smoothing spline of x(t),
 y(t) (``scipy.interpolate.UnivariateSpline``, k = 5, s = n (1e-4 m)^2). ``--no-write`` leaves
 BENCHMARKS.md alone.
 """
@@ -21,7 +21,8 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from swerve.controller.paths import FittedPath, draw_primitives  # noqa: E402
+from swerve.controller.path_fit import FittedPath  # noqa: E402
+from swerve.controller.paths import draw_primitives  # noqa: E402
 from benchutil import write_section  # noqa: E402
 
 SECTION = "## Drawn trajectories"
