@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import BSpline, UnivariateSpline
+from scipy.interpolate import BSpline, LSQUnivariateSpline
 from tqdm import tqdm
 
 from swerve.controller import small_linalg as sl
@@ -77,6 +77,8 @@ ARC_CHORD_M = 1e-2
 #: Projections of consecutive samples onto the fitted path may step back by at most this many
 #: rms distances of the samples from it (noise along the path); a longer step back is refused.
 BACKSTEP_RMS = 4.0
+#: The timing spline s(t) has a knot every this many samples.
+TIMING_KNOT_SAMPLES = 8
 #: A fit expected to take longer than about two seconds shows a progress bar (samples).
 PROGRESS_SAMPLES = 20_000
 
@@ -551,6 +553,20 @@ def _arc_length_estimate(p, seg, chord_m):
     return out
 
 
+def _timing_spline(t, s):
+    """``s(t)``: the least-squares quintic spline of the samples' arc lengths ``s`` (m) over their
+    times ``t`` (s), both (n,), with a knot every :data:`TIMING_KNOT_SAMPLES` samples: one
+    banded least-squares pass (FITPACK, no BLAS), linear in the samples, that averages their
+    noise."""
+    n = len(t)
+    step = TIMING_KNOT_SAMPLES
+    if n < 2 * step:
+        step = max(n // 2, 1)
+    inner = t[step:n - step + 1:step] if n > 2 * 5 + 2 else t[:0]
+    inner = inner[(inner > t[0]) & (inner < t[-1])]
+    return LSQUnivariateSpline(t, s, inner, k=min(5, n - 1))
+
+
 class FittedPath:
 
     """A path through ``t, x, y`` samples that keeps the drawn geometry.
@@ -569,8 +585,9 @@ class FittedPath:
         Progress bar on stderr for a fit of more than :data:`PROGRESS_SAMPLES` samples
         (``None``: only on a terminal).
 
-    Time enters only through the arc length travelled, ``s(t)``: a quintic smoothing spline of
-    the samples' projections onto the curve. ``report`` is a :class:`FitReport`.
+    Time enters only through the arc length travelled, ``s(t)``: a least-squares quintic spline
+    of the samples' projections onto the curve (:func:`_timing_spline`). ``report`` is a
+    :class:`FitReport`.
 
     Raises
     ------
@@ -628,7 +645,7 @@ class FittedPath:
                                     float(s_fit.max()))
         self.sample_arc_m = s_fit
         self.t_end_s = float(t[-1])
-        self._s_of_t = UnivariateSpline(t, s_fit, k=5, s=n * (rms * rms))
+        self._s_of_t = _timing_spline(t, s_fit)
         self.samples = (t, p)
         self.report = self._report(p, s_fit, junc, evals)
 
