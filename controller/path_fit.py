@@ -629,7 +629,6 @@ class FittedPath:
         curve = CurvatureCurve(layout.knots, layout.coefficients(x), start, th0, L)
         s_fit = curve.project(p, s_fit)
         s_fit[0] = 0.0
-        n = len(t)
         resid = p.T - curve.position(s_fit)
         # the drawing noise, robustly (the blends' systematic deviation is not noise)
         rms = max(1.4826 * float(np.median(np.hypot(*resid))), 0.1 * self.tolerance_m)
