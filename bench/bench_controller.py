@@ -27,7 +27,8 @@ from swerve.controller.design import synthesize  # noqa: E402
 from swerve.controller.kinematics import rk4_step  # noqa: E402
 from swerve.controller.ltv import cost, error_system, initial_error  # noqa: E402
 from swerve.controller.odometry import Odometry  # noqa: E402
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory  # noqa: E402
+from swerve.controller.reference import build_reference  # noqa: E402
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory  # noqa: E402
 from swerve.controller.riccati import finite_horizon_lqr  # noqa: E402
 from swerve.controller.simulate import metrics, simulate  # noqa: E402
 from swerve.controller.synthesis import (conjugate_gradient,  # noqa: E402

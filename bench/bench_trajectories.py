@@ -4,7 +4,7 @@ the paper's CG gains track them in simulation.
 Run ``.venv/bin/python bench/bench_trajectories.py`` from the repository root.
 ``--write-csv`` regenerates the drawn CSV files in ``configs/trajectories/`` from their line and
 arc primitives (:data:`DRAWN`). ``--fit-only`` measures only the fit, comparing the shipped
-method (:class:`controller.paths.FittedPath`) with the former quintic smoothing spline of x(t),
+method (:class:`controller.path_fit.FittedPath`) with the former quintic smoothing spline of x(t),
 y(t) (``scipy.interpolate.UnivariateSpline``, k = 5, s = n (1e-4 m)^2). ``--no-write`` leaves
 BENCHMARKS.md alone.
 """
@@ -21,7 +21,8 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from swerve.controller.paths import FittedPath, draw_primitives  # noqa: E402
+from swerve.controller.path_fit import FittedPath  # noqa: E402
+from swerve.controller.paths import draw_primitives  # noqa: E402
 from benchutil import write_section  # noqa: E402
 
 SECTION = "## Drawn trajectories"
@@ -143,7 +144,7 @@ def r_sign_table() -> str:
     """Both readings of R's lost exponent signs on the paper's three cases, Riccati gains."""
     import dataclasses
 
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
 
     readings = [("line", None, (1e-4, 1e-2, 1e-2), (1e4, 1e2, 1e2)),
                 ("circle", None, (1e-2, 1e-6, 1e-6), (1e2, 1e6, 1e6)),
@@ -192,7 +193,7 @@ def tracking_table() -> str:
 
     from swerve.controller.design import GainCheckError, check_gains, synthesize
     from swerve.controller.kinematics import load_robot
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
 

@@ -14,7 +14,7 @@ Robot data: plain numbers (the robot file becomes them in :mod:`swerve.tools.run
 
 Offline (``swerve synth``)::
 
-    traj = controller.reference.load_trajectory("circle")      # or "line", "curvilinear",
+    traj = controller.trajectory.load_trajectory("circle")     # or "line", "curvilinear",
                                                                # a .yaml or a t,x,y .csv file
     ref, gains = controller.design.synthesize(traj, "riccati", geom, limits)   # or "paper"
     controller.gains_io.save_gains("circle.npz", gains)        # also ".dat" (62.5 Hz table)
@@ -33,8 +33,10 @@ Online, at 62.5 Hz on the robot (``swerve sim`` runs exactly this law)::
     controller.kinematics.drive_angular_speed(v1, geom.wheel_radius_m)   # rad/s at the wheel
 
 Modules: :mod:`.kinematics` model (1)-(5); :mod:`.chained` chained form (6)-(18) in a rotated
-frame; :mod:`.paths` line/circle/curvilinear/spline paths; :mod:`.reference` trajectories,
-desired states and frame schedule; :mod:`.ltv` LTV error system and cost; :mod:`.riccati`
+frame; :mod:`.paths` line/circle/curvilinear paths and drawn samples; :mod:`.path_csv` reading and
+checking drawn CSV files; :mod:`.path_segments` lines and arcs in samples; :mod:`.path_fit` the
+drawn-path fit; :mod:`.trajectory` trajectory files; :mod:`.reference` desired states and frame
+schedule; :mod:`.ltv` LTV error system and cost; :mod:`.riccati`
 finite-horizon Riccati; :mod:`.synthesis` the paper's conjugate-gradient method;
 :mod:`.design` both in one call; :mod:`.gains_io` schedule files; :mod:`.tracking` the online
 law; :mod:`.simulate` closed loop on model (1)-(5); :mod:`.plots` figures like the paper's 4-9;

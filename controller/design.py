@@ -8,7 +8,8 @@ from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import GainSchedule
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.ltv import error_system, initial_error
-from swerve.controller.reference import Reference, Trajectory, build_reference
+from swerve.controller.reference import Reference, build_reference
+from swerve.controller.trajectory import Trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 
 METHODS = ("riccati", "paper")

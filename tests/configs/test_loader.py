@@ -10,7 +10,7 @@ from swerve.configs import shipped
 from swerve.configs.errors import ConfigError
 from swerve.configs.loader import ConfigWarning, document, parse_yaml_text, read_yaml
 from swerve.controller.errors import ControllerError
-from swerve.controller.reference import load_trajectory
+from swerve.controller.trajectory import load_trajectory
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 

@@ -8,7 +8,8 @@ import pytest
 
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.paths import CirclePath
-from swerve.controller.reference import Trajectory, build_reference, load_trajectory
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import Trajectory, load_trajectory
 
 
 @pytest.fixture(scope="session")
@@ -68,7 +69,8 @@ _PROBE_PRELUDE = """
 import hashlib, json, numpy as np
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.ltv import error_system
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 
 def h(*arrays):

@@ -3,7 +3,7 @@ import json
 import numpy as np
 import pytest
 
-from swerve.controller.reference import TRAJECTORY_DIR
+from swerve.controller.trajectory import TRAJECTORY_DIR
 from swerve.tools.cli import main
 
 KEYS = ["rms_position_error_m", "max_position_error_m", "final_position_error_m",

@@ -5,8 +5,11 @@ import numpy as np
 import pytest
 
 from swerve.controller.errors import ControllerError
-from swerve.controller.paths import FittedPath, draw_primitives, read_csv_samples
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.path_csv import read_csv_samples
+from swerve.controller.path_fit import FittedPath
+from swerve.controller.paths import draw_primitives
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory
 
 S_CURVE = [("line", 0.3), ("arc", 0.3, math.pi / 2), ("arc", 0.3, -math.pi / 2), ("line", 0.3)]
 SQUARE = [s for _ in range(4) for s in (("line", 0.6), ("arc", 0.2, math.pi / 2))]

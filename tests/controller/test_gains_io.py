@@ -6,7 +6,7 @@ import pytest
 from swerve.controller.design import synthesize
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import load_gains, save_gains
-from swerve.controller.reference import load_trajectory
+from swerve.controller.trajectory import load_trajectory
 
 
 

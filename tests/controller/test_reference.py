@@ -8,8 +8,8 @@ from swerve.controller.chained import chained_inputs, to_chained
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits, state_derivative
 from swerve.controller.paths import LinePath
-from swerve.controller.reference import (TRAJECTORY_DIR, build_reference, desired_states,
-                                         frame_schedule, load_trajectory, sample_at)
+from swerve.controller.reference import build_reference, desired_states, frame_schedule, sample_at
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory
 
 
 @pytest.mark.parametrize("name,tf,n,q0,r0", [("line", 40, 2500, 1e3, 1e4),
@@ -233,7 +233,7 @@ _SIMD_PROBE = """
 x = np.random.default_rng(1).uniform(-10.0, 10.0, (2, 10000))
 out = {"numpy arctan2": h(np.arctan2(x[0], x[1]))}
 geom, limits = Geometry(), Limits()
-for name in ("circle", TRAJECTORY_DIR / "s_curve.csv"):
+for name in ("circle", TRAJECTORY_DIR / "s_curve.csv", TRAJECTORY_DIR / "figure8.csv"):
     traj = load_trajectory(name, geom)
     ref = build_reference(traj, geom, limits)
     K, _ = finite_horizon_lqr(*error_system(ref), traj.Q, traj.R, traj.tau_s)
@@ -243,8 +243,8 @@ print(json.dumps(out))
 
 
 def test_same_bits_without_numpys_simd_loops(other_cpu, probe_prelude):
-    """xd, ud and K of the circle and a CSV path are the same whichever SIMD loops NumPy
-    picks (here: those of a CPU without AVX-512 and AVX2)."""
+    """xd, ud and K of the circle and two CSV paths (lines and arcs; free-form) are the same
+    whichever SIMD loops NumPy picks (here: those of a CPU without AVX-512 and AVX2)."""
     envs = {"native": {}, "no AVX2": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL X86_V3"}}
     out = {k: json.loads(other_cpu(env, "-c", probe_prelude + _SIMD_PROBE)) for k, env in envs.items()}
     # the probe can tell the loops apart: NumPy's own arctan2 differs

@@ -10,7 +10,8 @@ import pytest
 from swerve.controller.chained import chained_jacobian
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.ltv import error_system
-from swerve.controller.reference import build_reference, load_trajectory
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import load_trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 
 

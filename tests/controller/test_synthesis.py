@@ -86,7 +86,8 @@ def test_riccati_cost_is_exact(ref_name, request):
 
 
 def test_riccati_approaches_the_stationary_lqr_on_the_line(robot):
-    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.reference import build_reference
+    from swerve.controller.trajectory import load_trajectory
 
     ref = build_reference(load_trajectory("line_r_negative"), *robot)
     Ad, Bd, Q, R, tau = problem(ref)
@@ -163,7 +164,8 @@ def test_horizon_continuation_reaches_jstar(robot):
     """Cold start K = 0 with horizon continuation: within 1 % of J* on a 600-step line."""
     import dataclasses
 
-    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.reference import build_reference
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.synthesis import conjugate_gradient_continuation
 
     traj = load_trajectory("line_r_negative")
@@ -222,7 +224,7 @@ def test_default_paper_gains_track_the_curvilinear_path(robot):
     its own check and tracks the curvilinear path like Riccati; the former default (errors at
     t0 only, horizon continuation) diverged there."""
     from swerve.controller.design import synthesize
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
 

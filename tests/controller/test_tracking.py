@@ -6,7 +6,8 @@ import pytest
 from swerve.controller.chained import inputs_from_chained, to_chained
 from swerve.controller.design import synthesize
 from swerve.controller.errors import ControllerError, SingularityError
-from swerve.controller.reference import TRAJECTORY_DIR, build_reference, load_trajectory
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory
 from swerve.controller.simulate import metrics, simulate
 from swerve.controller.ltv import chained_error
 from swerve.controller.tracking import STATE_MARGIN, TrackingLaw

@@ -8,7 +8,8 @@ from swerve.controller.kinematics import Geometry, Limits, rk4_step
 from swerve.controller.ltv import error_system
 from swerve.controller.gains_io import GainSchedule
 from swerve.tools.run.loop import LoopAbort, TrackingLoop
-from swerve.controller.reference import build_reference, load_trajectory
+from swerve.controller.reference import build_reference
+from swerve.controller.trajectory import load_trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.tracking import TrackingLaw
 from swerve.driver.errors import DxlTimeoutError, ServoError

@@ -1,7 +1,7 @@
 """Loading a gain schedule for a run: the reference is rebuilt in the schedule's own frames."""
 from swerve.controller.design import synthesize
 from swerve.controller.gains_io import save_gains
-from swerve.controller.reference import load_trajectory
+from swerve.controller.trajectory import load_trajectory
 from swerve.tools.run.orchestrate import prepare_law
 from swerve.tools.run.robot import load_robot
 

@@ -111,12 +111,12 @@ def _gains(campaign: Campaign, cell: Cell, config: Path, folder: Path) -> str | 
         return campaign.resolve(cell.gains)
     from swerve.controller.design import synthesize
     from swerve.controller.gains_io import save_gains
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 
     _, cfg = locate_and_load(config)
     geom, limits = geometry_and_limits(cfg)
-    _, gains = synthesize(load_trajectory(campaign.resolve(cell.trajectory), geom), "paper", geom, limits)
+    _, gains = synthesize(load_trajectory(campaign.resolve(cell.trajectory), geom, limits), "paper", geom, limits)
     return str(save_gains(folder / "gains.npz", gains))
 
 

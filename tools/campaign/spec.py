@@ -268,7 +268,7 @@ def _file(top: Section, key: str, base: Path, default: Path) -> Path:
 
 def _trajectory(top: Section, i: int, text: str, base: Path) -> str:
     """A trajectory name of the shipped set, or a file resolved against the campaign's folder."""
-    from swerve.controller.reference import TRAJECTORY_DIR
+    from swerve.controller.trajectory import TRAJECTORY_DIR
 
     if Path(text).suffix.lower() not in (".yaml", ".yml", ".csv"):
         if not (TRAJECTORY_DIR / f"{text}.yaml").is_file():

@@ -50,7 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from swerve.configs.atomic import check_writable
     from swerve.configs.errors import ConfigError
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.tools.run.robot import geometry_and_limits, locate_and_load
 
     if args.time_scale is not None and not args.time_scale > 0:
@@ -68,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--trajectories {args.trajectories!r} names no trajectory "
                           f"(e.g. {','.join(TRAJECTORIES)})")
     for name in names:          # every trajectory is valid before any output
-        load_trajectory(name, geom)
+        load_trajectory(name, geom, limits)
     check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
     created = _missing_folder(out)
     try:
@@ -138,7 +138,7 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
     """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator."""
     from swerve.controller.design import synthesize
     from swerve.controller.gains_io import save_gains
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
     from swerve.tools.logs.bag import read_log
@@ -147,7 +147,7 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
 
     tag = f"[{name}, robot file {robot}]"
     print(f"{tag} synthesising gains (Riccati) ...", flush=True)
-    traj = load_trajectory(name, geom)
+    traj = load_trajectory(name, geom, limits)
     ref, gains = synthesize(traj, "riccati", geom, limits)
     stem = Path(name).stem
     run_name = stem if robot == "as is" else f"{stem}-{robot}"

@@ -77,14 +77,15 @@ def run(args) -> int:
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import load_gains
     from swerve.configs import locate_robot_file
-    from swerve.controller.reference import build_reference, load_trajectory
+    from swerve.controller.reference import build_reference
+    from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
     from swerve.tools.run.robot import load_robot
 
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
-    traj = load_trajectory(args.trajectory, geom)
+    traj = load_trajectory(args.trajectory, geom, limits)
     x0 = parse_x0(args.x0) if args.x0 else traj.start_state(geom)
     if args.gains:
         gains = load_gains(args.gains)

@@ -59,13 +59,13 @@ def run(args) -> int:
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import save_gains
     from swerve.configs import locate_robot_file
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.tools.commands.sim import parse_x0
     from swerve.tools.run.robot import load_robot
 
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
-    traj = load_trajectory(args.trajectory, geom)
+    traj = load_trajectory(args.trajectory, geom, limits)
     start = parse_x0(args.x0) if args.x0 else None
     if args.max_iter < 1:
         raise ControllerError("--max-iter must be at least 1")

@@ -66,9 +66,9 @@ class RunRequest:
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
 
-    traj = load_trajectory(trajectory, geom)
+    traj = load_trajectory(trajectory, geom, limits)
     gains = load_gains(gains_path) if gains_path is not None else None
     return traj, law_for(traj, gains, geom, limits, progress)
 
@@ -140,7 +140,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     """
     from swerve.configs.errors import ConfigError
     from swerve.controller.gains_io import load_gains
-    from swerve.controller.reference import load_trajectory
+    from swerve.controller.trajectory import load_trajectory
     from swerve.driver.bus import Bus
     from swerve.driver.wheelset import WheelSet
     from swerve.tools.recovery import policy
@@ -159,7 +159,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     loop_scale = 1.0 if req.lockstep else req.time_scale     # robot s per loop-clock s
     cfg = wall_clock_guards(cfg, loop_scale)
     geom, limits = geometry_and_limits(cfg)
-    traj = load_trajectory(req.trajectory, geom)
+    traj = load_trajectory(req.trajectory, geom, limits)
     gains = load_gains(req.gains) if req.gains is not None else None   # bad input fails before any start
     start = traj.start_state(geom) if req.start is None else np.asarray(req.start, dtype=float)
 
