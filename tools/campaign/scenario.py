@@ -8,7 +8,6 @@ controller or the emulator refuses is a ``failed`` row with the reason, not an e
 """
 from __future__ import annotations
 
-import argparse
 import contextlib
 import io
 import math
@@ -20,6 +19,8 @@ from pathlib import Path
 
 from swerve.configs.atomic import write_text
 from swerve.configs.errors import SwerveError
+from swerve.driver.robot_config import load_robot_config
+from swerve.tools.calibrate import calibrate_emulated, write_robot_file
 
 from .draw import Robot, draw_robot
 from .spec import Campaign, Cell, dump_physics, profile_data, set_dotted
@@ -121,19 +122,17 @@ def _gains(campaign: Campaign, cell: Cell, config: Path, folder: Path) -> str | 
 
 
 def calibrate(campaign: Campaign, physics: Path, folder: Path, out: io.StringIO) -> Path:
-    """``swerve calibrate --emulate --yes --lockstep --write`` of a copy of the campaign's robot
-    file, on the emulated robot built from the original and ``physics``; returns the copy."""
-    from swerve.tools.commands import calibrate as command
-
-    robot = shutil.copyfile(campaign.robot, folder / "robot.yaml")
-    parser = argparse.ArgumentParser(prog="swerve calibrate")
-    command.add_arguments(parser)
-    args = parser.parse_args(["--emulate", "--yes", "--lockstep", "--write", "--config", str(robot),
-                              "--emulated-robot", str(campaign.robot), "--emulator-config", str(physics),
-                              "--distance", repr(campaign.calibration_distance_m)])
+    """What ``swerve calibrate --emulate --yes --lockstep --write`` does, on a copy of the
+    campaign's robot file, with the emulated robot built from the original and ``physics``;
+    returns the calibrated copy. Progress lines go to ``out``."""
+    robot = Path(shutil.copyfile(campaign.robot, folder / "robot.yaml"))
     with contextlib.redirect_stdout(out), contextlib.redirect_stderr(out):
-        command.run(args)
-    return Path(robot)
+        values = calibrate_emulated(load_robot_config(robot), campaign.robot, emulator_config=physics,
+                                    lockstep=True, distance_m=campaign.calibration_distance_m,
+                                    log=lambda msg: print(msg, file=out))
+    values.pop("radius_facts", None)
+    write_robot_file(robot, **values)
+    return robot
 
 
 def run_scenario(campaign: Campaign, index: int, log: Path | None = None) -> Outcome:
