@@ -59,18 +59,34 @@ def module_name(path: Path) -> str:
     return ".".join(["swerve", *parts] if parts[0] in PARTS else parts)
 
 
-def imported_modules(path: Path, text: str | None = None) -> list[tuple[int, str]]:
+def _type_checking_only(tree: ast.AST) -> set[int]:
+    """``id`` of every node inside an ``if TYPE_CHECKING:`` block (imports for annotations only)."""
+    inside: set[int] = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.If) and (
+                (isinstance(node.test, ast.Name) and node.test.id == "TYPE_CHECKING")
+                or (isinstance(node.test, ast.Attribute) and node.test.attr == "TYPE_CHECKING")):
+            inside.update(id(n) for stmt in node.body for n in ast.walk(stmt))
+    return inside
+
+
+def imported_modules(path: Path, text: str | None = None, *,
+                     runtime_only: bool = False) -> list[tuple[int, str]]:
     """``(line, absolute module name)`` of every import statement in a file, nested ones too.
 
     ``from X import Y`` yields both ``X`` and ``X.Y`` (Y may be a submodule); relative imports
     are resolved against the file's own package. ``text``: the source (default: read the file).
+    ``runtime_only``: leave out the imports under ``if TYPE_CHECKING:``, which never run.
     """
     tree = ast.parse(path.read_text() if text is None else text, filename=str(path))
     pkg = module_name(path).split(".")
     if path.name != "__init__.py":
         pkg = pkg[:-1]
+    skip = _type_checking_only(tree) if runtime_only else set()
     out = []
     for node in ast.walk(tree):
+        if id(node) in skip:
+            continue
         if isinstance(node, ast.Import):
             out += [(node.lineno, a.name) for a in node.names]
         elif isinstance(node, ast.ImportFrom):
@@ -120,7 +136,7 @@ def import_edges(sources: dict[str, Path] | None = None,
     texts = texts or {}
     edges = set()
     for name, path in sources.items():
-        for _, mod in imported_modules(path, texts.get(name)):
+        for _, mod in imported_modules(path, texts.get(name), runtime_only=True):
             if mod in sources and mod != name:
                 edges.add((name, mod))
     return edges
@@ -282,3 +298,13 @@ def test_the_cycle_finder_sees_circles_between_subpackages():
     edges = {("swerve.a.x.m", "swerve.a.y.n"), ("swerve.a.y.k", "swerve.a.x.j"), ("swerve.b", "swerve.a.x.m")}
     assert cycles(edges) == [("swerve.a", ("swerve.a.x", "swerve.a.y"))]
     assert cycles(edges - {("swerve.a.y.k", "swerve.a.x.j")}) == []
+
+
+def test_an_import_for_annotations_only_is_no_cycle_edge():
+    """``if TYPE_CHECKING:`` imports never run, so they close no circle; the same import at
+    run time does."""
+    src = (ROOT / "driver" / "packets.py").read_text()
+    typed = src + "\n\nfrom typing import TYPE_CHECKING\nif TYPE_CHECKING:\n    from swerve.driver.bus import Bus\n"
+    assert ("swerve.driver.packets", "swerve.driver.bus") not in import_edges(texts={"swerve.driver.packets": typed})
+    plain = src + "\n\nfrom swerve.driver.bus import Bus\n"
+    assert ("swerve.driver.packets", "swerve.driver.bus") in import_edges(texts={"swerve.driver.packets": plain})
