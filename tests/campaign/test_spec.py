@@ -2,6 +2,7 @@
 anything runs; good files load; the shipped campaigns load."""
 from __future__ import annotations
 
+import importlib.util
 import math
 import re
 
@@ -13,6 +14,7 @@ from hypothesis import strategies as st
 from swerve.configs import shipped
 from swerve.configs.errors import ConfigError
 from swerve.tools.campaign.spec import SAMPLES_MAX, load_campaign, parse_campaign_text, profile_data
+from swerve.tools.cli import main
 
 TRAJ = str(shipped("campaigns/trajectories/line-6s.yaml"))
 
@@ -160,3 +162,13 @@ def test_cli_names_the_file_and_line(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert re.fullmatch(rf"swerve campaign: error: {re.escape(str(bad))}:\d+: samples: .*", err), err
     assert not (tmp_path / "out").exists()
+
+
+def test_ray_missing_is_one_line_before_any_output(tmp_path, capsys, monkeypatch):
+    real = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "ray" else real(name, *a))
+    out = tmp_path / "out"
+    assert main(["campaign", "run", "smoke", "--out", str(out), "--ray", "auto"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and 'pip install "swerve[cluster]"' in err[0], err
+    assert not out.exists()

@@ -8,6 +8,8 @@ depend on the engine.
 """
 from __future__ import annotations
 
+import importlib.util
+
 import multiprocessing as mp
 import os
 import signal
@@ -195,6 +197,13 @@ class RayEngine:
         self._ray.shutdown()
 
 
+def require_ray() -> None:
+    """Raise the one-line :data:`RAY_MISSING` error if Ray is not installed (checked before any
+    output is made)."""
+    if importlib.util.find_spec("ray") is None:
+        raise ConfigError(RAY_MISSING)
+
+
 def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> Engine:
     """The engine the options ask for: Ray with ``ray`` (``auto`` or an address), else the pool
     (``workers`` default: the CPUs this process may use)."""
@@ -203,4 +212,4 @@ def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> 
     return PoolEngine(campaign, workers or len(os.sched_getaffinity(0)))
 
 
-__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine"]
+__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray"]

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _run(args: argparse.Namespace) -> int:
     from swerve.configs.errors import ConfigError
-    from swerve.tools.campaign.engines import make_engine
+    from swerve.tools.campaign.engines import make_engine, require_ray
     from swerve.tools.campaign.plots import plot_campaign
     from swerve.tools.campaign.report import table, write_summary
     from swerve.tools.campaign.runner import run_missing
@@ -57,6 +57,8 @@ def _run(args: argparse.Namespace) -> int:
         campaign = campaign.with_samples(args.samples)
     if args.ray is not None and not args.ray.strip():
         raise ConfigError('--ray needs "auto" or the ADDRESS (HOST:PORT) of a running cluster')
+    if args.ray is not None:
+        require_ray()           # before the results folder is made
     out = Path(args.out)
     store = Store.open(out, campaign)
     missing = len(store.missing())
