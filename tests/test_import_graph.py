@@ -7,7 +7,7 @@ configs; ``swerve.tools`` (the application) may import every layer. The cross-la
 break these rules today are listed one file and one module at a time in :data:`EXCEPTIONS`.
 
 No package's parts import each other in a circle (modules and subpackages as nodes, in-function
-imports included), except the back edges listed in :data:`KNOWN_CYCLE_EDGES`. No module
+imports included; imports under ``if TYPE_CHECKING:`` never run and do not count). No module
 anywhere imports a folder by its bare name (``import driver``): the only import package is
 ``swerve``.
 """
@@ -40,14 +40,6 @@ EXCEPTIONS = {
         "byte-identical across CPUs; that module is not controller-specific",
     ("emulator/physics/contact.py", "swerve.controller.small_linalg"):
         "the static wheel loads use the same fixed-order pinv and matvec as the body",
-}
-#: Module imports left out of the cycle search, each the back edge of a known cycle:
-#: ``(importer, imported) -> why``.
-KNOWN_CYCLE_EDGES = {
-    ("swerve.tools.recovery", "swerve.tools.run.summary"):
-        "recovery policies build the run summary's ServoFaults (imported inside methods) while "
-        "swerve.tools.run.orchestrate imports swerve.tools.recovery: the packages tools.run and "
-        "tools.recovery import each other. Breaking it means moving ServoFaults below both.",
 }
 
 
@@ -270,20 +262,8 @@ def test_the_checker_reports_a_planted_layer_violation(part, text, expected):
     assert any(f" imports {expected} " in v for v in found), found
 
 
-def test_no_import_cycles_but_the_known_ones():
-    edges = import_edges()
-    for edge in KNOWN_CYCLE_EDGES:
-        assert edge in edges, f"{edge[0]} no longer imports {edge[1]}: remove it from KNOWN_CYCLE_EDGES"
-    assert cycles(edges - KNOWN_CYCLE_EDGES.keys()) == []
-
-
-def test_the_known_cycle_is_a_cycle():
-    """Each listed back edge closes a circle (else it would not need listing)."""
-    edges = import_edges()
-    found = cycles(edges)
-    assert ("swerve.tools", ("swerve.tools.recovery", "swerve.tools.run")) in found
-    for edge in KNOWN_CYCLE_EDGES:
-        assert cycles(edges - {edge}) != found, edge
+def test_no_import_cycles():
+    assert cycles(import_edges()) == []
 
 
 def test_the_cycle_finder_reports_a_planted_circle_through_a_function():

@@ -39,6 +39,16 @@ REBOOT_TIMEOUT_S = 3.0
 
 
 @dataclass(frozen=True)
+class ServoFaults:
+    """How servo faults were handled, for the run summary: the ``on_servo_fault`` policy (stop /
+    recover), the ``recoveries`` done, and every step as ``"<t_s> ID <ids> <step>: <detail>"``."""
+
+    on_servo_fault: str
+    recoveries: int
+    recovery_steps: tuple[str, ...] = ()
+
+
+@dataclass(frozen=True)
 class RecoveryEvent:
     """One step: ``t_s`` (the policy's clock, s: monotonic, or robot time in lockstep), servo
     ``ids``, ``step`` name and a ``detail`` sentence."""
@@ -67,9 +77,7 @@ class StopOnFault:
         return False
 
     def summary(self):
-        """The run summary's :class:`~swerve.tools.run.summary.ServoFaults`."""
-        from swerve.tools.run.summary import ServoFaults
-
+        """The run summary's :class:`ServoFaults`."""
         return ServoFaults(self.name, 0)
 
 
@@ -185,9 +193,7 @@ class RecoverFromFault:
                 self.sleep(0.05)
 
     def summary(self):
-        """The run summary's :class:`~swerve.tools.run.summary.ServoFaults`."""
-        from swerve.tools.run.summary import ServoFaults
-
+        """The run summary's :class:`ServoFaults`."""
         return ServoFaults(self.name, self.recoveries, tuple(e.line() for e in self.events))
 
 

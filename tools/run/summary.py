@@ -11,6 +11,8 @@ import json
 import math
 from dataclasses import dataclass
 
+from swerve.tools.recovery import ServoFaults
+
 
 @dataclass(frozen=True)
 class TrackingErrors:
@@ -72,16 +74,6 @@ class EmulatorStats:
     emulator_lost_sim_s: float | None
     emulator_physics_real_time_factor: float | None = None
     emulator_cpu_s: float | None = None
-
-
-@dataclass(frozen=True)
-class ServoFaults:
-    """How servo faults were handled: the ``on_servo_fault`` policy (stop / recover), the
-    ``recoveries`` done, and every step as ``"<t_s> ID <ids> <step>: <detail>"``."""
-
-    on_servo_fault: str
-    recoveries: int
-    recovery_steps: tuple[str, ...] = ()
 
 
 @dataclass(frozen=True)
