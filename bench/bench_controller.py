@@ -39,6 +39,7 @@ from swerve.driver.wheelset import WheelState  # noqa: E402
 from swerve.tools.logs import CycleRecord, RunLogWriter  # noqa: E402
 from swerve.tools.run.loop import TrackingLoop  # noqa: E402
 from swerve.tools.run.robot import load_robot  # noqa: E402
+from swerve.tools.run.ticker import ForegroundClock  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Controller"
@@ -174,7 +175,7 @@ class _Timer:
         return timed
 
 
-class _IdealWheels:
+class _IdealWheels(ForegroundClock):
     """Wheels that reach their goals at once, on a simulated clock (no bus, no sleeping).
 
     Each ``read_state`` starts a cycle: it records the time since the previous one and the time

@@ -34,6 +34,7 @@ from swerve.emulator.server import Emulator
 from swerve.tools.run.loop import TrackingLoop
 from swerve.tools.run.orchestrate import EMULATOR_PHYSICS_RATE_HZ, prepare_law
 from swerve.tools.run.robot import geometry_and_limits
+from swerve.tools.run.ticker import ForegroundClock
 
 #: The build tolerances one at a time: choice -> key of the ``tolerances`` section.
 TOLERANCE_PARTS = {"radius": "wheel_radius_scale", "steer-zero": "steer_zero_offset_rad",
@@ -41,7 +42,7 @@ TOLERANCE_PARTS = {"radius": "wheel_radius_scale", "steer-zero": "steer_zero_off
 CHOICES = ("ideal", *EFFECTS, "realistic", *TOLERANCE_PARTS)
 
 
-class EmulatorTime:
+class EmulatorTime(ForegroundClock):
     """The loop's clock: the emulator's simulated time, moved on by whole physics steps when the
     loop waits (``now`` / ``sleep_until``, the :class:`~swerve.tools.run.ticker.Clock` protocol)."""
 

@@ -52,7 +52,8 @@ class StepWorld(Protocol):
     def step(self, dt_s: float) -> None:
         """Advance every servo (and the body, if any) by ``dt_s`` simulated s, under the bus lock."""
 
-    # optional: step_many(dt_s, n), n steps at once with the same result (the lockstep clock uses it)
+    def step_many(self, dt_s: float, n: int) -> None:
+        """``n`` :meth:`step` s with the same result, as few times under the lock as it allows."""
 
     def request_pending(self) -> bool:
         """True if bytes from the client wait: the clock should return soon so requests go first."""
@@ -70,6 +71,7 @@ class PhysicsClock(Protocol):
     rate_hz: float            # physics steps per simulated second
     stats: "ClockStats"
     reply_latency_s: float    # a servo's time to start answering that the clock charges, s (0: none)
+    now_s: float | None       # robot time the clock keeps, s; None: the physics time is robot time
 
     def run(self, world: StepWorld) -> float:
         """Run the steps that are due; return wall seconds the bus thread may block (``inf``: until
@@ -84,9 +86,10 @@ class PhysicsClock(Protocol):
         charged them in simulated time, so they go out at once; False: the server paces them in
         wall time."""
 
-    # optional: catch_up(world), run the steps simulated time has passed but the physics has not
-    # yet (a lockstep clock leaves those owed by replies and move_to for later); the emulator
-    # calls it before the true state is read or a fault applied
+    def catch_up(self, world: StepWorld) -> None:
+        """Run the steps simulated time has passed but the physics has not yet (a lockstep clock
+        leaves those owed by replies and ``move_to`` for later); the emulator calls it before the
+        true state is read or a fault applied."""
 
 
 @dataclass
@@ -121,10 +124,25 @@ class ClockStats:
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v) for k, v in d.items()}
 
 
-class FrozenClock:
-    """Simulated time stands still; the bus only answers (``emu.advance`` steps by hand)."""
+class WallPacedClock:
+    """The :class:`PhysicsClock` members of a clock whose bus exchanges take wall time: it keeps
+    no robot time of its own, charges no exchange, and never owes the physics steps."""
 
-    reply_latency_s = 0.0
+    reply_latency_s = 0.0      # the emulator's own answering time is real
+    now_s = None
+
+    def on_request(self, world: StepWorld, wire_s: float) -> None:
+        pass
+
+    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
+        return False
+
+    def catch_up(self, world: StepWorld) -> None:
+        pass
+
+
+class FrozenClock(WallPacedClock):
+    """Simulated time stands still; the bus only answers (``emu.advance`` steps by hand)."""
 
     def __init__(self, rate_hz: float = 1000.0):
         if not rate_hz > 0:
@@ -135,14 +153,8 @@ class FrozenClock:
     def run(self, world: StepWorld) -> float:
         return math.inf
 
-    def on_request(self, world: StepWorld, wire_s: float) -> None:
-        pass
 
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
-        return False
-
-
-class WallClock:
+class WallClock(WallPacedClock):
     """``time_scale`` simulated seconds per wall second, in fixed steps of ``1/rate_hz``.
 
     Runs the steps wall time demands (``time_scale * rate_hz`` per wall second) back to back until
@@ -151,8 +163,6 @@ class WallClock:
     :data:`MAX_BACKLOG_WALL_S` of backlog, simulated time is dropped and counted in :attr:`stats`
     (``lost_sim_s``, ``fell_behind``) instead of slowing down silently.
     """
-
-    reply_latency_s = 0.0      # the emulator's own answering time is real
 
     def __init__(self, time_scale: float = 1.0, rate_hz: float = 1000.0):
         if not (math.isfinite(time_scale) and time_scale > 0):
@@ -208,12 +218,6 @@ class WallClock:
             st.backlog_s = (backlog - n) * dt
             st.cpu_s += time.thread_time() - cpu0
         return 0.0 if n < backlog else MIN_SLEEP_S
-
-    def on_request(self, world: StepWorld, wire_s: float) -> None:
-        pass
-
-    def on_replies(self, world: StepWorld, wire_s: float, replies: int, hold_s: float = 0.0) -> bool:
-        return False
 
 
 #: Time a servo takes to start answering once an instruction has arrived, on top of its Return
@@ -294,13 +298,8 @@ class LockstepClock:
         if due > 0:
             dt = 1.0 / self.rate_hz
             cpu0 = time.thread_time()
-            many = getattr(world, "step_many", None)
             try:
-                if many is not None:
-                    many(dt, due)       # no bus event can come between these steps
-                else:
-                    for _ in range(due):
-                        world.step(dt)
+                world.step_many(dt, due)    # no bus event can come between these steps
             finally:
                 st.steps += due         # a run that raised still counts (no retry storm)
                 st.batches += 1

@@ -96,19 +96,21 @@ class _ServoDynamics:
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """One physics step under the servo's current input items."""
-        self.advance_many(dt_s, 1)
+        self.advance_many(dt_s, 1, table)
         bits = self.take_hardware_error()
         if bits:                                    # the physics tripped a protection: latch it
             self._servo.raise_hardware_error(bits)
 
-    def advance_many(self, dt_s: float, n: int, traces: Mapping[ServoModel, tuple] | None = None) -> int:
-        """Up to ``n`` physics steps under the current input items (:meth:`ServoModel.run`); stops
-        after a step that raised a Hardware Error bit (:meth:`take_hardware_error`, for the
-        caller to latch). ``traces[model]``: the ``(speeds, positions)`` lists the model
-        appends to per step, if present. Returns the steps run."""
+    def advance_many(self, dt_s: float, n: int, table: Mapping[str, int],
+                     traces: Mapping[ServoModel, tuple] | None = None) -> int:
+        """Up to ``n`` physics steps under the current input items (:meth:`ServoModel.run`; read
+        from the stored bytes, not from the item view ``table``); stops after a step that raised
+        a Hardware Error bit (:meth:`take_hardware_error`, for the caller to latch).
+        ``traces[model]``: the ``(speeds, positions)`` lists the model appends to per step, if
+        present. Returns the steps run."""
         speeds, positions = traces.get(self.model, (None, None)) if traces else (None, None)
-        table, same = self.current_inputs()
-        return self.model.run(dt_s, table, n, same_inputs=same, speeds=speeds, positions=positions)
+        items, same = self.current_inputs()
+        return self.model.run(dt_s, items, n, same_inputs=same, speeds=speeds, positions=positions)
 
     def current_inputs(self) -> tuple[dict[str, int], bool]:
         """``(items, same)``: :meth:`inputs`, and whether they are the mapping of the last call."""

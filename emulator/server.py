@@ -137,12 +137,46 @@ class LinkSettings:
 
 
 class World(Protocol):
-    """What moves besides the servos (the robot body): stepped after them, under the bus lock."""
+    """What moves besides the servos (the robot body): stepped after them, under the bus lock.
+
+    A world that steps one tick at a time after the servos subclasses :class:`SteppedWorld` for
+    the members that batch or couple the steps.
+    """
 
     pose: tuple[float, float, float]    # true (x_m, y_m, theta_rad)
+    physics: object | None              # the physics model behind it (``RobotPhysics``), if any
 
     def step(self, dt_s: float) -> None:
         """Advance by ``dt_s`` simulated s from the servos' present shaft states."""
+
+    def traces(self) -> dict | None:
+        """Empty per-step trace lists for a run of several steps, servo after servo, then the
+        body from the traces (:meth:`step_many`); ``None`` if the body must step between the
+        servos."""
+
+    def step_many(self, dt_s: float, n: int, traces: dict) -> None:
+        """``n`` body steps from the servos' recorded ``traces`` (from :meth:`traces`)."""
+
+    def run_coupled(self, servos: Sequence[VirtualServo], dt_s: float, n: int) -> int:
+        """Up to ``n`` steps of the ``servos`` and the body together in one call, as many
+        :meth:`VirtualServo.advance` then :meth:`step`; the steps run (0: step tick by tick)."""
+
+
+class SteppedWorld:
+    """The :class:`World` members of a body stepped one tick at a time after the servos, with
+    no physics model to show; a subclass defines ``pose`` and ``step``."""
+
+    physics = None
+
+    def traces(self) -> dict | None:
+        return None
+
+    def step_many(self, dt_s: float, n: int, traces: dict) -> None:
+        for _ in range(n):
+            self.step(dt_s)
+
+    def run_coupled(self, servos: Sequence[VirtualServo], dt_s: float, n: int) -> int:
+        return 0
 
 
 def make_servos(ids: Iterable[int], model: str, baud: int, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT,
@@ -208,7 +242,7 @@ class Emulator:
         self.clock: PhysicsClock = clock if clock is not None else FrozenClock()
         self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
         self.world = world
-        if control is not None and not hasattr(self.clock, "move_to"):
+        if control is not None and self.clock.now_s is None:     # only a lockstep clock keeps robot time
             raise ConfigError("a lockstep control channel needs a lockstep clock")
         self.control = control
         self.adapter = adapter
@@ -299,7 +333,7 @@ class Emulator:
     @property
     def physics(self):
         """The world's physics (``RobotPhysics``), or ``None`` without a robot body."""
-        return getattr(self.world, "physics", None)
+        return self.world.physics if self.world is not None else None
 
     @property
     def link_path(self) -> str | None:
@@ -420,13 +454,12 @@ class Emulator:
     def settle(self) -> None:
         """Run the physics steps robot time has passed but the physics has not yet (lockstep runs
         those owed by replies and :meth:`move_to` after the answer is out). Bus thread only."""
-        catch_up = getattr(self.clock, "catch_up", None)
-        if catch_up is not None:
-            self._clocked(catch_up)
+        self._clocked(self.clock.catch_up)
 
     def robot_time_s(self) -> float:
         """Robot time of a lockstep clock (bus exchanges included); the physics time otherwise."""
-        return getattr(self.clock, "now_s", self.sim_time_s)
+        now_s = self.clock.now_s
+        return self.sim_time_s if now_s is None else now_s
 
     def inject_fault(self, what: str, args: list[str]) -> None:
         """A fault from the control channel: ``vanish ID``, ``restore ID``, ``hwerror ID BITS``."""
@@ -850,7 +883,7 @@ class Emulator:
     def _coupled_ticks(self, dt_s: float, n: int) -> int:
         """Up to ``n`` :meth:`_tick` s run by a world whose servos and body step together in one
         call (``world.run_coupled``, e.g. a robot on tyres); returns how many ran (0: none)."""
-        run = getattr(self.world, "run_coupled", None) if n > 1 else None
+        run = self.world.run_coupled if n > 1 and self.world is not None else None
         done = 0
         while run is not None and done < n:
             ran = run(self.servos, dt_s, n - done)
@@ -867,12 +900,11 @@ class Emulator:
         the steps must interleave servo by servo."""
         for s in self.servos:
             d = s.dynamics
-            if d is not None and not getattr(d, "batchable", False):
+            if d is not None and not d.batchable:
                 return None
         if self.world is None:
             return {}
-        traces = getattr(self.world, "traces", None)
-        return traces() if traces is not None else None
+        return self.world.traces()
 
     def advance(self, dt_s: float) -> None:
         """Advance simulated time by ``dt_s`` s at once, in steps of at most ``1/clock.rate_hz``

@@ -41,17 +41,59 @@ _FOLLOWED_UP = frozenset((Reg.OPERATING_MODE, Reg.BUS_WATCHDOG))
 
 
 class Dynamics(Protocol):
-    """What the physics model must provide (e.g. ``emulator.physics.ServoModel``).
+    """What the physics model must provide (e.g. ``emulator.robot_emulator._ServoDynamics``).
 
-    The servo calls :meth:`advance` every tick and :meth:`outputs` only when someone reads a
-    present item, so physics ticks cost no table writes.
+    The servo calls :meth:`advance_many` every run of ticks and :meth:`outputs` only when
+    someone reads a present item, so physics ticks cost no table writes. A model that steps one
+    tick at a time subclasses :class:`StepDynamics` for the other members.
     """
+
+    #: True if the servos' steps may run several at a time, servo after servo (the model draws
+    #: nothing from a generator the servos share).
+    batchable: bool
 
     def advance(self, dt_s: float, table: Mapping[str, int]) -> None:
         """Advance ``dt_s`` s given raw items by name."""
 
+    def advance_many(self, dt_s: float, n: int, table: Mapping[str, int], traces=None) -> int:
+        """Up to ``n`` (>= 1) steps of ``dt_s`` s under the raw items ``table``, stopping after a
+        step that raised a Hardware Error (:meth:`take_hardware_error`); ``traces``: the
+        per-step lists a batched run records for the body (see
+        :meth:`swerve.emulator.server.World.traces`). Returns the steps run."""
+
+    def take_hardware_error(self) -> int:
+        """Hardware Error bits the physics raised since the last call (then cleared)."""
+
     def outputs(self) -> Mapping[str, int]:
         """Raw :data:`DYNAMICS_OUTPUTS` (any subset) as of the last :meth:`advance`."""
+
+    def reboot(self) -> None:
+        """The servo rebooted (RAM items back to their defaults)."""
+
+    def clear_multi_turn(self) -> None:
+        """The Clear instruction reset the multi-turn position to one turn."""
+
+
+class StepDynamics:
+    """The :class:`Dynamics` members of a model that steps one :meth:`advance` at a time, raises
+    no Hardware Error and keeps no state a reboot or Clear would reset; a subclass defines
+    ``advance`` and ``outputs``."""
+
+    batchable = False
+
+    def advance_many(self, dt_s: float, n: int, table: Mapping[str, int], traces=None) -> int:
+        """One :meth:`advance` (the servo asks again for the rest)."""
+        self.advance(dt_s, table)
+        return 1
+
+    def take_hardware_error(self) -> int:
+        return 0
+
+    def reboot(self) -> None:
+        pass
+
+    def clear_multi_turn(self) -> None:
+        pass
 
 
 class VirtualServo:
@@ -283,9 +325,8 @@ class VirtualServo:
         if self.memory.get(Reg.MOVING):
             return ErrorNumber.RESULT_FAIL
         self.memory.set(Reg.PRESENT_POSITION, self.memory.get(Reg.PRESENT_POSITION) % 4096)
-        hook = getattr(self.dynamics, "clear_multi_turn", None)
-        if callable(hook):
-            hook()
+        if self.dynamics is not None:
+            self.dynamics.clear_multi_turn()
         return ErrorNumber.NONE
 
     def _control_table_backup(self, p: bytes) -> StatusPacket:
@@ -324,9 +365,8 @@ class VirtualServo:
                 self.memory.set(name, value)
         if startup & 0x01:
             self.memory.set(Reg.TORQUE_ENABLE, 1)
-        hook = getattr(self.dynamics, "reboot", None)
-        if callable(hook):
-            hook()
+        if self.dynamics is not None:
+            self.dynamics.reboot()
         self.memory.stale = True         # present items from the physics again, not the defaults
 
     def raise_hardware_error(self, bits: int) -> None:
@@ -352,25 +392,22 @@ class VirtualServo:
 
     def advance_many(self, dt_s: float, n: int, traces=None) -> None:
         """``n`` steps of :meth:`advance` with the same result, several at a time where nothing
-        can change the input items in between: a dynamics with ``advance_many(dt_s, k, traces)
-        -> steps run`` runs the steps up to the next Bus Watchdog trip or physics-raised
-        Hardware Error in one call (``traces``: passed through, see
-        :meth:`~swerve.emulator.robot_emulator._ServoDynamics.advance_many`); any other
-        dynamics is stepped one :meth:`Dynamics.advance` at a time.
+        can change the input items in between: :meth:`Dynamics.advance_many` runs the steps up
+        to the next Bus Watchdog trip or physics-raised Hardware Error in one call (``traces``:
+        passed through, see :meth:`~swerve.emulator.robot_emulator._ServoDynamics.advance_many`);
+        a :class:`StepDynamics` runs one at a time.
         """
         m = self.memory
         dyn = self.dynamics
-        many = getattr(dyn, "advance_many", None)
         done = 0
         while done < n:
             self._advance_timers(dt_s)                  # the first step of this run, as one tick
-            if many is None:
-                if dyn is not None:
-                    dyn.advance(dt_s, self._view)
+            if dyn is None:
                 m.stale = True
                 done += 1
                 continue
-            ran = many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1, traces)
+            ran = dyn.advance_many(dt_s, 1 + self._quiet_steps(dt_s, n - done - 1) if n - done > 1 else 1,
+                                   self._view, traces)
             self._advance_quiet_timers(dt_s, ran - 1)
             if done + ran > 1:                          # an earlier step of this call left the items stale
                 m.stale = True
@@ -496,4 +533,4 @@ def hardware_error_bits(spec: str | int) -> int:
     return bits
 
 
-__all__ = ["VirtualServo", "Dynamics", "BAUD_RATES", "baud_index", "hardware_error_bits"]
+__all__ = ["VirtualServo", "Dynamics", "StepDynamics", "BAUD_RATES", "baud_index", "hardware_error_bits"]

@@ -21,6 +21,10 @@ class FakeWorld:
     def step(self, dt_s: float) -> None:
         self.dts.append(dt_s)
 
+    def step_many(self, dt_s: float, n: int) -> None:
+        for _ in range(n):
+            self.step(dt_s)
+
     def request_pending(self) -> bool:
         return self.request_after is not None and len(self.dts) >= self.request_after
 
@@ -88,7 +92,7 @@ def test_clock_for_and_bad_settings():
             bad()
 
 
-class StepsOnRequest:
+class StepsOnRequest(clk.WallPacedClock):
     """A clock that only steps when asked (the shape of a lockstep clock), to test the seam."""
 
     def __init__(self, rate_hz: float = 1000.0):

@@ -14,7 +14,8 @@ from swerve.driver.robot_config import load_robot_config
 from swerve.emulator import Emulator, Faults, WallClock, make_servos
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.emulator.memory import ServoMemory, WriteRejected
-from swerve.emulator.servo import VirtualServo
+from swerve.emulator.server import SteppedWorld
+from swerve.emulator.servo import StepDynamics, VirtualServo
 
 TABLE = table_for("xh430-w210")
 
@@ -109,7 +110,7 @@ def test_realtime_tick_wraps():
     assert s.read(Reg.REALTIME_TICK) == 1
 
 
-class _Spin:
+class _Spin(StepDynamics):
     """A stand-in dynamics: present velocity follows goal velocity, position integrates."""
 
     def __init__(self):
@@ -141,7 +142,7 @@ def test_dynamics_hook_writes_outputs():
 def test_emulator_clock_drives_dynamics_and_world():
     ticked = threading.Event()
 
-    class World:
+    class World(SteppedWorld):
         def __init__(self):
             self.steps = 0
 

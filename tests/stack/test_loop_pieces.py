@@ -3,11 +3,11 @@ import numpy as np
 import pytest
 
 from swerve.controller.kinematics import Geometry, rk4_step
-from swerve.tools.run.ticker import Ticker
+from swerve.tools.run.ticker import ForegroundClock, Ticker
 from swerve.controller.odometry import Odometry, model_inputs
 
 
-class FakeClock:
+class FakeClock(ForegroundClock):
     def __init__(self):
         self.t = 100.0
         self.work = []          # extra time consumed by each cycle's "work"

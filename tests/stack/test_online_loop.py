@@ -8,6 +8,7 @@ from swerve.controller.kinematics import Geometry, Limits, rk4_step
 from swerve.controller.ltv import error_system
 from swerve.controller.gains_io import GainSchedule
 from swerve.tools.run.loop import LoopAbort, TrackingLoop
+from swerve.tools.run.ticker import ForegroundClock
 from swerve.controller.reference import build_reference
 from swerve.controller.trajectory import load_trajectory
 from swerve.controller.riccati import finite_horizon_lqr
@@ -15,7 +16,7 @@ from swerve.controller.tracking import TrackingLaw
 from swerve.driver.errors import DxlTimeoutError, ServoError
 
 
-class FakeClock:
+class FakeClock(ForegroundClock):
     def __init__(self):
         self.t = 1000.0
 

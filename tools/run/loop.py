@@ -136,9 +136,9 @@ class TrackingLoop:
         self.true_pose = true_pose
         self.on_cycle = on_cycle
         self.clock = WallClock() if clock is None else clock
-        self._stamp_ns = getattr(self.clock, "stamp_ns", time.time_ns)
+        self._stamp_ns = self.clock.stamp_ns
         # a lockstep clock can ask for the time after a read while the reply is on its way
-        self._before_read = getattr(self.clock, "ask_after_next_write", lambda: None)
+        self._before_read = self.clock.ask_after_next_write
         self.count_host_cpu = bool(count_host_cpu)
         self.fault_policy = fault_policy
         self.failed_reads = 0

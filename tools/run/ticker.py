@@ -4,9 +4,10 @@ The k-th cycle is due at ``t0 + k * period_s``; the schedule never drifts with t
 in a cycle. A cycle whose work runs past its successor's deadline is an *overrun*: the missed
 slots are skipped (so slot index and trajectory time stay aligned with the clock) and counted.
 
-The clock is an object with ``now()`` and ``sleep_until(t)`` (:class:`Clock`): the robot uses
-:class:`WallClock` (the monotonic clock); a lockstep emulator run uses robot time
-(:class:`swerve.tools.run.lockstep.LockstepClock`); tests pass a fake one.
+The clock is a :class:`Clock`: the robot uses :class:`WallClock` (the monotonic clock); a
+lockstep emulator run uses robot time (:class:`swerve.tools.run.lockstep.LockstepClock`); tests
+pass a fake one. A clock whose sleeps take its caller's time subclasses :class:`ForegroundClock`
+for the members such a clock does nothing in.
 """
 from __future__ import annotations
 
@@ -33,12 +34,40 @@ class Clock(Protocol):
     def stamp_ns(self) -> int:
         """A log stamp for the current cycle, ns."""
 
-    # Optional, for a clock that can sleep while its caller works (see Ticker.wait):
-    # start_sleep(t) asks for the sleep; end_sleep() -> float waits for it and returns the
-    # clock's time when it was asked.
+    def start_sleep(self, t: float) -> None:
+        """Ask for a sleep until ``t`` (s) that passes while the caller works (see
+        :meth:`Ticker.wait`); a clock that cannot sleep in the background does nothing."""
+
+    def end_sleep(self) -> float:
+        """Wait for the sleep :meth:`start_sleep` asked for; the clock's time when it was asked
+        (a clock that cannot sleep in the background: :meth:`now`), s."""
+
+    def ask_after_next_write(self) -> None:
+        """Have the clock learn the time right after the next bus write, while the reply is on its
+        way (a lockstep clock); any other clock does nothing."""
 
 
-class WallClock:
+class ForegroundClock:
+    """What a :class:`Clock` whose time runs on while its caller works provides besides ``now``
+    and ``sleep_until`` (which a subclass defines): wall-clock log stamps, and nothing to do in
+    the background."""
+
+    def stamp_ns(self) -> int:
+        """Wall-clock time (Unix epoch), ns."""
+        return time.time_ns()
+
+    def start_sleep(self, t: float) -> None:
+        """Nothing: the sleep happens in :meth:`Ticker.wait`'s ``sleep_until``."""
+
+    def end_sleep(self) -> float:
+        """:meth:`now` (the caller's work has taken its time already)."""
+        return self.now()
+
+    def ask_after_next_write(self) -> None:
+        """Nothing: the time is read when asked."""
+
+
+class WallClock(ForegroundClock):
     """The host's monotonic clock (:func:`time.monotonic`); sleeps with :func:`time.sleep`."""
 
     def now(self) -> float:
@@ -49,10 +78,6 @@ class WallClock:
         while remaining > 0:  # sleep may return early on some platforms; never spin
             time.sleep(remaining)
             remaining = t - time.monotonic()
-
-    def stamp_ns(self) -> int:
-        """Wall-clock time (Unix epoch), ns."""
-        return time.time_ns()
 
 
 @dataclass
@@ -115,23 +140,17 @@ class Ticker:
     def wait(self, meanwhile: Callable[[], None] | None = None) -> int:
         """Sleep until the next slot; return its index (slots missed by an overrun are skipped).
 
-        ``meanwhile``: the rest of the cycle's work (e.g. writing the log). On a clock that can
-        sleep in the background (``start_sleep``/``end_sleep``: a lockstep emulator, whose time
-        host work does not take) it runs while the clock advances; on any other clock first, as
-        part of the cycle."""
+        ``meanwhile``: the rest of the cycle's work (e.g. writing the log), run between the
+        clock's ``start_sleep`` and ``end_sleep``. On a clock that sleeps in the background (a
+        lockstep emulator, whose time host work does not take) it runs while the clock
+        advances; on a :class:`ForegroundClock` those do nothing and it is part of the cycle."""
         if self._t0 is None:
             raise RuntimeError("Ticker.start() first")
         nxt = self._k + 1
-        start_sleep = getattr(self.clock, "start_sleep", None)
-        if start_sleep is not None:
-            start_sleep(self.deadline(nxt))     # a no-op advance if the work ran past it
-            if meanwhile is not None:
-                meanwhile()
-            now = self.clock.end_sleep()        # the clock's time when the sleep was asked
-        else:
-            if meanwhile is not None:
-                meanwhile()
-            now = self.clock.now()
+        self.clock.start_sleep(self.deadline(nxt))     # a no-op advance if the work ran past it
+        if meanwhile is not None:
+            meanwhile()
+        now = self.clock.end_sleep()                   # the clock's time when the sleep was asked
         self.last_busy_s = now - self._last_wake
         if now > self.deadline(nxt):  # the work ran past the next deadline: overrun
             behind = int((now - self._t0) // self.period_s)  # last slot already begun
