@@ -100,7 +100,12 @@ def test_tracks_paper_trajectory_in_lockstep(name, tmp_path, emulated_robot):
     _check_log(tmp_path / "log", s["cycles"])
 
 
+@pytest.mark.wallclock
 def test_tracks_the_line_on_the_wall_clock(tmp_path, config):
+    """The loop on the wall clock, time-scaled, against the emulator in its own process: the
+    same tracking bounds as the simulation allows. Whether the host keeps up is not the code's
+    doing, so this runs only when asked (``pytest -m wallclock``); the lockstep tests assert
+    the tracking on robot time in every run."""
     sim = sim_summary("line")
     res = run_tracking(RunRequest(trajectory="line", emulate=True, time_scale=SCALE, log=tmp_path / "log",
                                   config=config))
