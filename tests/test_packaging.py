@@ -80,8 +80,14 @@ def test_wheel_installs_one_package_with_its_configs(installed):
     assert stray == [], f"top-level packages besides swerve in {site}: {stray}"
     for name in ("robot.yaml", "emulator.yaml", "models/xh430-w210.yaml", "trajectories/line.yaml"):
         assert (site / "swerve" / "configs" / name).is_file(), name
-    assert (site / "swerve" / "tools" / "run" / "loop.py").is_file()
     assert not (site / "swerve" / "controller" / "online.py").exists()
+    # every module of the checkout's parts is in the wheel (a package missing from
+    # pyproject.toml's list would leave its command broken only after installation)
+    missing = [str(py.relative_to(ROOT)) for part in (*STRAY, "testing")
+               for py in (ROOT / part).rglob("*.py")
+               if "__pycache__" not in py.parts
+               and not (site / "swerve" / py.relative_to(ROOT)).is_file()]
+    assert missing == [], f"modules of the checkout not installed by the wheel: {missing}"
 
 
 def test_sim_runs_from_an_empty_folder_on_the_shipped_config(installed, empty_dir):
