@@ -33,14 +33,14 @@ def bus_times(latency_ms: int | None, cycles: int, fast: bool) -> tuple[list[flo
     from swerve.driver.robot_config import load_robot_config
     from swerve.driver.wheelset import WheelSet
     from swerve.emulator.robot_emulator import build_emulator
-    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
+    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     cfg = load_robot_config(shipped("robot.yaml"))
     read_s, cycle_s = [], []
     with build_emulator(cfg, lockstep=True, adapter_latency_ms=latency_ms) as emu:
         if latency_ms is None:
             emu.adapter = None                          # the host reads the cable directly
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, cfg.link.baud, default_model=cfg.model,
+        with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, cfg.link.baud, default_model=cfg.model,
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             wheels = WheelSet(bus, cfg, fast=fast)

@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 import numpy as np  # noqa: E402
 
-from swerve.controller.design import synthesize  # noqa: E402
+from swerve.controller.gain_schedule import synthesize  # noqa: E402
 from swerve.controller.kinematics import rk4_step  # noqa: E402
 from swerve.controller.ltv import cost, error_system, initial_error  # noqa: E402
 from swerve.controller.odometry import Odometry  # noqa: E402
@@ -38,7 +38,7 @@ from swerve.controller.tracking import TrackingLaw  # noqa: E402
 from swerve.driver.wheelset import WheelState  # noqa: E402
 from swerve.tools.logs import CycleRecord, RunLogWriter  # noqa: E402
 from swerve.tools.run.loop import TrackingLoop  # noqa: E402
-from swerve.tools.run.robot import load_robot  # noqa: E402
+from swerve.tools.run.geometry import load_robot  # noqa: E402
 from swerve.tools.run.ticker import ForegroundClock  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 

@@ -50,7 +50,7 @@ _TOGGLE_C = "#include <valgrind/callgrind.h>\nvoid toggle_collect(void) { CALLGR
 _SITECUSTOMIZE = """\
 import ctypes, functools
 from swerve.driver.parser import PacketParser
-from swerve.emulator.control import ControlServer
+from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.memory import ServoMemory
 from swerve.emulator.server import Emulator
 from swerve.emulator.servo import VirtualServo
@@ -98,7 +98,7 @@ def main() -> None:
     from swerve.driver.wheelset import WheelSet
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.process import EmulatorProcess
-    from swerve.tools.run.lockstep import LockstepClock
+    from swerve.tools.run.lockstep import LockstepLoopClock
 
     ap = argparse.ArgumentParser()
     ap.add_argument("--cycles", type=int, default=2000)
@@ -136,7 +136,7 @@ def main() -> None:
     cfg = load_robot_config(robot)
     with EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), lockstep=True,
                          noise="seed=1", rate_hz=1 / STEP_S) as emu, \
-            LockstepClock(emu.control_path) as clock, Bus(emu.port, cfg.link.baud, retries=0,
+            LockstepLoopClock(emu.control_path) as clock, Bus(emu.port, cfg.link.baud, retries=0,
                                                           default_model=cfg.model,
                                                           timeout_margin_s=5.0) as bus:
         clock.attach(bus)

@@ -33,7 +33,7 @@ from swerve.emulator.robot_emulator import robot_emulator
 from swerve.emulator.server import Emulator
 from swerve.tools.run.loop import TrackingLoop
 from swerve.tools.run.orchestrate import EMULATOR_PHYSICS_RATE_HZ, prepare_law
-from swerve.tools.run.robot import geometry_and_limits
+from swerve.tools.run.geometry import geometry_and_limits
 from swerve.tools.run.ticker import ForegroundClock
 
 #: The build tolerances one at a time: choice -> key of the ``tolerances`` section.

@@ -121,7 +121,7 @@ def run_case(traj, method: str, start=None) -> dict:
     (default the trajectory's), and return the metrics plus the requested (unclipped) peaks."""
     import time
 
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.kinematics import load_robot
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
@@ -191,7 +191,7 @@ def tracking_table() -> str:
     """Fit error, and Riccati versus default CG gains in simulation, for :data:`TRACK_CASES`."""
     import time
 
-    from swerve.controller.design import GainCheckError, check_gains, synthesize
+    from swerve.controller.gain_schedule import GainCheckError, check_gains, synthesize
     from swerve.controller.kinematics import load_robot
     from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate

@@ -21,7 +21,7 @@ sys.path.insert(0, str(ROOT / "tests" / "tune"))
 from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import MotorParams, load_config  # noqa: E402
 from simdata import PLAN, pwm_record  # noqa: E402
-from swerve.tools.tune.design import Plant, Spec, design_position, design_velocity  # noqa: E402
+from swerve.tools.tune.gain_search import Plant, Spec, design_position, design_velocity  # noqa: E402
 from swerve.tools.tune.identify import FITTED, identify  # noqa: E402
 
 PRIOR = MotorParams(8.0, 3e-3, 0.012, 0.0067, 3e-7, 9e-8)

@@ -4,7 +4,7 @@
 with PyYAML's safe loader and remembers the line of every value (from the composed nodes'
 ``start_mark``). :func:`document` wraps data that is already parsed (no line numbers).
 Either gives a :class:`Section`, whose typed accessors check one key each and raise
-:class:`~swerve.configs.errors.ConfigError` with ``file``, ``key`` (dotted path, list items as
+:class:`~swerve.core.errors.ConfigError` with ``file``, ``key`` (dotted path, list items as
 ``wheels[2]``) and ``line`` set and the one-line message ``FILE:LINE: KEY: problem``.
 
 Unknown keys are a **warning**, not an error: :meth:`Section.check_unknown` emits a
@@ -25,7 +25,7 @@ from typing import Any
 
 import yaml
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 
 #: PyYAML's safe loader, in C (libyaml) where installed: same nodes and marks, ~10x faster.

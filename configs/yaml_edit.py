@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import re
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 _VALUE_LINE = (r"^(?P<head>[ \t]+{key}:[ \t]*)(?P<value>\{{[^}}#]*\}}|\[[^\]#]*\]|[^\s#]+)"
                r"(?P<gap>[ \t]*)(?P<tail>#.*)?$")

@@ -7,7 +7,7 @@ state ``s = (x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, inputs
 
 Public API
 ----------
-Robot data: plain numbers (the robot file becomes them in :mod:`swerve.tools.run.robot`)::
+Robot data: plain numbers (the robot file becomes them in :mod:`swerve.tools.run.geometry`)::
 
     geom = controller.kinematics.Geometry(a_m, b_m, wheel_radius_m)
     limits = controller.kinematics.Limits(v1_max_mps, steer_rate_max_radps, steer_angle_max_rad)
@@ -16,7 +16,7 @@ Offline (``swerve synth``)::
 
     traj = controller.trajectory.load_trajectory("circle")     # or "line", "curvilinear",
                                                                # a .yaml or a t,x,y .csv file
-    ref, gains = controller.design.synthesize(traj, "riccati", geom, limits)   # or "paper"
+    ref, gains = controller.gain_schedule.synthesize(traj, "riccati", geom, limits)   # or "paper"
     controller.gains_io.save_gains("circle.npz", gains)        # also ".dat" (62.5 Hz table)
     gains = controller.gains_io.load_gains("circle.npz")
 
@@ -38,7 +38,7 @@ checking drawn CSV files; :mod:`.path_segments` lines and arcs in samples; :mod:
 drawn-path fit; :mod:`.trajectory` trajectory files; :mod:`.reference` desired states and frame
 schedule; :mod:`.ltv` LTV error system and cost; :mod:`.riccati`
 finite-horizon Riccati; :mod:`.synthesis` the paper's conjugate-gradient method;
-:mod:`.design` both in one call; :mod:`.gains_io` schedule files; :mod:`.tracking` the online
+:mod:`.gain_schedule` both in one call; :mod:`.gains_io` schedule files; :mod:`.tracking` the online
 law; :mod:`.simulate` closed loop on model (1)-(5); :mod:`.plots` figures like the paper's 4-9;
 :mod:`.errors` :class:`ControllerError` (a ``ConfigError``: one-line CLI errors). The online
 loop that runs the law on the robot is the application layer's (:mod:`swerve.tools.run`); this

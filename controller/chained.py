@@ -14,7 +14,7 @@ With ``ci = cos(delta_i + theta')``, ``si = sin(...)``, ``Di = xwi sin(delta_i) 
 The form is singular where ``c1 + c2 = 0``: ``sigma' = +-pi/2``, travel parallel to the frame's
 y-axis. Functions here compute whatever numpy computes there; callers check
 :func:`singularity_margin` first. The frame rotation and :func:`to_chained` (which the reference and
-the frame changes go through) use :mod:`math`'s functions (:mod:`controller.mathmap`), so their bits
+the frame changes go through) use :mod:`math`'s functions (:mod:`core.mathmap`), so their bits
 do not depend on NumPy's SIMD loops.
 """
 from __future__ import annotations
@@ -24,7 +24,7 @@ import math
 import numpy as np
 
 from swerve.controller.kinematics import Geometry
-from swerve.controller.mathmap import cos_sin, elementwise
+from swerve.core.mathmap import cos_sin, elementwise
 
 
 def wrap_angle(angle):

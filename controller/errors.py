@@ -1,11 +1,11 @@
 """The controller's error class.
 
-:class:`ControllerError` is a :class:`swerve.configs.errors.ConfigError`, so the ``swerve`` command
+:class:`ControllerError` is a :class:`swerve.core.errors.ConfigError`, so the ``swerve`` command
 prints it as one line (exit status 2) instead of a traceback.
 """
 from __future__ import annotations
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 
 class ControllerError(ConfigError):

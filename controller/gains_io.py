@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swerve.configs.atomic import atomic_write
+from swerve.core.atomic import atomic_write
 from swerve.controller.errors import ControllerError
 
 SIGN_CONVENTION = "u = ud + K (x - xd)"

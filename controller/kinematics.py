@@ -6,7 +6,7 @@ are driven at the same ground speed ``v1``. Wheel positions in the body frame: f
 rear ``(-a, b)``; ``b`` only enters through ``r**2 = a**2 + b**2``.
 
 :class:`Geometry` and :class:`Limits` are plain numbers; the robot file becomes them in the
-application layer (:func:`swerve.tools.run.robot.load_robot`).
+application layer (:func:`swerve.tools.run.geometry.load_robot`).
 """
 from __future__ import annotations
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 from swerve.controller.chained import chained_jacobian, to_chained, wrap_angle
 
 
@@ -43,7 +43,7 @@ def error_system(ref):
     Ad : ndarray, shape (N, 5, 5)
     Bd : ndarray, shape (N, 5, 3)
 
-    The change of frame ``T_i`` is applied in :mod:`controller.small_linalg` (fixed order), so
+    The change of frame ``T_i`` is applied in :mod:`core.small_linalg` (fixed order), so
     the system has the same bits whichever BLAS kernel the CPU gets.
     """
     N, tau = ref.n_steps, ref.tau_s

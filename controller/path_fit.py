@@ -21,8 +21,8 @@ the whole fit ``O(n)``.
 
 No BLAS or LAPACK call (``@``, ``np.linalg``) and no NumPy loop picked per CPU (``sin``,
 ``arctan2``, ``sum``): sums of products are sequential (``np.cumsum``) or
-:func:`math.fsum`, the small normal equations are solved by :mod:`controller.small_linalg`,
-sines and cosines are :mod:`math`'s (:mod:`controller.mathmap`). The fit's decisions and
+:func:`math.fsum`, the small normal equations are solved by :mod:`core.small_linalg`,
+sines and cosines are :mod:`math`'s (:mod:`core.mathmap`). The fit's decisions and
 bits are the same on every machine.
 """
 from __future__ import annotations
@@ -36,10 +36,10 @@ import numpy as np
 from scipy.interpolate import BSpline, LSQUnivariateSpline
 from tqdm import tqdm
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.mathmap import cos_sin, elementwise
+from swerve.core.mathmap import cos_sin, elementwise
 from swerve.controller.path_csv import PathSamples, read_csv_samples
 from swerve.controller.path_segments import Run, junctions, segment_samples, three_point_curvatures
 

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@ Every path has ``derivatives(t) -> ndarray shape (4, 2, len(t))``: position (m),
 (m/s), acceleration (m/s^2) and jerk (m/s^3) at the times ``t`` (s), and ``t_end_s``. Paths
 drawn as samples are fitted by :mod:`controller.path_fit`; :func:`draw_primitives` samples
 lines and arcs as a user or CAD tool would. Sines and cosines are :mod:`math`'s, mapped over
-the arrays (:mod:`controller.mathmap`): NumPy's own loops are picked per CPU and differ in the
+the arrays (:mod:`core.mathmap`): NumPy's own loops are picked per CPU and differ in the
 last bit.
 """
 from __future__ import annotations
@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swerve.controller.mathmap import cos_sin
+from swerve.core.mathmap import cos_sin
 
 
 @dataclass(frozen=True)

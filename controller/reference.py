@@ -6,7 +6,7 @@ unwrapped) and symmetric steering, and assigns each step a chained-form frame an
 (see :func:`frame_schedule`).
 
 Only ``+ - * /``, ``sqrt`` and :mod:`math`'s functions (mapped over arrays by
-:func:`controller.mathmap.elementwise`) enter the numbers: NumPy's ``sin``, ``arctan2``, ``power``, ...
+:func:`core.mathmap.elementwise`) enter the numbers: NumPy's ``sin``, ``arctan2``, ``power``, ...
 take SIMD loops picked per CPU, which differ in the last bit.
 """
 from __future__ import annotations
@@ -21,7 +21,7 @@ import numpy as np
 from swerve.controller.chained import to_chained, wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.mathmap import elementwise
+from swerve.core.mathmap import elementwise
 
 if TYPE_CHECKING:
     from swerve.controller.trajectory import Trajectory

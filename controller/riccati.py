@@ -10,14 +10,14 @@ Backward from ``P_N = 0``::
 Only ``S_i`` must be invertible, which ``R > 0`` guarantees: no controllability or
 stabilisability condition. The optimal cost from ``x~(0)`` is ``J* = x~(0)' P_0 x~(0)``.
 
-The recursion runs in :mod:`controller.small_linalg` (Python floats, fixed order), so the
+The recursion runs in :mod:`core.small_linalg` (Python floats, fixed order), so the
 schedule has the same bits whichever BLAS kernel the CPU gets.
 """
 from __future__ import annotations
 
 import numpy as np
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 
 
 def finite_horizon_lqr(Ad, Bd, Q, R, tau: float, progress: bool = False):

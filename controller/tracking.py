@@ -23,7 +23,7 @@ optional reference governor (``governor=True``) therefore slows the reference cl
 the reference waits for the robot instead of running away.
 
 Cost: :meth:`TrackingLaw.command` runs at the loop rate, so it is float math (``K_i x~`` by
-:func:`controller.small_linalg.matvec`: fixed order, the same bits whichever BLAS kernel numpy
+:func:`core.small_linalg.matvec`: fixed order, the same bits whichever BLAS kernel numpy
 would use) and takes the reference from :meth:`controller.reference.Reference.sample` (a
 precomputed table on the grid, a scalar evaluation of the path off it); the vectorised numpy
 functions it must agree with are pinned in tests/controller/test_tracking.py.
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 from swerve.controller.chained import wrap_angle
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.gains_io import GainSchedule

@@ -18,7 +18,7 @@ instead of showing a traceback. Errors carry their facts as fields::
 """
 from __future__ import annotations
 
-from swerve.configs.errors import ConfigError, SwerveError
+from swerve.core.errors import ConfigError, SwerveError
 from swerve.driver.protocol import ErrorNumber, StatusError, instruction_name
 
 __all__ = ["SwerveError", "ConfigError", "DxlError", "TransportError", "PortInUseError",

@@ -5,10 +5,10 @@ Modules: :mod:`memory` (control-table bytes and rules), :mod:`servo` (instructio
 time), :mod:`server` (:class:`Emulator`, composed of those), :mod:`robot_emulator`
 (:func:`build_emulator`, from parsed configs).
 """
-from swerve.emulator.clock import FrozenClock, PhysicsClock, WallClock
+from swerve.emulator.clock import FrozenClock, PhysicsClock, WallPhysicsClock
 from swerve.emulator.faults import Faults
 from swerve.emulator.server import Emulator, LinkSettings, Stats, make_servos
 from swerve.emulator.servo import VirtualServo
 
 __all__ = ["Emulator", "Faults", "FrozenClock", "LinkSettings", "PhysicsClock", "Stats", "VirtualServo",
-           "WallClock", "make_servos"]
+           "WallPhysicsClock", "make_servos"]

@@ -34,7 +34,7 @@ import math
 from dataclasses import dataclass
 from typing import Sequence
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS as LATENCY_MAX_MS
 from swerve.driver.robot_config import ADAPTER_LATENCY_MIN_MS as LATENCY_MIN_MS
 

@@ -8,11 +8,11 @@ may block in ``select`` before calling again. Its behaviour is passed in, as pys
 
 * :class:`FrozenClock`: simulated time stands still (a register-only bus; ``emu.advance(dt_s)``
   still steps it by hand, e.g. in tests).
-* :class:`WallClock`: ``time_scale`` simulated seconds per wall second, in steps of ``1/rate_hz``.
+* :class:`WallPhysicsClock`: ``time_scale`` simulated seconds per wall second, in steps of ``1/rate_hz``.
 
-* :class:`LockstepClock`: simulated time advances only when asked (Gazebo's lockstep, ROS
-  ``use_sim_time``): a client moves it with :meth:`LockstepClock.advance_to` (through the control
-  channel, :mod:`swerve.emulator.control`), and every bus exchange is charged at its wire time.
+* :class:`LockstepPhysicsClock`: simulated time advances only when asked (Gazebo's lockstep, ROS
+  ``use_sim_time``): a client moves it with :meth:`LockstepPhysicsClock.advance_to` (through the control
+  channel, :mod:`swerve.emulator.lockstep_socket`), and every bus exchange is charged at its wire time.
 
 Besides ``run``, a clock sees each exchange: :meth:`PhysicsClock.on_request` once an instruction
 has arrived (``wire_s``: its bytes at the line speed) and :meth:`PhysicsClock.on_replies` before
@@ -154,7 +154,7 @@ class FrozenClock(WallPacedClock):
         return math.inf
 
 
-class WallClock(WallPacedClock):
+class WallPhysicsClock(WallPacedClock):
     """``time_scale`` simulated seconds per wall second, in fixed steps of ``1/rate_hz``.
 
     Runs the steps wall time demands (``time_scale * rate_hz`` per wall second) back to back until
@@ -227,7 +227,7 @@ DEFAULT_REPLY_LATENCY_S = 50e-6
 _GRID_SLACK = 1e-6
 
 
-class LockstepClock:
+class LockstepPhysicsClock:
     """Simulated time that advances only when asked; the bus costs what it would on the cable.
 
     :attr:`now_s` is robot time (s since start). It moves forward in two ways, both in the bus
@@ -308,10 +308,10 @@ class LockstepClock:
 
 
 def clock_for(time_scale: float, rate_hz: float = 1000.0) -> PhysicsClock:
-    """:class:`WallClock` at ``time_scale``, or :class:`FrozenClock` for ``time_scale == 0``."""
+    """:class:`WallPhysicsClock` at ``time_scale``, or :class:`FrozenClock` for ``time_scale == 0``."""
     if time_scale < 0:
         raise ConfigError(f"time scale must be >= 0, got {time_scale:g}")
-    return WallClock(time_scale, rate_hz) if time_scale > 0 else FrozenClock(rate_hz)
+    return WallPhysicsClock(time_scale, rate_hz) if time_scale > 0 else FrozenClock(rate_hz)
 
 
 class HandOverLock:

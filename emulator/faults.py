@@ -15,7 +15,7 @@ from __future__ import annotations
 import random
 from typing import Callable
 
-from swerve.configs.options import parse_key_values
+from swerve.core.options import parse_key_values
 from swerve.driver.errors import ConfigError
 
 from swerve.emulator.servo import hardware_error_bits

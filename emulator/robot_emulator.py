@@ -34,14 +34,14 @@ from typing import Iterable, Mapping, Sequence
 
 import numpy as np
 
-from swerve.configs.atomic import write_text
-from swerve.configs.options import parse_key_values
+from swerve.core.atomic import write_text
+from swerve.core.options import parse_key_values
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig
 from swerve.driver.span_codec import items_struct
 from swerve.emulator.adapter import AdapterSettings, UsbAdapter
-from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepClock, clock_for
-from swerve.emulator.control import ControlServer
+from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepPhysicsClock, clock_for
+from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.faults import Faults
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
@@ -305,7 +305,7 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         Robot time advances only when a client asks, through the control channel (a Unix socket
         at ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is
         charged at its wire time plus ``reply_latency_s`` per answering servo
-        (:class:`~swerve.emulator.clock.LockstepClock`). ``time_scale`` is then ignored.
+        (:class:`~swerve.emulator.clock.LockstepPhysicsClock`). ``time_scale`` is then ignored.
     adapter_latency_ms : int, optional
         The USB-serial adapter's latency timer, ms (1..255; :mod:`swerve.emulator.adapter`),
         overriding the robot file's ``link.adapter_latency_ms``. Neither: no adapter (the host
@@ -394,7 +394,7 @@ def _clock(lockstep: bool, time_scale: float, rate_hz: float, control_path, repl
     """``(clock, control channel or None)`` for :func:`build_emulator`."""
     if not lockstep:
         return clock_for(time_scale, rate_hz), None
-    clock = LockstepClock(rate_hz, reply_latency_s)
+    clock = LockstepPhysicsClock(rate_hz, reply_latency_s)
     try:
         return clock, ControlServer(control_path)
     except OSError as exc:

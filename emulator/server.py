@@ -34,7 +34,7 @@ from swerve.driver.transport import BITS_PER_BYTE
 
 from swerve.emulator.adapter import UsbAdapter, byte_arrivals
 from swerve.emulator.clock import HAND_OVER_S, ClockStats, FrozenClock, HandOverLock, PhysicsClock
-from swerve.emulator.control import ControlServer
+from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.faults import Faults
 from swerve.emulator.pty_link import PtyLink, precise_timers
 from swerve.emulator.servo import BAUD_RATES, Dynamics, VirtualServo
@@ -219,8 +219,8 @@ class Emulator:
     world : World, optional
         The robot body, stepped after the servos; gives :attr:`pose`.
     control : ControlServer, optional
-        The lockstep control channel (:mod:`swerve.emulator.control`), served by the bus thread;
-        needs a clock with ``move_to`` (:class:`~swerve.emulator.clock.LockstepClock`).
+        The lockstep control channel (:mod:`swerve.emulator.lockstep_socket`), served by the bus thread;
+        needs a clock with ``move_to`` (:class:`~swerve.emulator.clock.LockstepPhysicsClock`).
     adapter : UsbAdapter, optional
         The USB-serial adapter between the cable and the host (:mod:`swerve.emulator.adapter`):
         replies reach the host when it sends them (its latency timer, full packets, USB frames),

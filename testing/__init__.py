@@ -61,7 +61,7 @@ class EmulatedRobot:
     """The emulated robot in lockstep, as yielded by the ``emulated_robot`` fixture.
 
     ``port``: the pty to open with ``Bus(robot.port, 1_000_000)``; ``control_path``: its lockstep
-    control socket; ``clock``: a :class:`swerve.tools.run.lockstep.LockstepClock` (a clock for
+    control socket; ``clock``: a :class:`swerve.tools.run.lockstep.LockstepLoopClock` (a clock for
     :class:`swerve.tools.run.ticker.Ticker` and the tracking loop). Open the bus with
     :meth:`open_bus`, or call :meth:`attach` with your own before you use it, so each time
     request first waits for the bytes it wrote.
@@ -132,7 +132,7 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
     ``start_pose``, ``rate_hz``, ``reply_latency_s``.
     """
     from swerve.emulator.process import EmulatorProcess
-    from swerve.tools.run.lockstep import LockstepClock
+    from swerve.tools.run.lockstep import LockstepLoopClock
 
     kw = _marker_kwargs(request, "emulated_robot")
     config = kw.pop("config", None)
@@ -143,5 +143,5 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
     kw.setdefault("noise", "seed=0")
     config = os.fspath(config) if isinstance(config, Path) else config
     with EmulatorProcess(config, lockstep=True, **kw) as process:
-        with LockstepClock(process.control_path) as clock:
+        with LockstepLoopClock(process.control_path) as clock:
             yield EmulatedRobot(process, clock)

@@ -5,7 +5,7 @@ import warnings
 
 import pytest
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.tools import argtypes, cli
 
 

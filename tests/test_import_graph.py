@@ -1,10 +1,11 @@
 """The layers' import graph, read from the source with :mod:`ast` (nothing is imported).
 
 Every import statement counts, at the top of a module or inside a function. The layers, from
-the bottom: ``swerve.configs`` imports only itself; ``swerve.driver`` and ``swerve.controller``
-(numerics) import only ``swerve.configs``; ``swerve.emulator`` imports the driver and the
-configs; ``swerve.tools`` (the application) may import every layer. The cross-layer imports that
-break these rules today are listed one file and one module at a time in :data:`EXCEPTIONS`.
+the bottom: ``swerve.core`` (errors, option texts, atomic writes, fixed-order numerics) imports
+nothing else of swerve; ``swerve.configs`` imports the core; ``swerve.driver`` and
+``swerve.controller`` (numerics) import the configs and the core; ``swerve.emulator`` imports
+the driver, the configs and the core; ``swerve.tools`` (the application) may import every layer.
+No exception is allowed.
 
 No package's parts import each other in a circle (modules and subpackages as nodes, in-function
 imports included; imports under ``if TYPE_CHECKING:`` never run and do not count). No module
@@ -21,26 +22,20 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Folder -> subpackage of ``swerve`` (pyproject.toml's package-dir).
-PARTS = ("driver", "emulator", "controller", "tools", "configs")
+PARTS = ("driver", "emulator", "controller", "tools", "configs", "core")
 #: Every Python file the import rules apply to.
 SOURCES = sorted(p for d in (*PARTS, "tests", "bench") for p in (ROOT / d).rglob("*.py"))
 #: The parts of ``swerve`` each layer may import (its own part always).
 ALLOWED = {
-    "configs": (),
-    "driver": ("swerve.configs",),
-    "controller": ("swerve.configs",),
-    "emulator": ("swerve.driver", "swerve.configs"),
+    "core": (),
+    "configs": ("swerve.core",),
+    "driver": ("swerve.configs", "swerve.core"),
+    "controller": ("swerve.configs", "swerve.core"),
+    "emulator": ("swerve.driver", "swerve.configs", "swerve.core"),
     "tools": ("swerve",),
 }
 #: Cross-layer imports allowed in one file only: ``(file, module) -> why``. A ``from`` import
-#: of the module through its package (``from swerve.controller import small_linalg``) counts.
-EXCEPTIONS = {
-    ("emulator/physics/body.py", "swerve.controller.small_linalg"):
-        "the body's least-squares operator uses the fixed-order pinv that keeps lockstep runs "
-        "byte-identical across CPUs; that module is not controller-specific",
-    ("emulator/physics/contact.py", "swerve.controller.small_linalg"):
-        "the static wheel loads use the same fixed-order pinv and matvec as the body",
-}
+#: of the module through its package (``from swerve.core import small_linalg``) counts.
 
 
 def module_name(path: Path) -> str:
@@ -100,20 +95,14 @@ def violations(path: Path, text: str | None = None) -> list[str]:
     rel = path.relative_to(ROOT)
     part = rel.parts[0]
     allowed = (f"swerve.{part}", *ALLOWED[part]) if part in ALLOWED else ("swerve",)
-    excepted = {m for (f, m) in EXCEPTIONS if f == rel.as_posix()}
     imports = imported_modules(path, text)
-    by_line = collections.defaultdict(set)
-    for line, mod in imports:
-        by_line[line].add(mod)
     bad = []
     for line, mod in imports:
         where = f"{rel}:{line} imports {mod}"
         if mod.split(".")[0] in PARTS:
             bad.append(f"{where} (a bare folder name; import swerve.{mod})")
         elif _within(mod, "swerve") and not any(_within(mod, a) for a in allowed):
-            # an excepted module, or the package a ``from`` import on the same line takes it from
-            if not any(_within(e, mod) for e in excepted & by_line[line]):
-                bad.append(f"{where} (swerve.{part} must not depend on it)")
+            bad.append(f"{where} (swerve.{part} must not depend on it)")
     return sorted(set(bad))
 
 
@@ -231,24 +220,8 @@ def test_the_checker_reports_a_planted_violation(part, text, expected):
 
 def test_the_checker_accepts_allowed_imports():
     probe = ROOT / "controller" / "probe_module.py"
-    assert violations(probe, "from swerve.configs.errors import ConfigError\n"
+    assert violations(probe, "from swerve.core.errors import ConfigError\n"
                              "from .kinematics import Geometry\nimport numpy as np\n") == []
-
-
-@pytest.mark.parametrize("key", sorted(EXCEPTIONS), ids=lambda k: f"{k[0]}->{k[1]}")
-def test_every_exception_is_still_needed(key):
-    path, mod = key
-    assert mod in {m for _, m in imported_modules(ROOT / path)}, \
-        f"{path} no longer imports {mod}: remove it from EXCEPTIONS"
-
-
-def test_the_checker_excepts_only_the_named_module():
-    body = ROOT / "emulator" / "physics" / "body.py"
-    assert violations(body, "from swerve.controller import small_linalg\n") == []
-    assert violations(body, "import swerve.controller.small_linalg\n") == []
-    found = violations(body, "from swerve.controller import small_linalg, kinematics\n")
-    assert [v for v in found if "swerve.controller.kinematics" in v] and len(found) == 1, found
-    assert violations(ROOT / "emulator" / "server.py", "from swerve.controller import small_linalg\n")
 
 
 @pytest.mark.parametrize("part, text, expected", [

@@ -19,7 +19,7 @@ from swerve.driver.errors import DxlTimeoutError
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.commands.emulate import parse_control, parse_port_line
-from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock, LockstepError
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock, LockstepError
 
 ROOT = Path(__file__).resolve().parents[1]
 BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
@@ -29,7 +29,7 @@ BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
 def bus_in_lockstep():
     """A register-only 3-servo bus in lockstep, its driver, and a clock on its control channel."""
     with build_emulator(ids=[1, 2, 3], lockstep=True) as emu:
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+        with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             yield emu, bus, clock
@@ -119,7 +119,7 @@ def test_now_brings_the_true_pose_with_it():
     """On a robot, the time after a read and the true pose are one request."""
     robot = load_robot_config(shipped("robot.yaml"))
     with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+        with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             clock.sleep_until(0.1)
@@ -137,7 +137,7 @@ def test_now_brings_the_true_pose_with_it():
 def test_the_time_after_a_read_can_be_asked_while_its_reply_is_on_the_way():
     robot = load_robot_config(shipped("robot.yaml"))
     with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+        with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.attach(bus)
             clock.sleep_until(0.1)
@@ -175,7 +175,7 @@ def test_emulate_lockstep_prints_its_control_socket_and_stays_paused():
         port, baud, ids = parse_port_line(line)
         control = parse_control(line)
         assert ids == [1, 2] and control is not None and Path(control).exists()
-        with LockstepClock(control) as clock, Bus(port, baud, default_model="xh430-w210",
+        with LockstepLoopClock(control) as clock, Bus(port, baud, default_model="xh430-w210",
                                                   timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             assert bus.ping(1).id == 1

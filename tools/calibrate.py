@@ -15,7 +15,7 @@ answers from the emulator's true state, which never crosses the bus).
 
 The robot file is edited line by line by :mod:`swerve.configs.yaml_edit` (comments and alignment
 kept), re-validated with :func:`swerve.driver.robot_config.parse_robot_config`, and replaced
-atomically by :mod:`swerve.configs.atomic` (a symlink is written through; a read-only file is
+atomically by :mod:`swerve.core.atomic` (a symlink is written through; a read-only file is
 refused, and ``swerve calibrate --write`` checks that before it drives the robot).
 """
 from __future__ import annotations
@@ -35,7 +35,7 @@ from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, SwerveError
 from swerve.driver.robot_config import RobotConfig, WheelConfig, parse_robot_config
 from swerve.driver.wheelset import WheelSet
-from swerve.configs.atomic import write_text
+from swerve.core.atomic import write_text
 from swerve.configs.yaml_edit import set_value
 from swerve.tools.signals import safe_stop
 
@@ -101,7 +101,7 @@ class Jogger:
 class Session:
     """The bus and the robot file being calibrated. ``time_scale``: robot seconds per wall
     second (an emulator's; 1 on the robot). ``clock``: a lockstep emulator's
-    :class:`~swerve.tools.run.lockstep.LockstepClock` (robot time; ``time_scale`` is then unused),
+    :class:`~swerve.tools.run.lockstep.LockstepLoopClock` (robot time; ``time_scale`` is then unused),
     or None for the wall clock. Leaving it stops the wheels and turns the torque off."""
 
     def __init__(self, bus: Bus, cfg: RobotConfig, *, time_scale: float = 1.0,
@@ -355,7 +355,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
     """
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.robot_emulator import robot_emulator
-    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
+    from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     if margin_s is None:
         margin_s = LOCKSTEP_TIMEOUT_MARGIN_S if lockstep else 0.05
@@ -363,7 +363,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
         emu = stack.enter_context(robot_emulator(robot_path, resolve_emulator_config(emulator_config or "ideal"),
                                                  body=True, time_scale=time_scale, rate_hz=EMULATOR_RATE_HZ,
                                                  lockstep=lockstep))
-        clock = stack.enter_context(LockstepClock(emu.control.path)) if lockstep else None
+        clock = stack.enter_context(LockstepLoopClock(emu.control.path)) if lockstep else None
         bus = stack.enter_context(Bus(emu.port, cfg.link.baud, default_model=cfg.model, retries=1,
                                       timeout_margin_s=margin_s))
         if clock is not None:           # connected before anything was written to the pty

@@ -5,7 +5,7 @@ and ``run(args) -> int``. Heavy imports happen inside ``run`` so ``swerve --help
 
 This module is the one way errors leave the program (:func:`main`):
 
-- a bad option (argparse) or a :class:`~swerve.configs.errors.SwerveError` is one line on stderr
+- a bad option (argparse) or a :class:`~swerve.core.errors.SwerveError` is one line on stderr
   (``swerve CMD: error: ...``) and exit status 2;
 - an :class:`OSError` the command did not turn into a ``SwerveError`` is one line naming the
   file and the reason, status 1;
@@ -33,7 +33,7 @@ import traceback
 import warnings
 from pathlib import Path
 
-from swerve.configs.errors import SwerveError
+from swerve.core.errors import SwerveError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
 from swerve.tools.argtypes import int_range
 

@@ -15,7 +15,7 @@ decouple (``Σx_i = Σy_i = 0``) and give exactly the paper's model (1)–(3):
 ``ω = (x_w1 sin δ1 / (2 r1²) + x_w2 sin δ2 / (2 r2²)) v1``.
 The pose integrates the twist exactly for a twist held constant over the step.
 
-The least-squares operator comes from :func:`swerve.controller.small_linalg.pinv` and every fit
+The least-squares operator comes from :func:`swerve.core.small_linalg.pinv` and every fit
 is Python float arithmetic in a fixed order (no BLAS), so a run gives the same bits on every machine.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from math import cos, sin
 
 import numpy as np
 
-from swerve.controller import small_linalg
+from swerve.core import small_linalg
 
 from .jit import jitable
 

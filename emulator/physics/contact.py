@@ -30,7 +30,7 @@ import math
 
 import numpy as np
 
-from swerve.controller import small_linalg
+from swerve.core import small_linalg
 
 from .body import _se2_step
 from .jit import jitable

@@ -1,7 +1,7 @@
 """Configuration dataclasses for the physics and their YAML loader (``configs/emulator.yaml``).
 
 The file is read by :mod:`swerve.configs.loader`: malformed input raises
-:class:`~swerve.configs.errors.ConfigError` ``FILE:LINE: KEY: problem``; a key no parser reads
+:class:`~swerve.core.errors.ConfigError` ``FILE:LINE: KEY: problem``; a key no parser reads
 gives a :class:`~swerve.configs.loader.ConfigWarning`.
 """
 from __future__ import annotations
@@ -11,7 +11,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.configs.loader import Document, Section, document, read_yaml
 from swerve.driver.control_table import REFERENCE_MODEL, table_for
 

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 from .params import PhysicsConfig
 

@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.tools.campaign.engines import Done, PoolEngine
 from swerve.tools.campaign.runner import MAX_LOSSES, run_missing
 from swerve.tools.campaign.scenario import Outcome, base_row, scenario, text

@@ -12,7 +12,7 @@ from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.tools.campaign.spec import SAMPLES_MAX, load_campaign, parse_campaign_text, profile_data
 from swerve.tools.cli import main
 

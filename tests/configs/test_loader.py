@@ -7,7 +7,7 @@ import warnings
 import pytest
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.configs.loader import ConfigWarning, document, parse_yaml_text, read_yaml
 from swerve.controller.errors import ControllerError
 from swerve.controller.trajectory import load_trajectory

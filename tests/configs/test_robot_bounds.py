@@ -19,7 +19,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.configs.loader import parse_yaml_text
 from swerve.driver.control_table import REFERENCE_MODEL, table_for
 from swerve.driver.robot_config import parse_robot_config, robot_bounds

@@ -15,7 +15,7 @@ from swerve.controller.trajectory import Trajectory, load_trajectory
 @pytest.fixture(scope="session")
 def robot():
     """``(Geometry, Limits)`` of the shipped robot file (read by the application layer)."""
-    from swerve.tools.run.robot import load_robot
+    from swerve.tools.run.geometry import load_robot
 
     return load_robot()
 

@@ -18,7 +18,7 @@ import pytest
 from hypothesis import HealthCheck, event, example, given, settings
 from hypothesis import strategies as st
 
-from swerve.configs.errors import SwerveError
+from swerve.core.errors import SwerveError
 from swerve.controller.path_csv import read_csv_samples
 from swerve.controller.path_fit import LM_ITERATIONS, LM_TRIALS, WINDOW_PARAMS, fit_samples
 from swerve.controller.paths import draw_primitives, draw_sines

@@ -91,7 +91,7 @@ def test_start_line_and_reverse_driving(robot):
 
 
 def test_reverse_path_is_tracked(robot):
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
 

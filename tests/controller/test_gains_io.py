@@ -3,7 +3,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from swerve.controller.design import synthesize
+from swerve.controller.gain_schedule import synthesize
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import load_gains, save_gains
 from swerve.controller.trajectory import load_trajectory

@@ -3,11 +3,11 @@ import pytest
 import yaml
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.controller.errors import ControllerError
 from swerve.controller.kinematics import (Geometry, drive_angular_speed, rk4_step, state_derivative,
                                           symmetric_steering, wheel_commands)
-from swerve.tools.run.robot import load_robot
+from swerve.tools.run.geometry import load_robot
 
 
 def test_load_robot_reads_the_config(robot):

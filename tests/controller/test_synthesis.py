@@ -223,7 +223,7 @@ def test_default_paper_gains_track_the_curvilinear_path(robot):
     """The default paper synthesis (spread errors, frozen-time LQR start, CG to 1.001 J*) passes
     its own check and tracks the curvilinear path like Riccati; the former default (errors at
     t0 only, horizon continuation) diverged there."""
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from swerve.controller.chained import inputs_from_chained, to_chained
-from swerve.controller.design import synthesize
+from swerve.controller.gain_schedule import synthesize
 from swerve.controller.errors import ControllerError, SingularityError
 from swerve.controller.reference import build_reference
 from swerve.controller.trajectory import TRAJECTORY_DIR, load_trajectory

@@ -13,7 +13,7 @@ import pytest
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.configs.loader import parse_yaml_text
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
@@ -23,7 +23,7 @@ from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.cli import main
 from swerve.tools.commands.emulate import parse_control, parse_port_line
-from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepClock
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
 BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
 MS = 1e-3
@@ -153,7 +153,7 @@ def test_at_1_ms_a_sparse_byte_reaches_the_host_at_the_next_frame(gaps):
 @pytest.fixture(params=[None, 1, 16], ids=["no adapter", "1 ms", "16 ms"])
 def lockstep_bus(request):
     with build_emulator(ids=[1, 2], lockstep=True, adapter_latency_ms=request.param) as emu:
-        with LockstepClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
+        with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             yield request.param, emu, bus, clock
@@ -248,7 +248,7 @@ def test_emulate_option_reaches_the_emulated_adapter():
     try:
         line = proc.stdout.readline()
         port, baud, _ = parse_port_line(line)
-        with LockstepClock(parse_control(line)) as clock, Bus(port, baud, default_model="xh430-w210",
+        with LockstepLoopClock(parse_control(line)) as clock, Bus(port, baud, default_model="xh430-w210",
                                                               timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
             assert clock.info()["adapter_latency_ms"] == 16

@@ -22,7 +22,7 @@ import pytest
 from swerve.configs import shipped
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator.clock import LockstepClock
+from swerve.emulator.clock import LockstepPhysicsClock
 from swerve.emulator.physics import coupled, jit, servo_model
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
@@ -177,7 +177,7 @@ def test_batched_ticks_trip_the_watchdog_protection_and_torque_off_as_single_tic
 
 def test_lockstep_clock_runs_batches_equal_to_single_ticks(monkeypatch):
     """The lockstep clock moves time to arbitrary instants (bus exchanges): uneven batches."""
-    clock = LockstepClock(RATE_HZ)
+    clock = LockstepPhysicsClock(RATE_HZ)
 
     def by_clock(emu, k):
         for t in (0.0003, 0.0041, 0.0107, 0.016):          # instants inside the cycle
@@ -199,7 +199,7 @@ def test_unbatchable_worlds_step_tick_by_tick(monkeypatch, profile):
 
 def test_lockstep_jump_equals_single_ticks():
     """A jump of 0.35 s: several holds of the lock (MAX_STEPS_PER_HOLD) and a watchdog trip."""
-    clock = LockstepClock(RATE_HZ)
+    clock = LockstepPhysicsClock(RATE_HZ)
     batched, stepped = _emulator("ideal", True), _emulator("ideal", True)
     for emu, modes in (batched, stepped):
         _commands(emu, modes, 3)

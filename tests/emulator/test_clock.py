@@ -8,7 +8,7 @@ import pytest
 
 from swerve.driver.errors import ConfigError
 from swerve.emulator import clock as clk
-from swerve.emulator.clock import FrozenClock, WallClock, clock_for
+from swerve.emulator.clock import FrozenClock, WallPhysicsClock, clock_for
 
 
 class FakeWorld:
@@ -50,7 +50,7 @@ def test_frozen_clock_never_steps():
 
 
 def test_wall_clock_runs_what_wall_time_demands(wall):
-    c, world = WallClock(time_scale=2.0, rate_hz=1000.0), FakeWorld()
+    c, world = WallPhysicsClock(time_scale=2.0, rate_hz=1000.0), FakeWorld()
     wait = c.run(world)                       # starts the clock: nothing owed yet
     assert world.dts == [] and wait == pytest.approx(clk.MIN_SLEEP_S)
     wall[0] += 0.010                          # 10 ms of wall time at 2x: 20 steps of 1 ms
@@ -60,7 +60,7 @@ def test_wall_clock_runs_what_wall_time_demands(wall):
 
 
 def test_wall_clock_yields_to_a_pending_request(wall):
-    c, world = WallClock(1.0, 1000.0), FakeWorld(request_after=3)
+    c, world = WallPhysicsClock(1.0, 1000.0), FakeWorld(request_after=3)
     c.run(world)
     wall[0] += 0.010                          # 10 steps owed
     assert c.run(world) == 0.0                # more is owed: come back at once
@@ -71,7 +71,7 @@ def test_wall_clock_yields_to_a_pending_request(wall):
 
 
 def test_wall_clock_drops_and_counts_a_backlog_beyond_the_limit(wall):
-    c, world = WallClock(1.0, 1000.0), FakeWorld()
+    c, world = WallPhysicsClock(1.0, 1000.0), FakeWorld()
     c.run(world)
     wall[0] += 2.0                            # a 2 s stall: 2000 steps owed, 500 kept
     while c.run(world) == 0.0:
@@ -85,8 +85,8 @@ def test_wall_clock_drops_and_counts_a_backlog_beyond_the_limit(wall):
 
 def test_clock_for_and_bad_settings():
     assert isinstance(clock_for(0.0, 500.0), FrozenClock)
-    assert isinstance(clock_for(3.0), WallClock)
-    for bad in (lambda: clock_for(-1.0), lambda: WallClock(0.0), lambda: WallClock(1.0, 0.0),
+    assert isinstance(clock_for(3.0), WallPhysicsClock)
+    for bad in (lambda: clock_for(-1.0), lambda: WallPhysicsClock(0.0), lambda: WallPhysicsClock(1.0, 0.0),
                 lambda: FrozenClock(-5.0)):
         with pytest.raises(ConfigError):
             bad()
@@ -139,9 +139,9 @@ def test_a_clock_passed_in_owns_simulated_time():
 
 
 def test_lockstep_clock_steps_only_when_asked_and_exactly_to_the_step_grid():
-    from swerve.emulator.clock import LockstepClock
+    from swerve.emulator.clock import LockstepPhysicsClock
 
-    c, world = LockstepClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
+    c, world = LockstepPhysicsClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
     assert c.run(world) == math.inf and world.dts == []        # nobody asked: nothing runs
     assert c.advance_to(world, 0.016) == 0.016
     assert len(world.dts) == 16 and c.stats.steps == 16
@@ -153,9 +153,9 @@ def test_lockstep_clock_steps_only_when_asked_and_exactly_to_the_step_grid():
 
 
 def test_lockstep_clock_charges_requests_and_replies_and_runs_the_physics_through_them():
-    from swerve.emulator.clock import LockstepClock
+    from swerve.emulator.clock import LockstepPhysicsClock
 
-    c, world = LockstepClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
+    c, world = LockstepPhysicsClock(rate_hz=1000.0, reply_latency_s=50e-6), FakeWorld()
     c.on_request(world, 1.2e-3)               # the instruction ends on the wire at 1.2 ms
     assert len(world.dts) == 1 and c.now_s == pytest.approx(1.2e-3)    # it executes at 1 ms
     assert c.on_replies(world, 1.0e-3, replies=8) is True      # 1 ms of frames + 8 x 50 us
@@ -169,9 +169,9 @@ def test_lockstep_clock_charges_requests_and_replies_and_runs_the_physics_throug
 
 
 def test_lockstep_clock_move_to_leaves_the_physics_to_run_or_catch_up():
-    from swerve.emulator.clock import LockstepClock
+    from swerve.emulator.clock import LockstepPhysicsClock
 
-    c, world = LockstepClock(rate_hz=1000.0), FakeWorld()
+    c, world = LockstepPhysicsClock(rate_hz=1000.0), FakeWorld()
     assert c.move_to(0.016) == 0.016 and world.dts == []       # the answer can go out first
     assert c.move_to(0.010) == 0.016                           # never back
     c.catch_up(world)
@@ -184,17 +184,17 @@ def test_lockstep_clock_move_to_leaves_the_physics_to_run_or_catch_up():
 
 def test_wall_and_frozen_clocks_leave_reply_pacing_to_the_server():
     world = FakeWorld()
-    for c in (FrozenClock(), WallClock(1.0)):
+    for c in (FrozenClock(), WallPhysicsClock(1.0)):
         c.on_request(world, 1e-3)
         assert c.on_replies(world, 1e-3, 1) is False and world.dts == []
 
 
 def test_lockstep_clock_rejects_bad_settings():
-    from swerve.emulator.clock import LockstepClock
+    from swerve.emulator.clock import LockstepPhysicsClock
 
     with pytest.raises(ConfigError):
-        LockstepClock(rate_hz=0.0)
+        LockstepPhysicsClock(rate_hz=0.0)
     with pytest.raises(ConfigError):
-        LockstepClock(reply_latency_s=-1e-6)
+        LockstepPhysicsClock(reply_latency_s=-1e-6)
     with pytest.raises(ConfigError):
-        LockstepClock().advance_to(FakeWorld(), math.nan)
+        LockstepPhysicsClock().advance_to(FakeWorld(), math.nan)

@@ -16,9 +16,9 @@ from swerve.configs import shipped
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator import Emulator, WallClock, make_servos
-from swerve.emulator.clock import LockstepClock
-from swerve.emulator.control import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
+from swerve.emulator import Emulator, WallPhysicsClock, make_servos
+from swerve.emulator.clock import LockstepPhysicsClock
+from swerve.emulator.lockstep_socket import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
@@ -180,12 +180,12 @@ def test_control_path_on_an_existing_file_is_refused(tmp_path):
     ControlServer(stale).close()
 
 
-@pytest.mark.parametrize("clock", [None, WallClock(1.0)], ids=["frozen", "wall"])
+@pytest.mark.parametrize("clock", [None, WallPhysicsClock(1.0)], ids=["frozen", "wall"])
 def test_control_channel_needs_a_clock_that_keeps_robot_time(tmp_path, clock):
     control = ControlServer(tmp_path / "c.sock")
     try:
         with pytest.raises(ConfigError, match="needs a lockstep clock"):
             Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=clock, control=control)
-        Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=LockstepClock(), control=control)
+        Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=LockstepPhysicsClock(), control=control)
     finally:
         control.close()

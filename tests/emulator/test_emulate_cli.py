@@ -10,7 +10,7 @@ import pytest
 
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
-from swerve.configs.options import parse_ids
+from swerve.core.options import parse_ids
 from swerve.tools.commands.emulate import format_ids, parse_port_line
 
 ROOT = Path(__file__).resolve().parents[2]

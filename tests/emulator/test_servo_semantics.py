@@ -11,7 +11,7 @@ from swerve.driver.control_table import Reg, table_for
 from swerve.driver.errors import ConfigError
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator import Emulator, Faults, WallClock, make_servos
+from swerve.emulator import Emulator, Faults, WallPhysicsClock, make_servos
 from swerve.emulator.robot_emulator import build_emulator
 from swerve.emulator.memory import ServoMemory, WriteRejected
 from swerve.emulator.server import SteppedWorld
@@ -152,7 +152,7 @@ def test_emulator_clock_drives_dynamics_and_world():
                 ticked.set()
 
     world = World()
-    with Emulator(make_servos([1, 2], "xh430-w210", 1_000_000, dynamics=lambda s: _Spin()), clock=WallClock(2.0),
+    with Emulator(make_servos([1, 2], "xh430-w210", 1_000_000, dynamics=lambda s: _Spin()), clock=WallPhysicsClock(2.0),
                   world=world) as emu:
         assert ticked.wait(10.0)
         assert emu.servo(1).dynamics.calls >= 50

@@ -4,7 +4,7 @@ import struct
 
 import pytest
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.tools.cli import main
 from swerve.tools.logs.bag import read_log
 

@@ -5,7 +5,7 @@ import threading
 import pytest
 
 from swerve.tools.run import lockstep
-from swerve.tools.run.lockstep import LockstepClock, LockstepError
+from swerve.tools.run.lockstep import LockstepLoopClock, LockstepError
 
 
 def _serve(path, after_info):
@@ -30,7 +30,7 @@ def test_a_silent_emulator_is_a_timeout(tmp_path, monkeypatch):
     monkeypatch.setattr(lockstep, "CONTROL_TIMEOUT_S", 0.2)
     done = threading.Event()
     _serve(tmp_path / "c", lambda conn: (done.wait(60), conn.close()))
-    with LockstepClock(str(tmp_path / "c")) as clock:
+    with LockstepLoopClock(str(tmp_path / "c")) as clock:
         with pytest.raises(LockstepError, match="got no answer within 0.2 s"):
             clock.now()
     done.set()
@@ -39,6 +39,6 @@ def test_a_silent_emulator_is_a_timeout(tmp_path, monkeypatch):
 def test_a_closed_channel_is_named(tmp_path):
     # the request is taken, then the channel closes without an answer
     _serve(tmp_path / "c", lambda conn: (conn.recv(100), conn.close()))
-    with LockstepClock(str(tmp_path / "c")) as clock:
+    with LockstepLoopClock(str(tmp_path / "c")) as clock:
         with pytest.raises(LockstepError, match="closed its control channel"):
             clock.now()

@@ -1,9 +1,9 @@
 """Loading a gain schedule for a run: the reference is rebuilt in the schedule's own frames."""
-from swerve.controller.design import synthesize
+from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import save_gains
 from swerve.controller.trajectory import load_trajectory
 from swerve.tools.run.orchestrate import prepare_law
-from swerve.tools.run.robot import load_robot
+from swerve.tools.run.geometry import load_robot
 
 
 def test_gains_for_the_plain_law_load_with_fixed_frames(tmp_path):

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from swerve.emulator.physics.params import load_config
-from swerve.tools.tune.design import (DesignError, Plant, Spec, design_position, design_velocity,
+from swerve.tools.tune.gain_search import (DesignError, Plant, Spec, design_position, design_velocity,
                                predict_velocity)
 
 

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from multiprocessing.connection import Connection, wait
 from typing import Protocol
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 from .scenario import Outcome, run_scenario
 from .spec import Campaign

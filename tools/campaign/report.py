@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swerve.configs.atomic import write_text
+from swerve.core.atomic import write_text
 
 from .scenario import STATUSES
 from .spec import Campaign

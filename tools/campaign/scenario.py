@@ -17,8 +17,8 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-from swerve.configs.atomic import write_text
-from swerve.configs.errors import SwerveError
+from swerve.core.atomic import write_text
+from swerve.core.errors import SwerveError
 from swerve.driver.robot_config import load_robot_config
 from swerve.tools.calibrate import calibrate_emulated, write_robot_file
 
@@ -110,10 +110,10 @@ def _gains(campaign: Campaign, cell: Cell, config: Path, folder: Path) -> str | 
         return None
     if cell.gains != "paper":
         return campaign.resolve(cell.gains)
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.gains_io import save_gains
     from swerve.controller.trajectory import load_trajectory
-    from swerve.tools.run.robot import geometry_and_limits, locate_and_load
+    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
 
     _, cfg = locate_and_load(config)
     geom, limits = geometry_and_limits(cfg)

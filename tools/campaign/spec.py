@@ -6,7 +6,7 @@ drawn from the distributions the file gives (:mod:`swerve.tools.campaign.draw`).
 ``index`` is robot ``index // cells`` in grid cell ``index % cells``, so the same robot drives
 every trajectory, calibrated and not (paired comparisons).
 
-Every malformed entry is a :class:`~swerve.configs.errors.ConfigError` ``FILE:LINE: KEY: problem``
+Every malformed entry is a :class:`~swerve.core.errors.ConfigError` ``FILE:LINE: KEY: problem``
 raised by :func:`load_campaign`, before any scenario starts: unknown keys and parameters,
 inverted or non-finite bounds, a sample count outside 1..10^6, a missing trajectory, a fault
 spec or parameter value the emulator would refuse.
@@ -23,7 +23,7 @@ from pathlib import Path
 import yaml
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.configs.loader import ConfigWarning, Section, document, parse_yaml_text, read_yaml
 
 #: Largest number of samples (robots) and of scenarios in one campaign.

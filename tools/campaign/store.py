@@ -18,8 +18,8 @@ import json
 import os
 from pathlib import Path
 
-from swerve.configs.atomic import write_text
-from swerve.configs.errors import ConfigError
+from swerve.core.atomic import write_text
+from swerve.core.errors import ConfigError
 
 from .scenario import Outcome, columns
 from .spec import Campaign, parse_campaign_text

@@ -83,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--write will not edit the shipped robot file {cfg_path}: copy it, then pass "
                           "--config FILE (or set $SWERVE_CONFIG)")
     if args.write:          # a read-only file, folder or mount is refused before the robot moves
-        from swerve.configs.atomic import check_writable
+        from swerve.core.atomic import check_writable
 
         check_writable(cfg_path, mkdir=False)
 

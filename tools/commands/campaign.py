@@ -44,9 +44,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from swerve.configs.errors import ConfigError
+    from swerve.core.errors import ConfigError
     from swerve.tools.campaign.engines import make_engine, require_ray
-    from swerve.tools.campaign.plots import plot_campaign
+    from swerve.tools.campaign.figures import plot_campaign
     from swerve.tools.campaign.report import table, write_summary
     from swerve.tools.campaign.runner import run_missing
     from swerve.tools.campaign.spec import load_campaign
@@ -86,7 +86,7 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from swerve.configs.errors import ConfigError
+    from swerve.core.errors import ConfigError
     from swerve.tools.campaign.scenario import run_scenario
     from swerve.tools.campaign.store import load_folder, read_results
 

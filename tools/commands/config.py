@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from swerve.configs import shipped, user_robot_file
-    from swerve.configs.errors import ConfigError
+    from swerve.core.errors import ConfigError
 
     target = Path(args.dir).expanduser() if args.dir else user_robot_file().parent
     existing = [target / name for name in FILES if (target / name).exists()]

@@ -48,10 +48,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.configs.atomic import check_writable
-    from swerve.configs.errors import ConfigError
+    from swerve.core.atomic import check_writable
+    from swerve.core.errors import ConfigError
     from swerve.controller.trajectory import load_trajectory
-    from swerve.tools.run.robot import geometry_and_limits, locate_and_load
+    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
 
     if args.time_scale is not None and not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
@@ -91,7 +91,7 @@ def _missing_folder(path: Path) -> Path | None:
 
 
 def _demo(args, out, choice, cfg, geom, limits, names, lockstep, scale, pace) -> int:
-    from swerve.tools.run.robot import geometry_and_limits, locate_and_load
+    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
 
     t_start = time.monotonic()
     run = dict(lockstep=lockstep, scale=scale, pace=pace, emulator_config=args.emulator_config)
@@ -136,13 +136,13 @@ class Calibration:
 def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep: bool, scale, pace: str,
              emulator_config: str, emulated_robot=None) -> DemoRow:
     """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator."""
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.gains_io import save_gains
     from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
     from swerve.tools.logs.bag import read_log
-    from swerve.tools.logs.plots import plot_run
+    from swerve.tools.logs.log_figures import plot_run
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     tag = f"[{name}, robot file {robot}]"
@@ -174,7 +174,7 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
 def _calibrate(out: Path, cfg, robot_path: Path, emulator_config: str) -> Calibration:
     """Calibrate the emulated robot (built from ``robot_path`` and ``emulator_config``) in lockstep,
     as ``swerve calibrate --emulate --yes --lockstep`` does; write ``out/robot-calibrated.yaml``."""
-    from swerve.configs.atomic import write_text
+    from swerve.core.atomic import write_text
     from swerve.tools.calibrate import calibrate_emulated, update_robot_text
 
     print("[calibration] steering zero, direction signs and wheel radius on the emulated robot ...", flush=True)
@@ -199,7 +199,7 @@ def _fmt(v, scale=1e3, digits=1) -> str:
 
 def _write_summary(out: Path, rows: list[DemoRow], pace: str, wall_s: float, choice, physics: str = "ideal",
                    calibration: Calibration | None = None) -> Path:
-    from swerve.configs.atomic import write_text
+    from swerve.core.atomic import write_text
 
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "

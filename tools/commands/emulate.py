@@ -17,7 +17,7 @@ import signal
 import sys
 import threading
 
-from swerve.configs.options import parse_ids
+from swerve.core.options import parse_ids
 from swerve.driver.control_table import ID_MAX, table_for
 from swerve.driver.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP

@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.configs.atomic import files_into
+    from swerve.core.atomic import files_into
     from swerve.tools.logs.bag import LogDamaged
     from swerve.tools.logs import plot_run, read_log
 

@@ -65,7 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.configs.errors import ConfigError
+    from swerve.core.errors import ConfigError
     from swerve.tools.commands.sim import parse_x0
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 

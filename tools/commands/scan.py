@@ -11,8 +11,8 @@ HELP = "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping
 
 def _id_range(text: str) -> range:
     """``"0-252"`` or ``"5"`` -> a range of IDs."""
-    from swerve.configs.errors import ConfigError
-    from swerve.configs.options import parse_id_range
+    from swerve.core.errors import ConfigError
+    from swerve.core.options import parse_id_range
     from swerve.driver.control_table import ID_MAX
 
     try:

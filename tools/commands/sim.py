@@ -73,7 +73,7 @@ def run(args) -> int:
 
     import numpy as np
 
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import load_gains
     from swerve.configs import locate_robot_file
@@ -81,7 +81,7 @@ def run(args) -> int:
     from swerve.controller.trajectory import load_trajectory
     from swerve.controller.simulate import metrics, simulate
     from swerve.controller.tracking import TrackingLaw
-    from swerve.tools.run.robot import load_robot
+    from swerve.tools.run.geometry import load_robot
 
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
@@ -110,7 +110,7 @@ def run(args) -> int:
     if report is not None:
         out.update(report.as_dict())
     if args.plot:
-        from swerve.controller.plots import plot_run
+        from swerve.controller.sim_figures import plot_run
 
         out["figures"] = [str(p) for p in plot_run(res, ref, gains, args.plot, traj.name)]
     if args.json:

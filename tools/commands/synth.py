@@ -55,13 +55,13 @@ def run(args) -> int:
     import sys
     from pathlib import Path
 
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.errors import ControllerError
     from swerve.controller.gains_io import save_gains
     from swerve.configs import locate_robot_file
     from swerve.controller.trajectory import load_trajectory
     from swerve.tools.commands.sim import parse_x0
-    from swerve.tools.run.robot import load_robot
+    from swerve.tools.run.geometry import load_robot
 
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)

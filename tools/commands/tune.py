@@ -81,9 +81,9 @@ def run(args: argparse.Namespace) -> int:
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.configs.atomic import check_writable, files_into
+    from swerve.core.atomic import check_writable, files_into
     from swerve.tools.tune.config_io import write_gains
-    from swerve.tools.tune.design import Spec
+    from swerve.tools.tune.gain_search import Spec
     from swerve.tools.tune.experiments import Limits
     from swerve.tools.tune.pipeline import tune_servo
     from swerve.tools.tune.report import write_report
@@ -122,7 +122,7 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         clock = None
         if args.emulate:            # in lockstep: the emulator owns time, every run samples alike
-            from swerve.tools.run.lockstep import LockstepClock
+            from swerve.tools.run.lockstep import LockstepLoopClock
             from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
@@ -133,7 +133,7 @@ def run(args: argparse.Namespace) -> int:
             else:
                 emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
                                                         seed=args.seed, baud=args.baud, lockstep=True))
-            clock = stack.enter_context(LockstepClock(emu.control.path))
+            clock = stack.enter_context(LockstepLoopClock(emu.control.path))
             port, margin = emu.port, TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
         else:
             port, margin = args.port, 0.002

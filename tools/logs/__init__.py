@@ -19,7 +19,7 @@ def export_csv(log, out_path):
 
 
 def plot_run(log, out_dir, sim=None):
-    """See :func:`tools.logs.plots.plot_run` (imported lazily: matplotlib is slow to import)."""
-    from .plots import plot_run as _plot
+    """See :func:`tools.logs.log_figures.plot_run` (imported lazily: matplotlib is slow to import)."""
+    from .log_figures import plot_run as _plot
 
     return _plot(log, out_dir, sim=sim)

@@ -16,7 +16,7 @@ from typing import Sequence
 
 import numpy as np
 
-from swerve.configs.atomic import OutputError
+from swerve.core.atomic import OutputError
 from swerve.driver.errors import ConfigError
 
 from .messages import CycleMessages, CycleSerializer

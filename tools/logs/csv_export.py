@@ -6,7 +6,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swerve.configs.atomic import atomic_write
+from swerve.core.atomic import atomic_write
 
 from .record import UNITS
 

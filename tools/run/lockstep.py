@@ -3,7 +3,7 @@
 With this clock the loop waits on simulated time, not the wall clock: ``sleep_until(t)`` asks the
 emulator to advance its physics to ``t`` (after it has taken every byte the driver wrote to the
 pty), and ``now()`` is the emulator's robot time, which includes the wire time of every bus
-exchange. The protocol is in :mod:`swerve.emulator.control` and emulator/README.md.
+exchange. The protocol is in :mod:`swerve.emulator.lockstep_socket` and emulator/README.md.
 
 Each request is a process hand-over, so the clock asks as little as it can, two requests per
 control cycle: ``now()`` asks ``pose`` (time and true pose in one answer) and ``pose()`` reuses
@@ -36,7 +36,7 @@ class LockstepError(SwerveError):
     """The lockstep emulator refused a request or stopped answering."""
 
 
-class LockstepClock:
+class LockstepLoopClock:
     """A :class:`~swerve.tools.run.ticker.Clock` in robot seconds, owned by a lockstep emulator.
 
     ``control_path``: the emulator's control socket (``CONTROL`` on ``swerve emulate``'s PORT
@@ -275,7 +275,7 @@ class LockstepClock:
             except OSError:
                 pass
 
-    def __enter__(self) -> "LockstepClock":
+    def __enter__(self) -> "LockstepLoopClock":
         return self
 
     def __exit__(self, *exc) -> None:

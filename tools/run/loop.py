@@ -36,7 +36,7 @@ from swerve.controller.tracking import TrackingLaw
 from swerve.driver.errors import CorruptPacketError, DxlTimeoutError, ServoError, SwerveError
 from swerve.tools.logs.record import CycleFlag
 from swerve.tools.run.summary import LoopTiming, TrackingErrors, tracking_errors
-from swerve.tools.run.ticker import Clock, Ticker, WallClock, collector_paused
+from swerve.tools.run.ticker import Clock, Ticker, WallLoopClock, collector_paused
 
 log = logging.getLogger(__name__)
 
@@ -109,7 +109,7 @@ class TrackingLoop:
         Called each cycle with a dict whose keys are :class:`swerve.tools.logs.record.CycleRecord`
         fields (SI; NaN where unknown), e.g. to write the log.
     clock : Clock, optional
-        Where time comes from (default :class:`~swerve.tools.run.ticker.WallClock`).
+        Where time comes from (default :class:`~swerve.tools.run.ticker.WallLoopClock`).
     fault_policy : object, optional
         ``recover(abort, wheels, rehome) -> bool`` (:mod:`swerve.tools.recovery`), asked when a
         servo reports a hardware error; True resumes the run after ``rehome()`` has steered back
@@ -135,7 +135,7 @@ class TrackingLoop:
         self.max_time_factor = float(max_time_factor)
         self.true_pose = true_pose
         self.on_cycle = on_cycle
-        self.clock = WallClock() if clock is None else clock
+        self.clock = WallLoopClock() if clock is None else clock
         self._stamp_ns = self.clock.stamp_ns
         # a lockstep clock can ask for the time after a read while the reply is on its way
         self._before_read = self.clock.ask_after_next_write

@@ -16,7 +16,7 @@ import numpy as np
 from swerve.configs import ConfigChoice
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.loop import LoopResult
-from swerve.tools.run.robot import geometry_and_limits, locate_and_load
+from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
 from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
 from swerve.tools.signals import shielded_exit
 
@@ -76,7 +76,7 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
 def law_for(traj, gains, geom, limits, progress: bool = False):
     """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
     ``gains``, or with gains synthesised now (Riccati) for ``None``."""
-    from swerve.controller.design import synthesize
+    from swerve.controller.gain_schedule import synthesize
     from swerve.controller.reference import build_reference
     from swerve.controller.tracking import TrackingLaw
 
@@ -138,7 +138,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     were written with the cycle's fields (as the log gets them) and the run's lockstep clock
     (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
-    from swerve.configs.errors import ConfigError
+    from swerve.core.errors import ConfigError
     from swerve.controller.gains_io import load_gains
     from swerve.controller.trajectory import load_trajectory
     from swerve.driver.bus import Bus
@@ -186,14 +186,14 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         sim = simulated_poses(law, start) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
-            from swerve.tools.run.lockstep import LockstepClock
+            from swerve.tools.run.lockstep import LockstepLoopClock
 
             if emu is not None:
                 emu.start()
                 port, control = emu.port, emu.control_path
             else:                                 # an emulator someone else started
                 port, control = req.port, str(req.control)
-            clock = stack.enter_context(LockstepClock(control, req.time_scale))
+            clock = stack.enter_context(LockstepLoopClock(control, req.time_scale))
             true_pose = clock.pose
         elif emu is not None:
             emu.start()

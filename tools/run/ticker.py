@@ -4,8 +4,8 @@ The k-th cycle is due at ``t0 + k * period_s``; the schedule never drifts with t
 in a cycle. A cycle whose work runs past its successor's deadline is an *overrun*: the missed
 slots are skipped (so slot index and trajectory time stay aligned with the clock) and counted.
 
-The clock is a :class:`Clock`: the robot uses :class:`WallClock` (the monotonic clock); a
-lockstep emulator run uses robot time (:class:`swerve.tools.run.lockstep.LockstepClock`); tests
+The clock is a :class:`Clock`: the robot uses :class:`WallLoopClock` (the monotonic clock); a
+lockstep emulator run uses robot time (:class:`swerve.tools.run.lockstep.LockstepLoopClock`); tests
 pass a fake one. A clock whose sleeps take its caller's time subclasses :class:`ForegroundClock`
 for the members such a clock does nothing in.
 """
@@ -67,7 +67,7 @@ class ForegroundClock:
         """Nothing: the time is read when asked."""
 
 
-class WallClock(ForegroundClock):
+class WallLoopClock(ForegroundClock):
     """The host's monotonic clock (:func:`time.monotonic`); sleeps with :func:`time.sleep`."""
 
     def now(self) -> float:
@@ -109,14 +109,14 @@ class Ticker:
 
     ``wait()`` sleeps until the next due slot and returns its index ``k`` (slot 0 is the
     call to :meth:`start`). ``period_s`` is in the clock's seconds; ``clock`` is a
-    :class:`Clock` (default :class:`WallClock`).
+    :class:`Clock` (default :class:`WallLoopClock`).
     """
 
     def __init__(self, period_s: float, clock: Clock | None = None):
         if not period_s > 0:
             raise ValueError(f"period must be positive, got {period_s}")
         self.period_s = float(period_s)
-        self.clock = WallClock() if clock is None else clock
+        self.clock = WallLoopClock() if clock is None else clock
         self.stats = LoopStats(self.period_s)
         self._t0 = None
         self._k = 0

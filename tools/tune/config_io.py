@@ -10,7 +10,7 @@ from pathlib import Path
 
 import yaml
 
-from swerve.configs.atomic import write_text
+from swerve.core.atomic import write_text
 from swerve.configs.loader import parse_yaml_text
 from swerve.configs.yaml_edit import get_value, set_value
 from swerve.driver.errors import ConfigError

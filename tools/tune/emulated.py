@@ -31,7 +31,7 @@ def make_emulator(rc: RobotConfig, cfg: PhysicsConfig | None, *, noise: bool = F
                   baud: int | None = None, lockstep: bool = False, **link) -> Emulator:
     """An (unstarted) :class:`Emulator` with every servo of ``rc``, unloaded, at 1 kHz; ``cfg=None``:
     static servos. ``lockstep``: the emulator owns time (``emu.control.path``: its control
-    socket for :class:`swerve.tools.run.lockstep.LockstepClock`), else it runs in real time.
+    socket for :class:`swerve.tools.run.lockstep.LockstepLoopClock`), else it runs in real time.
     ``link``: :class:`LinkSettings` fields."""
     return build_emulator(rc, cfg, body=False, time_scale=1.0, rate_hz=RATE_HZ, baud=baud, lockstep=lockstep,
                           noise=noise_spec(seed) if noise and cfg is not None else None, **link)

@@ -24,7 +24,7 @@ import numpy as np
 from swerve.driver.control_table import OperatingMode, Reg
 from swerve.driver.errors import DxlError, SwerveError
 from swerve.emulator.physics.params import MotorParams
-from swerve.tools.run.ticker import Clock, WallClock
+from swerve.tools.run.ticker import Clock, WallLoopClock
 from swerve.tools.signals import safe_stop
 from swerve.tools.tune.identify import PwmRecord
 
@@ -126,14 +126,14 @@ class Experimenter:
         Called with the seconds of experiment time just spent (a progress bar's ``update``).
     clock : swerve.tools.run.ticker.Clock, optional
         Where experiment time comes from: the host's monotonic clock (default), or robot time
-        of a lockstep emulator (:class:`swerve.tools.run.lockstep.LockstepClock`), with which
+        of a lockstep emulator (:class:`swerve.tools.run.lockstep.LockstepLoopClock`), with which
         every run samples at the same robot instants and identifies the same numbers.
     """
 
     def __init__(self, bus, id_: int, limits: Limits, progress: Callable[[float], None] | None = None,
                  clock: Clock | None = None):
         self.bus, self.id, self.limits = bus, int(id_), limits
-        self.clock = clock if clock is not None else WallClock()
+        self.clock = clock if clock is not None else WallLoopClock()
         self.table = bus.table(self.id)
         self.progress = progress or (lambda s: None)
 

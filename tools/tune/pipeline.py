@@ -13,8 +13,8 @@ import numpy as np
 from swerve.driver.control_table import Reg
 from swerve.emulator.physics.params import FirmwareParams, MotorParams
 from swerve.emulator.physics.steptest import StepMetrics, step_metrics
-from swerve.tools.tune.design import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
-from swerve.tools.tune.design import predict_position, predict_velocity
+from swerve.tools.tune.gain_search import Design, DesignError, Plant, Prediction, Spec, design_position, design_velocity
+from swerve.tools.tune.gain_search import predict_position, predict_velocity
 from swerve.tools.tune.experiments import Experimenter, Limits, SafetyError, servo_session
 from swerve.tools.run.ticker import Clock
 from swerve.tools.tune.identify import FITTED, Identification, PwmRecord, identify

@@ -19,7 +19,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import yaml  # noqa: E402
 
-from swerve.configs.atomic import save_figure, write_text  # noqa: E402
+from swerve.core.atomic import save_figure, write_text  # noqa: E402
 
 from swerve.tools.tune.identify import simulate_open_loop  # noqa: E402
 from swerve.tools.tune.pipeline import TuneResult  # noqa: E402

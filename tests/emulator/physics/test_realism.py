@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from swerve.configs import shipped
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 from swerve.driver.control_table import HardwareError
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.body import RobotBody

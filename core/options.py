@@ -1,12 +1,12 @@
 """Parsers of the compact option texts: ID lists (``1-8``, ``1,3,5``) and ``key=value`` lists.
 
 They live below every layer so that the ``swerve`` command, the emulator and the driver can
-share them. Every malformed text raises :class:`~swerve.configs.errors.ConfigError` naming the
+share them. Every malformed text raises :class:`~swerve.core.errors.ConfigError` naming the
 option, e.g. ``--ids '5-x': bad ID range, expected e.g. 1-8 or 1,3,5``.
 """
 from __future__ import annotations
 
-from swerve.configs.errors import ConfigError
+from swerve.core.errors import ConfigError
 
 
 def parse_id_range(text: str, option: str = "--ids", *, max_id: int) -> range:

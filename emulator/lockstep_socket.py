@@ -1,7 +1,7 @@
 """The lockstep control channel: a Unix socket beside the pty through which a client owns time.
 
 The bytes of every request and reply still travel through the pty; this channel only moves
-robot time (:class:`swerve.emulator.clock.LockstepClock`) and reads the true state. It is served
+robot time (:class:`swerve.emulator.clock.LockstepPhysicsClock`) and reads the true state. It is served
 by the emulator's bus thread, between requests, so time, bus and physics change in one order.
 
 Protocol (ASCII lines, one reply line per request; times in s as Python ``repr`` floats)::
@@ -46,7 +46,7 @@ import tempfile
 from pathlib import Path
 from typing import Protocol
 
-from swerve.configs.errors import SwerveError
+from swerve.core.errors import SwerveError
 
 log = logging.getLogger(__name__)
 

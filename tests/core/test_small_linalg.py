@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 
 
 @pytest.mark.parametrize("seed", range(5))
@@ -46,7 +46,7 @@ def test_the_sum_order_is_left_to_right():
 
 _PROBE = """
 import json, numpy as np
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 rng = np.random.default_rng(7)
 a = rng.normal(size=(8, 3)).tolist(); s = (rng.normal(size=(5, 5)) + 5 * np.eye(5)).tolist()
 b = rng.normal(size=(5, 3)).tolist()

@@ -7,13 +7,13 @@ import stat
 import numpy as np
 import pytest
 
-from swerve.configs import atomic
-from swerve.configs.atomic import OutputError, atomic_write, write_text
+from swerve.core import atomic
+from swerve.core.atomic import OutputError, atomic_write, write_text
 from swerve.tools.cli import main
 
 
 def _disk_full_after(monkeypatch, n_bytes: int):
-    """Make ``os.fdopen`` files of :mod:`swerve.configs.atomic` fail with ENOSPC past ``n_bytes``."""
+    """Make ``os.fdopen`` files of :mod:`swerve.core.atomic` fail with ENOSPC past ``n_bytes``."""
     real_fdopen = os.fdopen
 
     class Full:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from swerve.configs.atomic import save_figure
+from swerve.core.atomic import save_figure
 
 from .report import ERROR_METRICS, group_keys
 from .spec import Campaign

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from swerve.controller import small_linalg as sl
+from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import GainSchedule
 from swerve.controller.kinematics import Geometry, Limits

@@ -28,7 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import IO
 
-from swerve.configs.errors import SwerveError
+from swerve.core.errors import SwerveError
 
 
 class OutputError(SwerveError, OSError):

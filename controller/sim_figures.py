@@ -3,7 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from swerve.configs.atomic import save_figure
+from swerve.core.atomic import save_figure
 
 
 

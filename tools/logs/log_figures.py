@@ -15,7 +15,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
-from swerve.configs.atomic import save_figure  # noqa: E402
+from swerve.core.atomic import save_figure  # noqa: E402
 
 FRONT, REAR = [0, 3], [1, 2]
 #: curve name -> (label, style)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import pytest
 
-from swerve.configs.errors import ConfigError
-from swerve.configs.options import parse_id_range, parse_ids, parse_key_values
+from swerve.core.errors import ConfigError
+from swerve.core.options import parse_id_range, parse_ids, parse_key_values
 
 
 def test_ids_and_ranges():

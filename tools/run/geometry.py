@@ -23,7 +23,7 @@ def geometry_and_limits(cfg: RobotConfig) -> tuple[Geometry, Limits]:
 def load_robot(path: str | os.PathLike | None = None) -> tuple[Geometry, Limits]:
     """Geometry and limits of a robot file; ``None``: the shipped ``robot.yaml``.
 
-    Raises :class:`swerve.configs.errors.ConfigError` naming the file, key and problem.
+    Raises :class:`swerve.core.errors.ConfigError` naming the file, key and problem.
     """
     return geometry_and_limits(load_robot_config(shipped("robot.yaml") if path is None else path))
 
