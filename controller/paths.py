@@ -1,7 +1,8 @@
 """Analytic planar paths ``t -> (x(t), y(t))`` with derivatives up to the third, and samples of drawn primitives.
 
-Every path has ``derivatives(t) -> ndarray shape (4, 2, len(t))``: position (m), velocity
-(m/s), acceleration (m/s^2) and jerk (m/s^3) at the times ``t`` (s), and ``t_end_s``. Paths
+Every path is a :class:`PlanarPath`: ``derivatives(t) -> ndarray shape (4, 2, len(t))`` gives position
+(m), velocity (m/s), acceleration (m/s^2) and jerk (m/s^3) at the times ``t`` (s); ``t_end_s``
+is where it ends and ``direction`` how the body faces it. Paths
 drawn as samples are fitted by :mod:`controller.path_fit`; :func:`draw_primitives` samples
 lines and arcs as a user or CAD tool would. Sines and cosines are :mod:`math`'s, mapped over
 the arrays (:mod:`core.mathmap`): NumPy's own loops are picked per CPU and differ in the
@@ -11,10 +12,26 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import ClassVar, Protocol
 
 import numpy as np
 
 from swerve.core.mathmap import cos_sin
+
+
+class PlanarPath(Protocol):
+    """What a trajectory's path offers (the analytic paths here, and
+    :class:`~swerve.controller.path_fit.FittedPath` for drawn ones)."""
+
+    #: End of the path, s (a trajectory may stop earlier, never later).
+    t_end_s: float
+    #: +1: the body faces the direction of travel; -1: driven in reverse (v1 < 0). A
+    #: trajectory file's ``direction`` key overrides it.
+    direction: int
+
+    def derivatives(self, t) -> np.ndarray:
+        """Position, velocity, acceleration and jerk at ``t`` (s): shape (4, 2, len(t)), SI."""
+        ...
 
 
 @dataclass(frozen=True)
@@ -24,6 +41,7 @@ class LinePath:
     start_m: tuple[float, float] = (0.0, 0.0)
     velocity_mps: tuple[float, float] = (0.05, 0.05)
     t_end_s: float = 40.0
+    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -41,6 +59,7 @@ class CirclePath:
     radius_m: float = 1.0
     period_s: float = 56.0
     t_end_s: float = 56.0
+    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -63,6 +82,7 @@ class CurvilinearPath:
     offset_m: float = 0.6
     period_s: float = 140.0
     t_end_s: float = 140.0
+    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))

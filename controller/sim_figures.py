@@ -3,6 +3,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from swerve.controller.path_fit import FittedPath
 from swerve.core.atomic import save_figure
 
 
@@ -35,11 +36,10 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     ax.plot(ref.states[:, 0], ref.states[:, 1], "k--", label="reference")
     ax.plot(res.states[:, 0], res.states[:, 1], "C0", label="robot")
     ax.plot(res.states[0, 0], res.states[0, 1], "C0o")
-    samples, report = getattr(ref.trajectory.path, "samples", None), \
-        getattr(ref.trajectory.path, "report", None)
-    if samples is not None:
-        ax.plot(samples[1][:, 0], samples[1][:, 1], "k.", ms=2, label="drawn samples")
-    if report is not None:
+    drawn = ref.trajectory.path
+    if isinstance(drawn, FittedPath):
+        report = drawn.report
+        ax.plot(drawn.samples[1][:, 0], drawn.samples[1][:, 1], "k.", ms=2, label="drawn samples")
         ax.text(0.02, 0.02, f"fit vs samples: position {report.position_m * 1e3:.3f} mm, "
                 f"heading {report.heading_rad * 1e3:.2f} mrad,\ncurvature "
                 f"{report.curvature_1pm:.2g} 1/m, arc overshoot {100 * report.overshoot:.2f} %",

@@ -20,7 +20,7 @@ from swerve.controller.errors import ControllerError
 from swerve.controller.kinematics import Geometry, Limits
 from swerve.controller.path_csv import read_csv_samples
 from swerve.controller.path_fit import fit_samples, read_csv_path
-from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath
+from swerve.controller.paths import CirclePath, CurvilinearPath, LinePath, PlanarPath
 from swerve.controller.reference import desired_states
 
 #: Directory of the named trajectories (``line``, ``circle``, ``curvilinear``).
@@ -43,7 +43,7 @@ DEFAULT_TAU_S = 0.016
 class Trajectory:
     """A path to track and the synthesis problem's data.
 
-    Attributes: ``name``; ``path`` (:mod:`controller.paths` or :class:`controller.path_fit.FittedPath`); ``tf_s``; ``n_steps`` (N);
+    Attributes: ``name``; ``path`` (a :class:`~swerve.controller.paths.PlanarPath`); ``tf_s``; ``n_steps`` (N);
     ``tau_s``; ``Q`` (5, 5); ``R`` (3, 3); ``start`` the robot's start state (5,), or pose
     (3,) with the steering that fits the path's curvature at t = 0, or ``None`` for "on the
     reference, aligned"; ``direction`` +1 (body faces the direction of travel) or -1 (driven
@@ -51,7 +51,7 @@ class Trajectory:
     """
 
     name: str
-    path: object
+    path: PlanarPath
     tf_s: float
     n_steps: int
     tau_s: float
@@ -163,11 +163,11 @@ def load_trajectory(name_or_path: str | Path, geom: Geometry = Geometry(),
     n = top.integer("n_steps", int(np.floor(n_float + 1e-9)), min=10, max=N_STEPS_MAX)
     if abs(n * tau - tf) > 1e-6 * max(tf, 1):
         top.fail(f"need tf_s = n_steps * tau_s (got {tf:g}, {n}, {tau:g})", "n_steps")
-    if tf > getattr(path0, "t_end_s", tf) + 1e-9:
+    if tf > path0.t_end_s + 1e-9:
         top.fail(f"tf_s = {tf:g} s is longer than the path ({path0.t_end_s:g} s)", "tf_s")
     Q = _diag(top, "Q_diag", 5, DEFAULT_Q_DIAG)
     R = _diag(top, "R_diag", 3, DEFAULT_R_DIAG)
-    direction = getattr(path0, "direction", 1)
+    direction = path0.direction
     if "direction" in top:
         direction = top.choice("direction", {"forward": 1, "reverse": -1})
     start = (_start_from_spec(top.section("start"), path0, geom, direction) if "start" in top

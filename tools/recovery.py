@@ -21,9 +21,10 @@ import collections
 import logging
 import time
 from dataclasses import asdict, dataclass
-from typing import Callable
+from typing import Callable, Protocol
 
-from swerve.driver.errors import CorruptPacketError, DxlError, DxlTimeoutError, SwerveError
+from swerve.driver.control_table import Reg
+from swerve.driver.errors import ConfigError, CorruptPacketError, DxlError, DxlTimeoutError, SwerveError
 
 log = logging.getLogger(__name__)
 
@@ -36,6 +37,15 @@ STANDSTILL_TIMEOUT_S = 2.0
 STANDSTILL_RAW = 1
 #: Longest wait for a rebooted servo to answer again, s (a servo restarts within about a second).
 REBOOT_TIMEOUT_S = 3.0
+
+
+class Fault(Protocol):
+    """What the loop hands a policy when it aborts (:class:`swerve.tools.run.loop.LoopAbort`)."""
+
+    #: Why the loop stopped: ``"hardware error"`` is the one a policy may recover from.
+    cause: str
+    #: The servos concerned (empty when no servo is named).
+    ids: tuple[int, ...]
 
 
 @dataclass(frozen=True)
@@ -73,7 +83,7 @@ class StopOnFault:
     def __init__(self):
         self.events: list[RecoveryEvent] = []
 
-    def recover(self, fault, wheels, rehome: Callable[[], None]) -> bool:
+    def recover(self, fault: Fault, wheels, rehome: Callable[[], None]) -> bool:
         return False
 
     def summary(self):
@@ -114,11 +124,11 @@ class RecoverFromFault:
         self.events.append(ev)
         log.warning("servo fault recovery: %s (IDs %s): %s", step, ",".join(map(str, ids)) or "-", detail)
 
-    def recover(self, fault, wheels, rehome: Callable[[], None]) -> bool:
-        """Try to recover from ``fault`` (a loop abort with ``cause`` and ``ids``). True: resume."""
-        ids = tuple(getattr(fault, "ids", ()) or ())
-        if getattr(fault, "cause", None) != "hardware error" or not ids:
-            self._note(ids, "refused", f"not a servo hardware error ({getattr(fault, 'cause', fault)})")
+    def recover(self, fault: Fault, wheels, rehome: Callable[[], None]) -> bool:
+        """Try to recover from ``fault`` (a loop abort). True: resume."""
+        ids = tuple(fault.ids)
+        if fault.cause != "hardware error" or not ids:
+            self._note(ids, "refused", f"not a servo hardware error ({fault.cause})")
             return False
         now = self.clock()
         while self._recent and now - self._recent[0] > self.window_s:
@@ -167,8 +177,6 @@ class RecoverFromFault:
     def _wait_standstill(self, wheels, faulted) -> float | None:
         """Wait until the healthy drive servos report zero speed (the torque goes off next, and a
         robot still rolling would coast); seconds waited, or None at the timeout."""
-        from swerve.driver.control_table import Reg
-
         ids = [i for i in wheels.drive_ids if i not in faulted]
         start = self.clock()
         while ids:
@@ -210,5 +218,4 @@ def policy(name: str, timeout_margin_s: float = 0.0, clock=None):
             return RecoverFromFault(bus_margin_s=timeout_margin_s)
         return RecoverFromFault(bus_margin_s=timeout_margin_s, clock=clock.now,
                                 sleep=lambda dt_s: clock.sleep_until(clock.now() + dt_s))
-    from swerve.driver.errors import ConfigError
     raise ConfigError(f"--on-servo-fault {name!r}: expected stop or recover")

@@ -18,6 +18,7 @@ from multiprocessing.connection import Connection, wait
 from typing import Protocol
 
 from swerve.core.errors import ConfigError
+from swerve.tools.signals import signals_as_interrupt
 
 from .scenario import Outcome, run_scenario
 from .spec import Campaign
@@ -56,8 +57,6 @@ class Engine(Protocol):
 def _worker(conn: Connection, campaign: Campaign) -> None:
     """A pool worker: run each index received, send its :class:`Outcome`; ``None`` stops it.
     A stop signal ends the running scenario through its clean-up (emulator closed) and exits."""
-    from swerve.tools.signals import signals_as_interrupt
-
     with signals_as_interrupt():
         try:
             while (index := conn.recv()) is not None:

@@ -19,8 +19,13 @@ from pathlib import Path
 
 from swerve.core.atomic import write_text
 from swerve.core.errors import SwerveError
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import save_gains
+from swerve.controller.trajectory import load_trajectory
 from swerve.driver.robot_config import load_robot_config
 from swerve.tools.calibrate import calibrate_emulated, write_robot_file
+from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
+from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
 from .draw import Robot, draw_robot
 from .spec import Campaign, Cell, dump_physics, profile_data, set_dotted
@@ -110,11 +115,6 @@ def _gains(campaign: Campaign, cell: Cell, config: Path, folder: Path) -> str | 
         return None
     if cell.gains != "paper":
         return campaign.resolve(cell.gains)
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.gains_io import save_gains
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
-
     _, cfg = locate_and_load(config)
     geom, limits = geometry_and_limits(cfg)
     _, gains = synthesize(load_trajectory(campaign.resolve(cell.trajectory), geom, limits), "paper", geom, limits)
@@ -138,8 +138,6 @@ def calibrate(campaign: Campaign, physics: Path, folder: Path, out: io.StringIO)
 def run_scenario(campaign: Campaign, index: int, log: Path | None = None) -> Outcome:
     """Run scenario ``index`` and return its :class:`Outcome` (a refused or broken scenario is a
     ``failed`` row; a stop signal propagates)."""
-    from swerve.tools.run.orchestrate import RunRequest, run_tracking
-
     t0 = time.monotonic()
     sc = scenario(campaign, index)
     cell = sc.cell
@@ -178,8 +176,6 @@ def run_scenario(campaign: Campaign, index: int, log: Path | None = None) -> Out
 
 
 def _calibration(robot: Path) -> dict:
-    from swerve.driver.robot_config import load_robot_config
-
     cfg = load_robot_config(robot)
     out = {f"calibrated_center_pulse[{w}]": wc.center_pulse for w, wc in enumerate(cfg.wheels)}
     out["calibrated_wheel_radius_m"] = cfg.wheel_radius_m

@@ -25,6 +25,10 @@ import yaml
 from swerve.configs import shipped
 from swerve.core.errors import ConfigError
 from swerve.configs.loader import ConfigWarning, Section, document, parse_yaml_text, read_yaml
+from swerve.controller.trajectory import TRAJECTORY_DIR
+from swerve.emulator.faults import Faults
+from swerve.emulator.physics.params import parse_config
+from swerve.emulator.physics.profiles import PROFILES, resolve_emulator_config
 
 #: Largest number of samples (robots) and of scenarios in one campaign.
 SAMPLES_MAX = 10**6
@@ -268,8 +272,6 @@ def _file(top: Section, key: str, base: Path, default: Path) -> Path:
 
 def _trajectory(top: Section, i: int, text: str, base: Path) -> str:
     """A trajectory name of the shipped set, or a file resolved against the campaign's folder."""
-    from swerve.controller.trajectory import TRAJECTORY_DIR
-
     if Path(text).suffix.lower() not in (".yaml", ".yml", ".csv"):
         if not (TRAJECTORY_DIR / f"{text}.yaml").is_file():
             names = sorted(f.stem for f in TRAJECTORY_DIR.glob("*.yaml"))
@@ -282,8 +284,6 @@ def _trajectory(top: Section, i: int, text: str, base: Path) -> str:
 
 
 def _profile(top: Section, i: int, text: str, base: Path) -> str:
-    from swerve.emulator.physics.profiles import PROFILES
-
     if text in PROFILES:
         return text
     where = ("profiles", i if isinstance(top.value.get("profiles"), list) else None)
@@ -291,8 +291,6 @@ def _profile(top: Section, i: int, text: str, base: Path) -> str:
 
 
 def _check_faults(top: Section, i: int, text: str) -> None:
-    from swerve.emulator.faults import Faults
-
     try:
         Faults.parse(text or None)
     except ConfigError as exc:
@@ -347,16 +345,12 @@ def set_dotted(data: dict, key: str, value) -> None:
 
 def profile_data(profile: str) -> dict:
     """The parsed YAML of an emulator profile (a name or a file), to apply drawn values to."""
-    from swerve.emulator.physics.profiles import resolve_emulator_config
-
     return read_yaml(resolve_emulator_config(profile), what="emulator config").data
 
 
 def _check_parameters(sec: Section, params: tuple[Parameter, ...], profile: str) -> None:
     """Each parameter's extreme values applied to ``profile`` must give a physics config the
     emulator accepts, and its key must be one the emulator reads."""
-    from swerve.emulator.physics.params import parse_config
-
     for p in params:
         d = p.dist
         extremes = d.values if d.kind == "choice" else (d.low, d.high)
