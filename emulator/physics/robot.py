@@ -91,6 +91,7 @@ class RobotPhysics:
         self._wheel_frames = [(float(w.drive_direction), float(w.steer_direction), float(w.center_pulse), r, off)
                               for w, _, _, r, off in self._wheel_servos]
         self._drive_models = [d for _, d, _, _, _ in self._wheel_servos]
+        self._coupled_layout: tuple[np.ndarray, ...] | None = None    # built by the first run_coupled
         self._steer_models = [s for _, _, s, _, _ in self._wheel_servos]
         self.bus_voltage_v = cfg.supply_voltage_v
 
@@ -194,6 +195,18 @@ class RobotPhysics:
         return (coupled.ROBOT_TICKS is not None and isinstance(self.body, ContactBody)
                 and not any(s.sensors.position_noise_std_pulse for s in self.servos.values()))
 
+    def _wheel_layout(self, rows: Mapping[ServoModel, int]) -> tuple[np.ndarray, ...]:
+        """The arrays of :func:`.coupled.robot_ticks` that the robot's build fixes: each wheel's
+        drive and steering servo rows, its frame (drive and steering directions, centre pulse,
+        radius m, steering offset rad), and the contact body's wheel positions (m) and grip
+        limits (N)."""
+        frames = self._wheel_frames
+        body = self.body
+        return (np.array([rows[d] for _, d, _, _, _ in self._wheel_servos], np.int64),
+                np.array([rows[s] for _, _, s, _, _ in self._wheel_servos], np.int64),
+                *(np.array([f[k] for f in frames]) for k in range(5)),
+                np.array(body._x), np.array(body._y), np.array(body._limits))
+
     def run_coupled(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]]) -> int:
         """Up to ``n`` steps of every servo and the body (:func:`.coupled.robot_ticks`): the same
         as ``n`` times :meth:`ServoModel.advance` of every servo then :meth:`step_body`, in
@@ -226,20 +239,19 @@ class RobotPhysics:
         n_wheels = len(self._wheel_servos)
         slip, fx, fy, flong = (np.empty(n_wheels) for _ in range(4))
         bits, present, v_meas = np.zeros(len(models), np.int64), np.zeros(len(models), np.int64), np.zeros(len(models))
-        frames = self._wheel_frames
+        if self._coupled_layout is None:
+            self._coupled_layout = self._wheel_layout(rows)
+        drive_rows, steer_rows, drive_dir, steer_dir, center, radius, offset, bx, by, limits = self._coupled_layout
         ran = coupled.ROBOT_TICKS(
             n, dt_s, np.array(plants), np.array(inputs), np.array([plan.homing for plan in plans], np.int64),
             np.array([m.motor.blocked for m in models], np.int64), fs, ints_a,
             np.array([float(m.encoder_offset_pulse) for m in models]), supply, load,
             np.array([f[0] for f in flags], np.int64), np.array([f[1] for f in flags], np.int64),
-            np.array([rows[d] for _, d, _, _, _ in self._wheel_servos], np.int64),
-            np.array([rows[s] for _, _, s, _, _ in self._wheel_servos], np.int64),
-            np.array([f[0] for f in frames]), np.array([f[1] for f in frames]), np.array([f[2] for f in frames]),
-            np.array([f[3] for f in frames]), np.array([f[4] for f in frames]), half, backlash,
+            drive_rows, steer_rows, drive_dir, steer_dir, center, radius, offset, half, backlash,
             self._wheel_steer_rad is not None, sup.enabled, float(self.cfg.supply_voltage_v),
             float(sup.internal_resistance_ohm), sup.idle_current_a * len(models), float(p.lateral_stiffness_ratio),
-            float(p.slip_stiffness_n_s_per_m), body.mass_kg, body.yaw_inertia_kg_m2, np.array(body._x),
-            np.array(body._y), np.array(body._limits), pose, stats, slip, fx, fy, flong, bits, present, v_meas)
+            float(p.slip_stiffness_n_s_per_m), body.mass_kg, body.yaw_inertia_kg_m2, bx, by, limits,
+            pose, stats, slip, fx, fy, flong, bits, present, v_meas)
         fs_l, ints_l, supply_l, load_l = fs.tolist(), ints_a.tolist(), supply.tolist(), load.tolist()
         for k, (m, plan) in enumerate(zip(models, plans)):
             f, i = fs_l[k], ints_l[k]
