@@ -221,7 +221,7 @@ class TrackingLoop:
         ticker = Ticker(self.tau_s / self.time_scale, self.clock)
         ticker.start()
         self._consecutive = 0
-        goals = wheel_commands(0.0, delta1, delta2)
+        goals = wheel_commands(0.0, delta1, delta2).tolist()
         stopped, goal = goals[:4], goals[4:]
         for _ in range(int(np.ceil(timeout_s / self.tau_s))):
             self.wheels.write_goals(stopped, goal)
@@ -299,8 +299,8 @@ class TrackingLoop:
                     v1, w1, w2 = out.inputs
                     d1, d2 = out.delta1_rad, out.delta2_rad
                     goals = out.wheel_goals                   # [v1] * 4 + [d1, d2, d2, d1]
-                    drive = drive_angular_speed(goals[:4], geom.wheel_radius_m)
-                    steer = goals[4:]
+                    drive = drive_angular_speed(goals[:4], geom.wheel_radius_m).tolist()
+                    steer = goals[4:].tolist()
                     self._touch_bus(t_meas)
                     self.wheels.write_goals(drive, steer)
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
