@@ -195,6 +195,12 @@ class TrackingLoop:
             raise LoopAbort(f"{who} stopped answering ({self._consecutive} failed reads in a row: "
                             f"{exc}); stopping", "no reply", ids) from exc
 
+    def _goals(self, v1_mps: float, delta1_rad: float, delta2_rad: float) -> tuple[list[float], list[float]]:
+        """The wheel goals ``(drive_radps (4,), steer_rad (4,))`` for ground speed ``v1_mps`` and the
+        steering angles: the robot's goal layout (:func:`wheel_commands`), speeds at the wheel."""
+        goals = wheel_commands(v1_mps, delta1_rad, delta2_rad)     # [v1] * 4 + [d1, d2, d2, d1]
+        return drive_angular_speed(goals[:4], self.geom.wheel_radius_m).tolist(), goals[4:].tolist()
+
     def _touch_bus(self, now: float | None = None) -> None:
         """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
         (the servos have then stopped and ignore goals; a Bulk Write would not tell us).
@@ -221,8 +227,7 @@ class TrackingLoop:
         ticker = Ticker(self.tau_s / self.time_scale, self.clock)
         ticker.start()
         self._consecutive = 0
-        goals = wheel_commands(0.0, delta1, delta2).tolist()
-        stopped, goal = goals[:4], goals[4:]
+        stopped, goal = self._goals(0.0, delta1, delta2)
         for _ in range(int(np.ceil(timeout_s / self.tau_s))):
             self.wheels.write_goals(stopped, goal)
             st = self._read()
@@ -298,9 +303,7 @@ class TrackingLoop:
                         break
                     v1, w1, w2 = out.inputs
                     d1, d2 = out.delta1_rad, out.delta2_rad
-                    goals = out.wheel_goals                   # [v1] * 4 + [d1, d2, d2, d1]
-                    drive = drive_angular_speed(goals[:4], geom.wheel_radius_m).tolist()
-                    steer = goals[4:].tolist()
+                    drive, steer = self._goals(v1, d1, d2)
                     self._touch_bus(t_meas)
                     self.wheels.write_goals(drive, steer)
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
