@@ -45,7 +45,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchutil import cpu_model  # noqa: E402
-from swerve.driver.bus import Bus  # noqa: E402
+from swerve.driver.bus import Bus, ExchangeSettings  # noqa: E402
 from swerve.driver.control_table import Reg  # noqa: E402
 from swerve.driver.robot_config import load_robot_config  # noqa: E402
 from swerve.driver.wheelset import WheelSet  # noqa: E402
@@ -216,11 +216,11 @@ def run_cycles(time_scale: float, sim_seconds: float, rate_hz: float | None) -> 
             period = CYCLE_S / time_scale if time_scale > 0 else CYCLE_S   # 0: baseline, physics frozen
             n = round(sim_seconds / CYCLE_S)
             lat, missed, errors = [], 0, 0
-            with Bus(port, baud, timeout_margin_s=0.3, retries=3) as bus, WheelSet(bus, cfg) as wheels:
-                wheels.configure()                    # retries: setup is not what is measured
-                wheels.enable()
-                bus.retries = 0
-                bus.timeout_margin_s = 0.05           # a reply later than this is a missed cycle anyway
+            # a reply later than 50 ms is a missed cycle anyway
+            with Bus(port, baud, timeout_margin_s=0.05) as bus, WheelSet(bus, cfg) as wheels:
+                with bus.exchanging(ExchangeSettings(retries=3, timeout_margin_s=0.3)):
+                    wheels.configure()                # retries: setup is not what is measured
+                    wheels.enable()
                 before = read_status(status)
                 t0 = time.monotonic()
                 for k in range(n):

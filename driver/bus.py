@@ -22,11 +22,13 @@ Replies from IDs that were not asked are ignored and counted in :attr:`Bus.stray
 """
 from __future__ import annotations
 
+import contextlib
+import math
 import struct
 import threading
 import time
 from dataclasses import dataclass
-from typing import Callable, Iterable, Mapping, Protocol, Sequence
+from typing import Callable, Iterable, Iterator, Mapping, Protocol, Sequence
 
 from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
@@ -66,6 +68,25 @@ class ReplyGate(Protocol):
 
 
 @dataclass(frozen=True)
+class ExchangeSettings:
+    """How a :class:`Bus` waits for replies and retries.
+
+    ``retries``: extra attempts after a timeout or corrupt reply (never for Reboot, Factory Reset,
+    Clear, Backup); ``timeout_margin_s``: slack added to every computed reply timeout, s (raise it
+    for a software emulator on a loaded machine).
+    """
+
+    retries: int = 0
+    timeout_margin_s: float = DEFAULT_MARGIN_S
+
+    def __post_init__(self):
+        if isinstance(self.retries, bool) or not isinstance(self.retries, int) or self.retries < 0:
+            raise ValueError(f"retries must be a whole number >= 0, got {self.retries!r}")
+        if not (math.isfinite(self.timeout_margin_s) and self.timeout_margin_s >= 0):
+            raise ValueError(f"timeout margin must be a finite time >= 0 s, got {self.timeout_margin_s!r}")
+
+
+@dataclass(frozen=True)
 class PingResult:
     """A servo that answered Ping: ``id``, ``model_number``, catalogue ``model`` name, ``firmware``."""
 
@@ -91,10 +112,9 @@ class Bus:
 
     ``port``: URL for :func:`serial.serial_for_url`; ``baud``: bps. ``models``: known
     model (name or number) per ID; ``default_model`` for IDs neither given nor pinged
-    (``None``: ping to find out). ``retries``: extra attempts after a timeout or corrupt
-    reply (never for Reboot, Factory Reset, Clear, Backup). ``return_delay_us``: the
-    servos' Return Delay Time (servo default 500 us). ``timeout_margin_s``: slack added to
-    every computed reply timeout (raise it for a software emulator on a loaded machine).
+    (``None``: ping to find out). ``retries`` and ``timeout_margin_s``: the
+    :class:`ExchangeSettings` (:attr:`exchange`; :meth:`exchanging` applies others for a block).
+    ``return_delay_us``: the servos' Return Delay Time (servo default 500 us).
     """
 
     def __init__(self, port: str, baud: int = 1_000_000, *,
@@ -102,13 +122,11 @@ class Bus:
                  default_model: str | int | None = None, retries: int = 0,
                  return_delay_us: float = 500.0, timeout_margin_s: float = DEFAULT_MARGIN_S,
                  latency_timer_ms: float | None = None):
-        if retries < 0:
-            raise ValueError("retries must be >= 0")
+        #: How exchanges wait and retry (:class:`ExchangeSettings`).
+        self.exchange = ExchangeSettings(int(retries), float(timeout_margin_s))
         self.port = port
         self.baud = int(baud)
-        self.retries = int(retries)
         self.return_delay_us = float(return_delay_us)
-        self.timeout_margin_s = float(timeout_margin_s)
         self._lock = threading.Lock()
         self._tables: dict[int, ControlTable] = {i: table_for(m) for i, m in (models or {}).items()}
         self._default = table_for(default_model) if default_model is not None else None
@@ -139,6 +157,26 @@ class Bus:
 
     def __repr__(self) -> str:
         return f"Bus({self.port!r}, {self.baud})"
+
+    @property
+    def retries(self) -> int:
+        """Extra attempts after a timeout or corrupt reply (:attr:`exchange`)."""
+        return self.exchange.retries
+
+    @property
+    def timeout_margin_s(self) -> float:
+        """Slack added to every computed reply timeout, s (:attr:`exchange`)."""
+        return self.exchange.timeout_margin_s
+
+    @contextlib.contextmanager
+    def exchanging(self, settings: ExchangeSettings) -> Iterator["Bus"]:
+        """Use ``settings`` for the exchanges inside the ``with`` block (e.g. retries while the
+        servos are set up), then the bus's own again, also when the block raises."""
+        saved, self.exchange = self.exchange, settings
+        try:
+            yield self
+        finally:
+            self.exchange = saved
 
     @property
     def bytes_written(self) -> int:

@@ -31,8 +31,10 @@ with ``--wire-timing``, on the wall clock.
 from __future__ import annotations
 
 import math
+from bisect import bisect_right
+from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Sequence
+from functools import cached_property
 
 from swerve.core.errors import ConfigError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS as LATENCY_MAX_MS
@@ -94,22 +96,73 @@ class AdapterSettings:
 
 @dataclass(frozen=True)
 class Delivery:
-    """What :func:`deliver` computed: ``times_s[i]`` when the host has byte ``i``; ``last_send_s``
-    when the adapter last sent a packet (the latency timer restarts there)."""
+    """What :func:`deliver` computed: the USB packets that carried bytes, as ``packets[k] =
+    (end, t_s)`` (bytes up to index ``end``, exclusive, reach the host at ``t_s``); and
+    ``last_send_s``, when the adapter last sent a packet (the latency timer restarts there)."""
 
-    times_s: tuple[float, ...]
+    packets: tuple[tuple[int, float], ...]
     last_send_s: float
+
+    @cached_property
+    def times_s(self) -> tuple[float, ...]:
+        """When the host has each byte, s, shape (n,)."""
+        out: list[float] = []
+        for end, t in self.packets:
+            out.extend([t] * (end - len(out)))
+        return tuple(out)
 
     @property
     def end_s(self) -> float:
         """When the host has the last byte (``last_send_s`` if there were no bytes)."""
-        return self.times_s[-1] if self.times_s else self.last_send_s
+        return self.packets[-1][1] if self.packets else self.last_send_s
 
 
 def _next_frame(settings: AdapterSettings, t: float) -> float:
     """The first frame boundary at or after ``t``."""
     f = settings.frame_s
     return math.ceil(t / f - _GRID_SLACK) * f
+
+
+class ByteArrivals(Sequence):
+    """Arrival time of every byte of back-to-back frames on the cable, computed per index.
+
+    ``frames``: ``(gap_s, n_bytes)`` per frame, the gap (>= 0) before its first byte starts
+    (Return Delay Time, reply latency); ``byte_s``: one byte's time on the wire (10 bits / baud,
+    >= 0). The first frame's gap counts from ``start_s``. Item ``i`` is the time the stop bit of
+    byte ``i`` ends, s; the times never decrease. Reading one costs a search over the frames, so
+    :func:`deliver` touches a few bytes per USB packet instead of every byte.
+    """
+
+    def __init__(self, start_s: float, frames: Sequence[tuple[float, int]], byte_s: float):
+        if not byte_s >= 0:
+            raise ValueError(f"byte time must be >= 0 s, got {byte_s!r}")
+        self._byte_s = byte_s
+        self._bases: list[float] = []      # per frame with bytes: the time its first byte starts
+        self._firsts: list[int] = []       # per frame with bytes: the index of its first byte
+        t, n_all = start_s, 0
+        for gap_s, n in frames:
+            if not gap_s >= 0:
+                raise ValueError(f"gap before a frame must be >= 0 s, got {gap_s!r}")
+            t += gap_s
+            if n > 0:
+                self._bases.append(t)
+                self._firsts.append(n_all)
+            n_all += n
+            t += n * byte_s
+        self._n = n_all
+
+    def __len__(self) -> int:
+        return self._n
+
+    def __getitem__(self, i):
+        if isinstance(i, slice):
+            return [self[k] for k in range(*i.indices(self._n))]
+        if i < 0:
+            i += self._n
+        if not 0 <= i < self._n:
+            raise IndexError("byte index out of range")
+        f = bisect_right(self._firsts, i) - 1
+        return self._bases[f] + (i - self._firsts[f] + 1) * self._byte_s
 
 
 def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s: float = 0.0) -> Delivery:
@@ -127,51 +180,46 @@ def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s:
     settings : AdapterSettings
     arrivals_s : sequence of float, shape (n,)
         Time each byte's stop bit ended on the cable, s (any time origin; the frame grid is at
-        whole multiples of ``frame_s`` of that origin).
+        whole multiples of ``frame_s`` of that origin). A :class:`ByteArrivals` is taken as
+        ordered without a check, and only the bytes at packet edges are read.
     last_send_s : float
         When the adapter last sent, s.
 
     Returns
     -------
     Delivery
-        Per-byte host times (shape (n,)), and the new ``last_send_s``.
+        The packets with the host time of each, and the new ``last_send_s``.
     """
     latency = settings.latency_s
     cap = settings.payload_bytes
     n = len(arrivals_s)
-    if any(b < a for a, b in zip(arrivals_s, arrivals_s[1:])):
+    if not isinstance(arrivals_s, ByteArrivals) and any(b < a for a, b in zip(arrivals_s, arrivals_s[1:])):
         raise ValueError("byte arrival times must be non-decreasing")
-    out: list[float] = []
+    packets: list[tuple[int, float]] = []
     t_ref = last_send_s
     i = 0
     while i < n:
         first = max(arrivals_s[i], t_ref)
         periods = max(1, math.ceil((first - t_ref) / latency - _GRID_SLACK))
         expiry = t_ref + periods * latency
-        j = i
-        while j < n and j - i < cap and arrivals_s[j] <= expiry + _GRID_SLACK * settings.frame_s:
-            j += 1
+        # the bytes in by the expiry, at most a full packet (the times are in order)
+        j = bisect_right(arrivals_s, expiry + _GRID_SLACK * settings.frame_s, i, min(n, i + cap))
         sent = max(arrivals_s[j - 1], t_ref) if j - i == cap else expiry
         t_ref = _next_frame(settings, sent)
-        out.extend([t_ref] * (j - i))
+        if j > i:
+            packets.append((j, t_ref))
         i = j
-    return Delivery(tuple(out), t_ref)
+    return Delivery(tuple(packets), t_ref)
 
 
-def byte_arrivals(start_s: float, frames: Sequence[tuple[float, int]], byte_s: float) -> list[float]:
-    """Arrival time of every byte of back-to-back frames on the cable.
+def byte_arrivals(start_s: float, frames: Sequence[tuple[float, int]], byte_s: float) -> ByteArrivals:
+    """Arrival time of every byte of back-to-back frames on the cable (a :class:`ByteArrivals`).
 
     ``frames``: ``(gap_s, n_bytes)`` per frame, the gap before its first byte starts (Return
     Delay Time, reply latency); ``byte_s``: one byte's time on the wire (10 bits / baud).
-    The first frame's gap counts from ``start_s``. Returns the time each byte's stop bit ends.
+    The first frame's gap counts from ``start_s``. Item ``i`` is the time byte ``i``'s stop bit ends.
     """
-    out: list[float] = []
-    t = start_s
-    for gap_s, n in frames:
-        t += gap_s
-        out.extend(t + k * byte_s for k in range(1, n + 1))
-        t += n * byte_s
-    return out
+    return ByteArrivals(start_s, frames, byte_s)
 
 
 class UsbAdapter:
@@ -200,5 +248,5 @@ class UsbAdapter:
         return f"UsbAdapter(latency_ms={self.latency_ms}, frame_s={self.settings.frame_s!r})"
 
 
-__all__ = ["AdapterSettings", "Delivery", "UsbAdapter", "byte_arrivals", "check_latency_ms", "deliver",
+__all__ = ["AdapterSettings", "ByteArrivals", "Delivery", "UsbAdapter", "byte_arrivals", "check_latency_ms", "deliver",
            "FACTORY_LATENCY_MS", "LATENCY_MAX_MS", "LATENCY_MIN_MS"]

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 from swerve.configs import shipped
-from swerve.driver.bus import Bus
+from swerve.driver.bus import Bus, ExchangeSettings
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.driver.control_table import Reg
@@ -260,12 +260,13 @@ def test_an_attached_bus_waits_for_every_reply_the_emulator_sent(bus_in_lockstep
     servo that is gone times out at once (the emulator says it sent nothing)."""
     emu, bus, clock = bus_in_lockstep
     clock.attach(bus)
-    bus.timeout_margin_s = 0.0          # the wire time alone: most replies arrive after it
-    for _ in range(50):
-        assert bus.ping(2).id == 2
-        assert bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
-    clock.fault("vanish", 3)
-    with pytest.raises(DxlTimeoutError) as err:
-        bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
-    assert err.value.ids == (3,)
-    assert bus.ping(1).id == 1 and bus.drained_bytes == 0
+    # the wire time alone: most replies arrive after it
+    with bus.exchanging(ExchangeSettings(retries=0, timeout_margin_s=0.0)):
+        for _ in range(50):
+            assert bus.ping(2).id == 2
+            assert bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
+        clock.fault("vanish", 3)
+        with pytest.raises(DxlTimeoutError) as err:
+            bus.sync_read([1, 2, 3], Reg.PRESENT_POSITION)
+        assert err.value.ids == (3,)
+        assert bus.ping(1).id == 1 and bus.drained_bytes == 0

@@ -23,6 +23,7 @@ import time
 from dataclasses import asdict, dataclass
 from typing import Callable, Protocol
 
+from swerve.driver.bus import ExchangeSettings
 from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, CorruptPacketError, DxlError, DxlTimeoutError, SwerveError
 
@@ -140,39 +141,41 @@ class RecoverFromFault:
         self._recent.append(now)
         self._note(ids, "fault", str(fault))
         bus = wheels.bus
-        saved = bus.retries, bus.timeout_margin_s
-        bus.retries, bus.timeout_margin_s = max(saved[0], self.bus_retries), max(saved[1], self.bus_margin_s)
+        patient = ExchangeSettings(max(bus.retries, self.bus_retries), max(bus.timeout_margin_s, self.bus_margin_s))
         try:
-            wheels.stop()
-            waited = self._wait_standstill(wheels, ids)
-            self._note(ids, "stop", "zero wheel speed commanded; " + (
-                f"the other drive wheels stood still after {waited:.2f} s" if waited is not None else
-                f"the other drive wheels still turned after {self.standstill_timeout_s:.1f} s"))
-            for i in ids:
-                try:
-                    bits = bus.hardware_error(i)
-                except DxlError:
-                    bits = None
-                bus.reboot(i)
-                self._wait_answer(bus, i)
-                self._note([i], "reboot", "rebooted" + (f" (Hardware Error Status was 0x{bits:02X})"
-                                                       if bits is not None else "") + "; answers a Ping again")
-            wheels.configure()
-            self._note(ids, "restore", "operating modes, gains, profiles, return delay and Bus Watchdog "
-                                       "written from the robot file")
-            wheels.enable()
-            self._note(ids, "torque", "torque on for all eight servos")
-            bus.retries, bus.timeout_margin_s = saved
+            with bus.exchanging(patient):
+                self._restart(wheels, ids)
             rehome()
             self._note(ids, "rehome", "steering back at the last commanded angles")
         except SwerveError as exc:       # a bus error, or the loop's abort while re-homing
             self._note(ids, "failed", str(exc))
             return False
-        finally:
-            bus.retries, bus.timeout_margin_s = saved
         self.recoveries += 1
         self._note(ids, "resume", f"recovery {self.recoveries} done; resuming the trajectory")
         return True
+
+    def _restart(self, wheels, ids) -> None:
+        """Stop the wheels, reboot the servos ``ids``, set all eight up again and turn the torque on."""
+        bus = wheels.bus
+        wheels.stop()
+        waited = self._wait_standstill(wheels, ids)
+        self._note(ids, "stop", "zero wheel speed commanded; " + (
+            f"the other drive wheels stood still after {waited:.2f} s" if waited is not None else
+            f"the other drive wheels still turned after {self.standstill_timeout_s:.1f} s"))
+        for i in ids:
+            try:
+                bits = bus.hardware_error(i)
+            except DxlError:
+                bits = None
+            bus.reboot(i)
+            self._wait_answer(bus, i)
+            self._note([i], "reboot", "rebooted" + (f" (Hardware Error Status was 0x{bits:02X})"
+                                                   if bits is not None else "") + "; answers a Ping again")
+        wheels.configure()
+        self._note(ids, "restore", "operating modes, gains, profiles, return delay and Bus Watchdog "
+                                   "written from the robot file")
+        wheels.enable()
+        self._note(ids, "torque", "torque on for all eight servos")
 
     def _wait_standstill(self, wheels, faulted) -> float | None:
         """Wait until the healthy drive servos report zero speed (the torque goes off next, and a

@@ -273,3 +273,30 @@ def test_a_lockstep_run_through_a_16_ms_adapter_overruns_every_cycle():
     # the read ends 18.2 ms into its 16 ms slot: every cycle runs into the next slot, which is skipped
     assert s["completed"] and s["overruns"] == s["cycles"] == s["missed_slots"] == 1250
     assert s["loop_period_p50_ms"] == pytest.approx(32.0, abs=1e-9)
+
+
+@given(st.floats(0.0, 100.0), st.lists(st.tuples(st.floats(0.0, 3e-3), st.integers(0, 200)), max_size=10),
+       st.sampled_from([BYTE_S, 10 / 57_600, 10 / 4_500_000]), latencies, st.floats(0.0, 100.0))
+@example(0.0, [(0.5 * MS, 168)], BYTE_S, 16, 0.0)
+@example(12.345, [(50e-6, 21)] * 8, BYTE_S, 1, 12.0)
+@settings(max_examples=300, deadline=None)
+def test_lazy_arrivals_are_the_listed_ones_and_deliver_the_same(start_s, frames, byte_s, latency_ms, last_s):
+    """The arrival times computed per index are those of a byte-by-byte walk, and the delivery
+    found by bisection over them is the one a scan of the listed times gives."""
+    listed, t = [], start_s
+    for gap_s, n in frames:
+        t += gap_s
+        listed += [t + k * byte_s for k in range(1, n + 1)]
+        t += n * byte_s
+    lazy = byte_arrivals(start_s, frames, byte_s)
+    assert len(lazy) == len(listed) and list(lazy) == listed and lazy[:] == listed
+    s = AdapterSettings(latency_ms)
+    a, b = deliver(s, lazy, last_s), deliver(s, listed, last_s)
+    assert (a.times_s, a.last_send_s, a.end_s) == (b.times_s, b.last_send_s, b.end_s)
+
+
+def test_arrivals_refuse_a_negative_gap_or_byte_time():
+    with pytest.raises(ValueError, match="gap"):
+        byte_arrivals(0.0, [(-1e-6, 3)], BYTE_S)
+    with pytest.raises(ValueError, match="byte time"):
+        byte_arrivals(0.0, [(0.0, 3)], -BYTE_S)

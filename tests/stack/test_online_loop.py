@@ -54,7 +54,7 @@ class FakeWheels:
                 raise exc
         d1, d2 = self.s[3], self.s[4]
         w = self.v1 / self.geom.wheel_radius_m
-        return SimpleNamespace(t_s=self.clock.t, drive_radps=(w,) * 4, steer_rad=(d1, d2, d2, d1),
+        return SimpleNamespace(t_s=self.clock.t, drive_radps=(w,) * 4, drive_rad=None, steer_rad=(d1, d2, d2, d1),
                                drive_current_a=(0.1,) * 4, steer_current_a=(0.0,) * 4)
 
     def write_goals(self, drive, steer):

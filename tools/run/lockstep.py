@@ -10,9 +10,9 @@ control cycle: ``now()`` asks ``pose`` (time and true pose in one answer) and ``
 that answer while no byte has been written since; with the bus attached (:meth:`attach`),
 ``ask_after_next_write()`` sends that request the moment the read's instruction has gone out,
 so the emulator answers it in the same turn as the read; ``start_sleep(t)`` sends ``advance``
-without waiting, so the caller can work (e.g. write its log) while the emulator runs the
-physics, and the answer is read by the next call that needs the emulator (the caller must not
-write to the pty in between).
+and takes its answer, which the emulator gives before it steps the physics, so the caller
+works (e.g. writes its log) while the emulator runs the physics (the caller must not write to
+the pty before ``end_sleep``).
 """
 from __future__ import annotations
 
@@ -156,11 +156,13 @@ class LockstepLoopClock:
         return self._now_s
 
     def start_sleep(self, t: float) -> None:
-        """Ask the emulator to advance robot time to ``t`` and return without waiting; the caller
-        may work meanwhile but must write nothing to the pty before :meth:`end_sleep` (any other
-        request ends the sleep first)."""
+        """Advance robot time to ``t`` and return once the emulator has answered, before its
+        physics runs: the emulator answers as soon as it has served the bytes written so far and
+        steps the physics afterwards, so the caller's work (e.g. writing its log) runs beside
+        that physics. The caller must write nothing to the pty before :meth:`end_sleep`."""
         self._send(f"advance {t!r} {self._delta()}")
         self._known, self._pose, self._asked_s = False, None, None
+        self._answer_pending()
 
     def end_sleep(self) -> float:
         """Wait for the advance asked by :meth:`start_sleep`: robot time then stands at ``t``, and

@@ -12,9 +12,8 @@ faster than real time the wall period is ``tau / time_scale``. Per cycle:
 4. one bulk write of ``[v1/r] * 4`` and the law's steering goals ``[d1, d2, d2, d1]``;
 5. ``on_cycle(fields)`` with a dict of :class:`swerve.tools.logs.record.CycleRecord` fields.
 
-The wheels object is injected (anything with ``read_state()``, ``write_goals(drive_radps,
-steer_rad)`` and ``stop()``, e.g. :class:`driver.wheelset.WheelSet`), so the same loop runs
-on the robot and on the emulator. The clock is an object too (:class:`~swerve.tools.run.ticker.Clock`).
+The wheels object is injected (a :class:`Wheels`, e.g. :class:`driver.wheelset.WheelSet`), so
+the same loop runs on the robot and on the emulator. The clock is an object too (:class:`~swerve.tools.run.ticker.Clock`).
 Failures stop the loop with :class:`LoopAbort` naming the
 servo and the cause: a hardware-error alert, too many consecutive failed reads (a missing
 servo), or a stall long enough for the servos' Bus Watchdog to expire.
@@ -25,11 +24,11 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass
-from typing import Callable
+from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
-from swerve.controller.kinematics import Geometry
+from swerve.controller.kinematics import Geometry, drive_angular_speed, wheel_commands
 from swerve.controller.odometry import Odometry
 from swerve.controller.simulate import SimResult, metrics
 from swerve.controller.tracking import TrackingLaw
@@ -41,6 +40,31 @@ from swerve.tools.run.ticker import Clock, Ticker, WallLoopClock, collector_paus
 log = logging.getLogger(__name__)
 
 _OVERRUN, _STALE = int(CycleFlag.OVERRUN), int(CycleFlag.STALE)
+
+
+class WheelReading(Protocol):
+    """One read of the four wheel modules, wheel frame, SI (:class:`driver.wheelset.WheelState`)."""
+
+    drive_radps: Sequence[float]        #: (4,) wheel speeds, rad/s
+    steer_rad: Sequence[float]          #: (4,) steering angles, rad
+    drive_current_a: Sequence[float]    #: (4,) drive motor currents, A
+    steer_current_a: Sequence[float]    #: (4,) steering motor currents, A
+    #: (4,) wheel rotation angles, rad (multi-turn), or None where the wheels do not report them
+    #: (odometry then integrates the speeds)
+    drive_rad: Sequence[float] | None
+
+
+class Wheels(Protocol):
+    """What the loop drives: four wheel modules (:class:`driver.wheelset.WheelSet` on a bus)."""
+
+    def read_state(self) -> WheelReading:
+        """One read of all four modules; raises the driver's errors on a failed read."""
+
+    def write_goals(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> None:
+        """Command wheel speeds (4,), rad/s, and steering angles (4,), rad."""
+
+    def stop(self) -> None:
+        """Zero wheel speeds."""
 
 
 class LoopAbort(SwerveError):
@@ -86,10 +110,8 @@ class TrackingLoop:
 
     Parameters
     ----------
-    wheels : WheelSet-like
-        ``read_state() -> state`` with ``drive_radps`` (4,), ``steer_rad`` (4,),
-        ``drive_current_a``/``steer_current_a`` (4,) and ``t_s`` (monotonic s);
-        ``write_goals(drive_radps, steer_rad)``; ``stop()``.
+    wheels : Wheels
+        Reads the wheel modules (:class:`WheelReading`), writes their goals, stops them.
     law : TrackingLaw
     geom : Geometry
         Wheel layout and radius.
@@ -120,7 +142,7 @@ class TrackingLoop:
         whose clock time plus measured CPU time would not fit in a period (``host_cpu_overruns``).
     """
 
-    def __init__(self, wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
+    def __init__(self, wheels: Wheels, law: TrackingLaw, geom: Geometry, *, time_scale: float = 1.0,
                  max_failed_reads: int = 3, watchdog_s: float = 0.1, max_time_factor: float = 1.5,
                  true_pose: Callable[[], tuple] | None = None,
                  on_cycle: Callable[[dict], None] | None = None,
@@ -145,7 +167,7 @@ class TrackingLoop:
 
     # --- helpers -----------------------------------------------------------------------------
 
-    def _read(self):
+    def _read(self) -> WheelReading | None:
         """One state read; None (counted) on a timeout or corrupt reply; aborts on an alert."""
         try:
             st = self.wheels.read_state()
@@ -155,17 +177,29 @@ class TrackingLoop:
                                 f"{': ' + str(exc.hardware_error) if exc.hardware_error else ''};"
                                 " stopping", "hardware error", [exc.id]) from exc
             raise LoopAbort(f"servo ID {exc.id} refused the read: {exc}", "servo error", [exc.id]) from exc
-        except (DxlTimeoutError, CorruptPacketError) as exc:
-            self.failed_reads += 1
-            self._consecutive += 1
-            if self._consecutive > self.max_failed_reads:
-                ids = getattr(exc, "ids", ())
-                who = f"servo ID {', '.join(map(str, ids))}" if ids else "the bus"
-                raise LoopAbort(f"{who} stopped answering ({self._consecutive} failed reads in a row: "
-                                f"{exc}); stopping", "no reply", ids) from exc
+        except DxlTimeoutError as exc:
+            self._failed_read(exc, exc.ids)
+            return None
+        except CorruptPacketError as exc:       # the garbled reply names no servo
+            self._failed_read(exc, ())
             return None
         self._consecutive = 0
         return st
+
+    def _failed_read(self, exc: SwerveError, ids: Sequence[int]) -> None:
+        """Count a failed read; abort (cause ``"no reply"``, naming ``ids``) after too many in a row."""
+        self.failed_reads += 1
+        self._consecutive += 1
+        if self._consecutive > self.max_failed_reads:
+            who = f"servo ID {', '.join(map(str, ids))}" if ids else "the bus"
+            raise LoopAbort(f"{who} stopped answering ({self._consecutive} failed reads in a row: "
+                            f"{exc}); stopping", "no reply", ids) from exc
+
+    def _goals(self, v1_mps: float, delta1_rad: float, delta2_rad: float) -> tuple[list[float], list[float]]:
+        """The wheel goals ``(drive_radps (4,), steer_rad (4,))`` for ground speed ``v1_mps`` and the
+        steering angles: the robot's goal layout (:func:`wheel_commands`), speeds at the wheel."""
+        goals = wheel_commands(v1_mps, delta1_rad, delta2_rad)     # [v1] * 4 + [d1, d2, d2, d1]
+        return drive_angular_speed(goals[:4], self.geom.wheel_radius_m).tolist(), goals[4:].tolist()
 
     def _touch_bus(self, now: float | None = None) -> None:
         """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
@@ -193,9 +227,9 @@ class TrackingLoop:
         ticker = Ticker(self.tau_s / self.time_scale, self.clock)
         ticker.start()
         self._consecutive = 0
-        goal = [delta1, delta2, delta2, delta1]
+        stopped, goal = self._goals(0.0, delta1, delta2)
         for _ in range(int(np.ceil(timeout_s / self.tau_s))):
-            self.wheels.write_goals([0.0] * 4, goal)
+            self.wheels.write_goals(stopped, goal)
             st = self._read()
             if st is not None and np.max(np.abs(np.subtract(st.steer_rad, goal))) < tolerance_rad:
                 return
@@ -260,7 +294,7 @@ class TrackingLoop:
                     else:
                         dt = tau if t_prev_meas is None else (t_meas - t_prev_meas) * self.time_scale
                         t_prev_meas = t_meas
-                        odo.update(dt, st.drive_radps, st.steer_rad, getattr(st, "drive_rad", None))
+                        odo.update(dt, st.drive_radps, st.steer_rad, st.drive_rad)
                         meas = st
                     pose = odo.pose
                     state = np.array([*pose, d1, d2])
@@ -269,8 +303,7 @@ class TrackingLoop:
                         break
                     v1, w1, w2 = out.inputs
                     d1, d2 = out.delta1_rad, out.delta2_rad
-                    steer = [d1, d2, d2, d1]
-                    drive = [v1 / geom.wheel_radius_m] * 4
+                    drive, steer = self._goals(v1, d1, d2)
                     self._touch_bus(t_meas)
                     self.wheels.write_goals(drive, steer)
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan

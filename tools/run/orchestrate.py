@@ -141,7 +141,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     from swerve.core.errors import ConfigError
     from swerve.controller.gains_io import load_gains
     from swerve.controller.trajectory import load_trajectory
-    from swerve.driver.bus import Bus
+    from swerve.driver.bus import Bus, ExchangeSettings
     from swerve.driver.wheelset import WheelSet
     from swerve.tools.recovery import policy
     from swerve.tools.run.loop import TrackingLoop
@@ -205,19 +205,19 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         # The emulator is a Python process on a possibly loaded machine: give its replies slack.
         margin = req.timeout_margin_s if req.timeout_margin_s is not None else (
             LOCKSTEP_TIMEOUT_MARGIN_S if req.lockstep else EMULATOR_TIMEOUT_MARGIN_S if req.emulate else None)
-        margin = {} if margin is None else {"timeout_margin_s": margin}
-        fault_policy = policy(req.on_servo_fault, clock=clock, **margin)
-        bus = stack.enter_context(Bus(port, cfg.link.baud, retries=1, default_model=cfg.model, **margin))
+        setup = ExchangeSettings(retries=1, **({} if margin is None else {"timeout_margin_s": margin}))
+        fault_policy = policy(req.on_servo_fault, clock=clock, timeout_margin_s=setup.timeout_margin_s)
+        # In the loop every read is the same 10-byte block: a missed reply is the next cycle's
+        # job (no retry), and its deadline must fit in a cycle (half the wall period at most).
+        loop_margin = setup.timeout_margin_s if req.lockstep else \
+            min(setup.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
+        bus = stack.enter_context(Bus(port, cfg.link.baud, default_model=cfg.model, timeout_margin_s=loop_margin))
         if clock is not None:
             clock.attach(bus)
         # its exit stops the wheels and turns the torque off: a stop signal waits for it
         wheels = stack.enter_context(shielded_exit(WheelSet(bus, cfg, fast=req.fast_read)))
-        wheels.configure()
-        # In the loop every read is the same 10-byte block: a missed reply is the next cycle's
-        # job (no retry), and its deadline must fit in a cycle (half the wall period at most).
-        bus.retries = 0
-        if not req.lockstep:
-            bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
+        with bus.exchanging(setup):
+            wheels.configure()
         callbacks = []
         if req.log is not None:
             callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
