@@ -6,7 +6,9 @@ is only ever a port: the driver, the wheel set and the loop are the same code as
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,9 +16,24 @@ from pathlib import Path
 import numpy as np
 
 from swerve.configs import ConfigChoice
-from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
-from swerve.tools.run.loop import LoopResult
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import load_gains
+from swerve.controller.reference import build_reference
+from swerve.controller.simulate import simulate
+from swerve.controller.tracking import TrackingLaw
+from swerve.controller.trajectory import load_trajectory
+from swerve.core.errors import ConfigError
+from swerve.driver.bus import Bus
+from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
+from swerve.driver.wheelset import WheelSet
+from swerve.emulator.physics.profiles import resolve_emulator_config
+from swerve.emulator.process import EmulatorProcess
+from swerve.tools.logs.bag import RunLogWriter
+from swerve.tools.logs.record import CycleRecord
+from swerve.tools.recovery import policy
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
+from swerve.tools.run.loop import LoopResult, TrackingLoop
 from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
 from swerve.tools.signals import shielded_exit
 
@@ -65,9 +82,6 @@ class RunRequest:
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
-    from swerve.controller.gains_io import load_gains
-    from swerve.controller.trajectory import load_trajectory
-
     traj = load_trajectory(trajectory, geom, limits)
     gains = load_gains(gains_path) if gains_path is not None else None
     return traj, law_for(traj, gains, geom, limits, progress)
@@ -76,10 +90,6 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
 def law_for(traj, gains, geom, limits, progress: bool = False):
     """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
     ``gains``, or with gains synthesised now (Riccati) for ``None``."""
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.reference import build_reference
-    from swerve.controller.tracking import TrackingLaw
-
     if gains is not None:           # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
@@ -89,8 +99,6 @@ def law_for(traj, gains, geom, limits, progress: bool = False):
 
 def simulated_poses(law, start) -> np.ndarray:
     """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
-    from swerve.controller.simulate import simulate
-
     poses = simulate(law, start).states[:, :3]
     law.reset()
     return poses
@@ -105,11 +113,6 @@ def wall_clock_guards(cfg, time_scale: float):
     machine at 5x is not taken for a dead controller. The watchdog is capped at the item's
     2.54 s.
     """
-    import dataclasses
-    import math
-
-    from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
-
     if time_scale <= 1.0:
         return cfg
     return dataclasses.replace(
@@ -138,14 +141,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     were written with the cycle's fields (as the log gets them) and the run's lockstep clock
     (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
-    from swerve.core.errors import ConfigError
-    from swerve.controller.gains_io import load_gains
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.driver.bus import Bus
-    from swerve.driver.wheelset import WheelSet
-    from swerve.tools.recovery import policy
-    from swerve.tools.run.loop import TrackingLoop
-
     if req.lockstep and not (req.emulate or (req.control and req.port)):
         raise ConfigError("lockstep needs the emulator (--emulate); a real bus runs on the wall clock")
     if req.control and not req.lockstep:
@@ -167,8 +162,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     with contextlib.ExitStack() as stack:
         emu = None
         if req.emulate:     # launched first: the child starts while the gains are synthesised
-            from swerve.emulator.physics.profiles import resolve_emulator_config
-            from swerve.emulator.process import EmulatorProcess
 
             physics = resolve_emulator_config(req.emulator_config or "ideal")
             if req.lockstep:
@@ -186,8 +179,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         sim = simulated_poses(law, start) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
-            from swerve.tools.run.lockstep import LockstepLoopClock
-
             if emu is not None:
                 emu.start()
                 port, control = emu.port, emu.control_path
@@ -295,9 +286,6 @@ def _seeded(faults: str | None) -> str | None:
 
 def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
     """Open the run log and return the loop's ``on_cycle`` callback."""
-    from swerve.tools.logs.bag import RunLogWriter
-    from swerve.tools.logs.record import CycleRecord
-
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
                 time_scale=req.time_scale, port="emulator" if req.emulate or req.lockstep else (req.port or cfg.link.port),
                 config=str(choice.path), config_source=choice.source,
