@@ -23,7 +23,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
                precondition: bool = True, initial_errors: str = "spread", max_iter: int = 500,
                init: str = "frozen-lqr", target_ratio: float = 1.001,
                progress: bool = False, check: bool = True,
-               start=None) -> tuple[Reference, GainSchedule]:
+               start=None, lqr=finite_horizon_lqr) -> tuple[Reference, GainSchedule]:
     """Build the reference of ``traj`` and synthesise its gain schedule.
 
     Parameters
@@ -43,6 +43,8 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     check : run :func:`check_gains` on the paper's gains (raises :class:`GainCheckError`).
     start : robot start state (5,); default the trajectory's. Its error is part of the
         paper's cost.
+    lqr : the finite-horizon Riccati solver, :func:`controller.riccati.finite_horizon_lqr` or
+        one with its signature and results (:meth:`controller.riccati_cache.RiccatiCache.solve`).
 
     Returns
     -------
@@ -57,8 +59,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     Ad, Bd = error_system(ref)
     start = traj.start_state(geom) if start is None else np.asarray(start, float)
     x0 = initial_error(ref, start)
-    Kr, P = finite_horizon_lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s,
-                               progress=progress and method == "riccati")
+    Kr, P = lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s, progress=progress and method == "riccati")
     meta = dict(frames=frames, initial_error=x0.tolist())
     if method == "riccati":
         J = sl.dot(x0.tolist(), sl.matvec(P[0].tolist(), x0.tolist()))  # same bits on any CPU

@@ -7,8 +7,15 @@ import os
 import platform
 import subprocess
 import sys
+import tempfile
 
 import pytest
+
+
+def pytest_configure(config):
+    """Every test (and every command it starts) writes its caches into a fresh folder, never the
+    user's ``~/.cache/swerve``: a verdict must not depend on what an earlier run left there."""
+    os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="swerve-test-cache-")
 
 
 def pytest_addoption(parser):

@@ -19,6 +19,8 @@ from swerve.configs import ConfigChoice
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import load_gains
 from swerve.controller.reference import build_reference
+from swerve.controller.riccati import finite_horizon_lqr
+from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
 from swerve.controller.simulate import simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
@@ -87,13 +89,14 @@ def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = Fals
     return traj, law_for(traj, gains, geom, limits, progress)
 
 
-def law_for(traj, gains, geom, limits, progress: bool = False):
+def law_for(traj, gains, geom, limits, progress: bool = False, lqr=finite_horizon_lqr):
     """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
-    ``gains``, or with gains synthesised now (Riccati) for ``None``."""
+    ``gains``, or with gains synthesised now for ``None`` by the Riccati solver ``lqr``
+    (:func:`finite_horizon_lqr`, or a :class:`RiccatiCache`'s ``solve``)."""
     if gains is not None:           # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
-        ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
+        ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress, lqr=lqr)
     return TrackingLaw(ref, gains, limits)
 
 
@@ -175,7 +178,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
                                       rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms)
             stack.callback(emu.close)
             emu.launch()
-        law = law_for(traj, gains, geom, limits, req.progress)
+        # the Riccati solution of an input already seen comes from the user's cache, bit for bit
+        law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
         sim = simulated_poses(law, start) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
