@@ -181,6 +181,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         # the Riccati solution of an input already seen comes from the user's cache, bit for bit
         law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
         sim = simulated_poses(law, start) if req.log is not None else None
+        # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
+        log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
             if emu is not None:
@@ -214,8 +216,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         if not req.lockstep:
             bus.timeout_margin_s = min(bus.timeout_margin_s, 0.5 * traj.tau_s / req.time_scale)
         callbacks = []
-        if req.log is not None:
-            callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
+        if log_writer is not None:
+            callbacks.append(_log_callback(stack.enter_context(shielded_exit(log_writer)), sim))
         live = None
         if req.live is not None:
             from swerve.tools.live import RUN_TOPICS, LivePublisher, parse_live
@@ -288,15 +290,20 @@ def _seeded(faults: str | None) -> str | None:
     return f"{faults},seed={LOCKSTEP_SEED}"
 
 
-def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
-    """Open the run log and return the loop's ``on_cycle`` callback."""
+def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
+    """The run log's writer, not yet open (nothing is written until it is entered)."""
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
                 time_scale=req.time_scale, port="emulator" if req.emulate or req.lockstep else (req.port or cfg.link.port),
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
     req.log.parent.mkdir(parents=True, exist_ok=True)
-    writer = stack.enter_context(shielded_exit(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])))
+    return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
+
+
+def _log_callback(writer: RunLogWriter, sim: np.ndarray):
+    """The loop's ``on_cycle`` callback writing each cycle, with the overlay pose ``sim[k]``,
+    into the open ``writer``."""
 
     def on_cycle(fields: dict) -> None:
         k = fields["cycle"]
