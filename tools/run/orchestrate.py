@@ -238,8 +238,9 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         if clock is not None:
             clock.align(1.0 / rate_hz)       # deadlines on the physics step grid
         robot0, wall0 = (clock.now() if clock is not None else None), time.monotonic()
+        started_unix_s, cpu0 = time.time(), time.process_time()
         result = loop.run(start)
-        wall_s = time.monotonic() - wall0
+        wall_s, cpu_s = time.monotonic() - wall0, time.process_time() - cpu0
         robot_s = clock.now() - robot0 if clock is not None else wall_s * loop_scale
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
         counters = clock.counters() if clock is not None else None
@@ -264,6 +265,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         log=None if req.log is None else str(req.log), emulator=emulator,
         clock="lockstep" if req.lockstep else "wall", wall_time_s=wall_s,
         real_time_factor=robot_s / wall_s if wall_s > 0 else None,
+        loop_cpu_s=cpu_s, loop_started_unix_s=started_unix_s,
         servo_faults=fault_policy.summary(), live=live_stats)
     return RunResult(summary, result)
 
