@@ -42,8 +42,12 @@ SHARED_POSE = struct.Struct("4d")
 #: The child's program. The emulator uses no SciPy, and an import of ``scipy`` in it fails:
 #: numba, loading the cached kernels, then skips its BLAS check (``numba.np.linalg.ensure_blas``
 #: imports ``scipy.linalg``, ~0.4 s), which only numba's ``np.dot``/``np.linalg`` need, and the
-#: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise).
-_CHILD_PROGRAM = ("import sys; sys.modules['scipy'] = None; from swerve.emulator.process_child import child_main; "
+#: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise). The
+#: cyclic garbage collector is off until the emulator is built (:func:`process_child.child_main`
+#: then collects once, freezes what start-up made and turns it on): start-up allocates much and
+#: frees little, and the collections it would trigger cost ~0.2 s of CPU.
+_CHILD_PROGRAM = ("import gc, sys; gc.disable(); sys.modules['scipy'] = None; "
+                  "from swerve.emulator.process_child import child_main; "
                   "child_main(int(sys.argv[1]), int(sys.argv[2]))")
 
 

@@ -5,6 +5,7 @@ It imports the physics, which the parent never needs, so it is its own module.
 """
 from __future__ import annotations
 
+import gc
 import mmap
 import signal
 import time
@@ -39,6 +40,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     freeze_startup_heap()
+    gc.enable()                        # off while the child started (see process._CHILD_PROGRAM)
     try:
         conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     except OSError:                    # the parent gave up while we started
