@@ -33,7 +33,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
@@ -680,6 +679,8 @@ class FittedPath:
         first_window, q0, evals = True, 0, 0
         if progress is None:
             progress = len(p) > PROGRESS_SAMPLES and sys.stderr.isatty()
+        from tqdm import tqdm  # as the Riccati and CG progress bars: only a fit loads it
+
         bar = tqdm(total=max(n_par, 1), desc="fitting path", unit="param", leave=False,
                    disable=not progress)
         while True:
