@@ -38,6 +38,7 @@ from pathlib import Path
 from swerve.core.errors import SwerveError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
 from swerve.tools.argtypes import int_range
+from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
 
 #: Every subcommand and its one-line help, in the order ``swerve --help`` lists them.
 COMMANDS: dict[str, str] = {
@@ -213,8 +214,6 @@ def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
     ``process_exit``: the caller exits right after (the console script), so stop signals that
     arrive after the command's boundary are ignored rather than restored to Python's defaults.
     """
-    from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
-
     argv = list(sys.argv[1:] if argv is None else argv)
     args = build_parser((chosen_command(argv),)).parse_args(argv)
     verbose = bool(args._verbose or getattr(args, "verbose", False))
