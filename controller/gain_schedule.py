@@ -1,14 +1,18 @@
 """Offline design in one call: trajectory -> reference -> gain schedule (either method)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import GainSchedule
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.ltv import error_system, initial_error
+from swerve.controller.ltv import error_system, initial_error, injected_cost
 from swerve.controller.reference import Reference, build_reference
+from swerve.controller.simulate import simulate
+from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import Trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 
@@ -66,7 +70,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
         meta.update(J_star=J)
         K = Kr
     else:
-        from swerve.controller.ltv import injected_cost
+        # the paper's method runs on SciPy's line search (~0.3 s to import): only it loads it
         from swerve.controller.synthesis import (conjugate_gradient,
                                                  conjugate_gradient_continuation,
                                                  error_injections, frozen_time_lqr_gains)
@@ -187,11 +191,6 @@ def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, 
     keeps the position error over t >= tf/4 below ``tol_m`` or :data:`CHECK_RICCATI_FACTOR`
     times that of Riccati's gains from the same start). Returns the measured numbers.
     """
-    import dataclasses
-
-    from swerve.controller.simulate import simulate
-    from swerve.controller.tracking import TrackingLaw
-
     Ad, Bd = error_system(ref)
     rho, low, low_r = check_spectrum(Ad, Bd, gains.K, K_riccati, ref.tau_s)
     starts = [np.asarray(start, float)] + [np.asarray(start, float) + np.r_[d, 0.0, 0.0]
