@@ -1,14 +1,18 @@
 """Offline design in one call: trajectory -> reference -> gain schedule (either method)."""
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 
 from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
 from swerve.controller.gains_io import GainSchedule
 from swerve.controller.kinematics import Geometry, Limits
-from swerve.controller.ltv import error_system, initial_error
+from swerve.controller.ltv import error_system, initial_error, injected_cost
 from swerve.controller.reference import Reference, build_reference
+from swerve.controller.simulate import simulate
+from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import Trajectory
 from swerve.controller.riccati import finite_horizon_lqr
 
@@ -23,7 +27,7 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
                precondition: bool = True, initial_errors: str = "spread", max_iter: int = 500,
                init: str = "frozen-lqr", target_ratio: float = 1.001,
                progress: bool = False, check: bool = True,
-               start=None) -> tuple[Reference, GainSchedule]:
+               start=None, lqr=finite_horizon_lqr) -> tuple[Reference, GainSchedule]:
     """Build the reference of ``traj`` and synthesise its gain schedule.
 
     Parameters
@@ -43,6 +47,8 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     check : run :func:`check_gains` on the paper's gains (raises :class:`GainCheckError`).
     start : robot start state (5,); default the trajectory's. Its error is part of the
         paper's cost.
+    lqr : the finite-horizon Riccati solver, :func:`controller.riccati.finite_horizon_lqr` or
+        one with its signature and results (:meth:`controller.riccati_cache.RiccatiCache.solve`).
 
     Returns
     -------
@@ -57,15 +63,14 @@ def synthesize(traj: Trajectory, method: str = "riccati", geom: Geometry = Geome
     Ad, Bd = error_system(ref)
     start = traj.start_state(geom) if start is None else np.asarray(start, float)
     x0 = initial_error(ref, start)
-    Kr, P = finite_horizon_lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s,
-                               progress=progress and method == "riccati")
+    Kr, P = lqr(Ad, Bd, traj.Q, traj.R, traj.tau_s, progress=progress and method == "riccati")
     meta = dict(frames=frames, initial_error=x0.tolist())
     if method == "riccati":
         J = sl.dot(x0.tolist(), sl.matvec(P[0].tolist(), x0.tolist()))  # same bits on any CPU
         meta.update(J_star=J)
         K = Kr
     else:
-        from swerve.controller.ltv import injected_cost
+        # the paper's method runs on SciPy's line search (~0.3 s to import): only it loads it
         from swerve.controller.synthesis import (conjugate_gradient,
                                                  conjugate_gradient_continuation,
                                                  error_injections, frozen_time_lqr_gains)
@@ -186,11 +191,6 @@ def check_gains(ref: Reference, gains: GainSchedule, K_riccati, limits: Limits, 
     keeps the position error over t >= tf/4 below ``tol_m`` or :data:`CHECK_RICCATI_FACTOR`
     times that of Riccati's gains from the same start). Returns the measured numbers.
     """
-    import dataclasses
-
-    from swerve.controller.simulate import simulate
-    from swerve.controller.tracking import TrackingLaw
-
     Ad, Bd = error_system(ref)
     rho, low, low_r = check_spectrum(Ad, Bd, gains.K, K_riccati, ref.tau_s)
     starts = [np.asarray(start, float)] + [np.asarray(start, float) + np.r_[d, 0.0, 0.0]

@@ -33,8 +33,6 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import BSpline, LSQUnivariateSpline
-from tqdm import tqdm
 
 from swerve.core import small_linalg as sl
 from swerve.controller.errors import ControllerError
@@ -124,6 +122,8 @@ class CurvatureCurve:
         self.knots = np.asarray(knots, float)
         self.coef = np.asarray(coef, float)
         self.length_m = float(length_m)
+        from scipy.interpolate import BSpline  # ~0.4 s to import: only drawn paths load it
+
         self._k = BSpline(self.knots, self.coef, 2, extrapolate=True)
         self._dk = self._k.derivative()
         self._th = self._k.antiderivative()
@@ -356,6 +356,8 @@ class _Window:
         self.n_full, self.n_q = n_cells, len(s_q)
         u = np.concatenate([full.ravel(), part.ravel(), s_q, [self.s_a]])
         te = np.concatenate([tl[:1], tl, tl[-1:]])
+        from scipy.interpolate import BSpline  # ~0.4 s to import: only drawn paths load it
+
         D = BSpline.design_matrix(u, te, 3, extrapolate=True)
         self._idx = D.indices.reshape(len(u), 4)
         self._val = D.data.reshape(len(u), 4)
@@ -564,6 +566,8 @@ def _timing_spline(t, s):
         step = max(n // 2, 1)
     inner = t[step:n - step + 1:step] if n > 2 * 5 + 2 else t[:0]
     inner = inner[(inner > t[0]) & (inner < t[-1])]
+    from scipy.interpolate import LSQUnivariateSpline  # ~0.4 s to import: only drawn paths load it
+
     return LSQUnivariateSpline(t, s, inner, k=min(5, n - 1))
 
 
@@ -675,6 +679,8 @@ class FittedPath:
         first_window, q0, evals = True, 0, 0
         if progress is None:
             progress = len(p) > PROGRESS_SAMPLES and sys.stderr.isatty()
+        from tqdm import tqdm  # as the Riccati and CG progress bars: only a fit loads it
+
         bar = tqdm(total=max(n_par, 1), desc="fitting path", unit="param", leave=False,
                    disable=not progress)
         while True:

@@ -18,6 +18,12 @@ from typing import Iterator
 
 import pytest
 
+from swerve.configs import shipped
+from swerve.driver.bus import Bus
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.process import EmulatorProcess
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
+
 __all__ = ["EmulatedRobot", "emulated_bus", "emulated_robot"]
 
 
@@ -45,8 +51,8 @@ def emulated_bus(request) -> Iterator[str]:
     runs its motor and firmware loops at ``time_scale`` x real time, as ``swerve emulate``). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
     serial tool. The emulator object is ``request.node.emulator`` (faults, counters).
     """
-    from swerve.configs import shipped
-    from swerve.emulator.physics.params import load_config
+    # the emulator in this process loads numba (the optional ``fast`` extra) and the physics:
+    # only a session that asks for this fixture pays for it
     from swerve.emulator.robot_emulator import build_emulator
 
     kw = _marker_kwargs(request, "emulated_bus")
@@ -76,9 +82,6 @@ class EmulatedRobot:
     def open_bus(self, **kwargs):
         """A :class:`swerve.driver.bus.Bus` on :attr:`port`, attached, with reply timeouts that
         ride out a loaded host (keywords go to ``Bus``; default 1 Mbps, XH430-W210)."""
-        from swerve.driver.bus import Bus
-        from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
-
         kwargs.setdefault("default_model", "xh430-w210")
         kwargs.setdefault("timeout_margin_s", LOCKSTEP_TIMEOUT_MARGIN_S)
         bus = Bus(self.port, kwargs.pop("baud", 1_000_000), **kwargs)
@@ -131,9 +134,6 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
     shipped one), ``faults`` and ``noise`` (text specs; seeded with 0 unless they name a seed),
     ``start_pose``, ``rate_hz``, ``reply_latency_s``.
     """
-    from swerve.emulator.process import EmulatorProcess
-    from swerve.tools.run.lockstep import LockstepLoopClock
-
     kw = _marker_kwargs(request, "emulated_robot")
     config = kw.pop("config", None)
     kw.setdefault("rate_hz", 1000.0)

@@ -5,10 +5,22 @@ emulator; ``--baud`` sets its baud rate. Without ``--port`` those tests use the 
 """
 import os
 import platform
+import shutil
 import subprocess
 import sys
+import tempfile
 
 import pytest
+
+
+def pytest_configure(config):
+    """Every test (and every command it starts) writes its caches into a fresh folder, never the
+    user's ``~/.cache/swerve``: a verdict must not depend on what an earlier run left there."""
+    config.swerve_cache_home = os.environ["XDG_CACHE_HOME"] = tempfile.mkdtemp(prefix="swerve-test-cache-")
+
+
+def pytest_unconfigure(config):
+    shutil.rmtree(config.swerve_cache_home, ignore_errors=True)
 
 
 def pytest_addoption(parser):

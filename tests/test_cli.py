@@ -84,3 +84,37 @@ def test_a_missing_robot_file_is_a_one_line_error(tmp_path, capsys):
     assert cli.main(["synth", "--trajectory", "line", "--config", str(tmp_path / "nope.yaml")]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "nope.yaml" in err
+
+
+def _modules_after(code: str) -> set[str]:
+    """Top-level names of the modules a fresh interpreter holds after running ``code``."""
+    out = subprocess.run([sys.executable, "-c", code + "\nimport sys; print(' '.join(sys.modules))"],
+                         capture_output=True, text=True, timeout=120, check=True)
+    return set(out.stdout.split())
+
+
+def test_help_imports_no_command_module():
+    loaded = _modules_after("from swerve.tools import cli; cli.build_parser(())")
+    assert not {m for m in loaded if m.startswith("swerve.tools.commands.")}
+
+
+#: Heavy packages that ``swerve run --emulate --lockstep`` does not use in its own process (the log
+#: writer's rosbags comes later, while the emulator child starts).
+NOT_ON_THE_RUN_PATH = ("scipy", "numba", "matplotlib", "rosbags", "ray", "foxglove", "websockets", "mpmath")
+
+
+def test_the_run_command_loads_only_what_it_uses():
+    loaded = _modules_after("from swerve.tools import cli; cli.build_parser(('run',))")
+    assert "swerve.tools.commands.run" in loaded
+    assert not {m for m in loaded if m.startswith("swerve.tools.commands.") and
+                m not in ("swerve.tools.commands.run", "swerve.tools.commands.sim")}
+    assert not {m.split(".")[0] for m in loaded} & set(NOT_ON_THE_RUN_PATH)
+    assert not {m for m in loaded if m.startswith("swerve.emulator.") and
+                m not in ("swerve.emulator.process", "swerve.emulator.physics",
+                          "swerve.emulator.physics.params", "swerve.emulator.physics.profiles")}
+
+
+def test_the_chosen_command_is_the_first_word_that_is_no_option():
+    assert cli.chosen_command(["-v", "run", "--trajectory", "line"]) == "run"
+    assert cli.chosen_command(["--help"]) is None
+    assert cli.chosen_command(["export-csv", "LOG"]) == "export-csv"

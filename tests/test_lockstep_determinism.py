@@ -17,7 +17,7 @@ pytestmark = pytest.mark.slow
 
 #: Summary fields measured on the host (wall time, CPU time): they differ from run to run.
 HOST_FIELDS = {"wall_time_s", "real_time_factor", "host_cpu_p50_ms", "host_cpu_p99_ms", "host_cpu_overruns",
-               "emulator_physics_real_time_factor", "emulator_cpu_s", "log"}
+               "emulator_physics_real_time_factor", "emulator_cpu_s", "loop_cpu_s", "loop_started_unix_s", "log"}
 #: Dropped and corrupted replies and sensor noise, all drawn from seeded generators.
 FAULTS = "drop=0.003,corrupt=0.003,seed=11"
 NOISE = "position=0.5,current=0.002,seed=4"

@@ -1,7 +1,9 @@
 """The ``swerve`` command: one sub-module per subcommand in :mod:`tools.commands`.
 
-Each module ``tools/commands/<name>.py`` defines ``NAME``, ``HELP``, ``add_arguments(parser)``
-and ``run(args) -> int``. Heavy imports happen inside ``run`` so ``swerve --help`` stays fast.
+Each module ``tools/commands/<name>.py`` (``export-csv``: ``export_csv.py``) defines
+``add_arguments(parser)`` and ``run(args) -> int``, with its imports at its top. The names and
+one-line helps of the commands are data here (:data:`COMMANDS`), so ``swerve --help`` lists every
+command without importing one, and ``swerve CMD`` imports the module of CMD only.
 
 This module is the one way errors leave the program (:func:`main`):
 
@@ -36,10 +38,26 @@ from pathlib import Path
 from swerve.core.errors import SwerveError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
 from swerve.tools.argtypes import int_range
+from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
 
-#: Subcommands in the order ``swerve --help`` lists them (module names in tools.commands).
-COMMANDS = ("emulate", "scan", "doctor", "calibrate", "synth", "sim", "run", "demo", "campaign", "tune", "plot",
-            "export_csv", "config")
+#: Every subcommand and its one-line help, in the order ``swerve --help`` lists them.
+COMMANDS: dict[str, str] = {
+    "emulate": "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)",
+    "scan": "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping)",
+    "doctor": ("check the bus against the robot file: latency timer, IDs and baud, model and firmware, "
+                "voltage, temperature, hardware errors, settings, timed read/write cycle. Exit 0: every check "
+                "passed or only warned; 1: a check failed"),
+    "calibrate": "measure steering zero, wheel direction signs and wheel radius; print or --write them",
+    "synth": "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz + .dat)",
+    "sim": "simulate LQ trajectory tracking on the kinematic model and report tracking errors",
+    "run": "track a trajectory on the robot (--port) or on the emulator (--emulate)",
+    "demo": "synthesise gains, run the paper's three trajectories on the emulator, write logs, plots, summary",
+    "campaign": "run a campaign of emulated scenarios (a process pool or Ray), or replay one of its scenarios",
+    "tune": "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec",
+    "plot": "plot a run log: path, pose, velocities, steering angles, tracking error (PNG)",
+    "export-csv": "export a run log (ROS 2 bag) to CSV, one row per control cycle",
+    "config": "copy the shipped robot.yaml and emulator.yaml into DIR (default ~/.config/swerve) to edit",
+}
 
 
 def add_config_option(parser: argparse.ArgumentParser) -> None:
@@ -65,18 +83,14 @@ def add_adapter_option(parser: argparse.ArgumentParser) -> None:
                              "once set; default: link.adapter_latency_ms of the robot file)")
 
 
-def _load(name: str):
-    """Import ``tools.commands.<name>``; ``None`` only if that module itself does not exist.
+def command_module(name: str):
+    """The module of the subcommand ``name`` (a key of :data:`COMMANDS`)."""
+    return importlib.import_module(f"swerve.tools.commands.{name.replace('-', '_')}")
 
-    (tests/test_cli.py asserts that every name in COMMANDS is present, so nothing is hidden.)
-    """
-    full = f"swerve.tools.commands.{name}"
-    try:
-        return importlib.import_module(full)
-    except ModuleNotFoundError as exc:
-        if exc.name == full:
-            return None
-        raise
+
+def chosen_command(argv: list[str]) -> str | None:
+    """The subcommand ``argv`` names: its first word that is not an option (``None``: none)."""
+    return next((a for a in argv if not a.startswith("-")), None)
 
 
 #: Exit status of a bug (an unexpected exception): EX_SOFTWARE of sysexits.h.
@@ -92,21 +106,21 @@ class OneLineParser(argparse.ArgumentParser):
         self.exit(EXIT_USAGE, f"{self.prog}: error: {message} (see {self.prog} --help)\n")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """Return the top-level parser with every subcommand registered."""
+def build_parser(commands=tuple(COMMANDS)) -> argparse.ArgumentParser:
+    """The top-level parser: every subcommand is listed; those in ``commands`` (default: all)
+    get their options and their ``run`` (importing their modules)."""
     parser = OneLineParser(
         prog="swerve",
         description="Four-wheel steered robot: Dynamixel driver, servo emulator, LQ tracking.")
     parser.add_argument("-v", "--verbose", dest="_verbose", action="store_true",
                         help="show tracebacks, Python warnings and debug logs")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
-    for name in COMMANDS:
-        mod = _load(name)
-        if mod is None:
-            continue
-        p = sub.add_parser(mod.NAME, help=mod.HELP, description=mod.HELP)
-        mod.add_arguments(p)
-        p.set_defaults(_run=mod.run)
+    for name, text in COMMANDS.items():
+        p = sub.add_parser(name, help=text, description=text)
+        if name in commands:
+            mod = command_module(name)
+            mod.add_arguments(p)
+            p.set_defaults(_run=mod.run)
     return parser
 
 
@@ -200,10 +214,8 @@ def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
     ``process_exit``: the caller exits right after (the console script), so stop signals that
     arrive after the command's boundary are ignored rather than restored to Python's defaults.
     """
-    from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
-
     argv = list(sys.argv[1:] if argv is None else argv)
-    args = build_parser().parse_args(argv)
+    args = build_parser((chosen_command(argv),)).parse_args(argv)
     verbose = bool(args._verbose or getattr(args, "verbose", False))
     prefix = f"swerve {args.command}"
     with signals_as_interrupt(process_exit), _quiet_boundary(verbose, prefix):

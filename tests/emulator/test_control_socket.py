@@ -16,11 +16,11 @@ from swerve.configs import shipped
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator import Emulator, WallPhysicsClock, make_servos
-from swerve.emulator.clock import LockstepPhysicsClock
+from swerve.emulator.clock import LockstepPhysicsClock, WallPhysicsClock
 from swerve.emulator.lockstep_socket import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import Emulator, make_servos
 
 #: First words of every reply line the protocol defines.
 REPLY_WORDS = {"at", "pose", "ok", "stats", "info", "error"}

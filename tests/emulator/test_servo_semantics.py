@@ -11,10 +11,11 @@ from swerve.driver.control_table import Reg, table_for
 from swerve.driver.errors import ConfigError
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator import Emulator, Faults, WallPhysicsClock, make_servos
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.clock import WallPhysicsClock
+from swerve.emulator.faults import Faults
 from swerve.emulator.memory import ServoMemory, WriteRejected
-from swerve.emulator.server import SteppedWorld
+from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import Emulator, SteppedWorld, make_servos
 from swerve.emulator.servo import StepDynamics, VirtualServo
 
 TABLE = table_for("xh430-w210")

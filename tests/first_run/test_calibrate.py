@@ -61,7 +61,7 @@ def test_write_refuses_the_shipped_robot_file(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.slow
-def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch, capsys):
+def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, capsys):
     truth = _robot_copy(tmp_path, "truth.yaml", center_pulse=TRUE_CENTERS, wheel_radius_m=TRUE_RADIUS_M)
     work = _robot_copy(tmp_path, "robot.yaml", drive_direction=[1, 1, 1, -1])   # rear_right sign wrong
     assert main(["calibrate", "--emulate", "--emulated-robot", str(truth), "--config", str(work),
@@ -79,14 +79,11 @@ def test_calibration_finds_the_truth_and_improves_tracking(tmp_path, monkeypatch
 
     # Track the circle on the true robot with the shipped file, then with the calibrated one, in
     # lockstep: robot time is the emulator's, so both runs give the same numbers on any machine.
-    from swerve.emulator import process
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
-    real = process.EmulatorProcess
-    monkeypatch.setattr(process, "EmulatorProcess", lambda _cfg, *a, **kw: real(truth, *a, **kw))
     before = _robot_copy(tmp_path, "before.yaml")
     results = {name: run_tracking(RunRequest(trajectory="circle", config=cfg, emulate=True, lockstep=True,
-                                             time_scale=None))
+                                             time_scale=None, emulated_robot=truth))
                for name, cfg in (("before", before), ("after", work))}
     errors = {name: (r.summary.tracking.rms_position_error_m, r.summary.tracking.max_position_error_m)
               for name, r in results.items()}

@@ -6,13 +6,19 @@ robot file in place (comments kept, validated, replaced atomically).
 from __future__ import annotations
 
 import argparse
+import contextlib
+import sys
 
+from swerve.configs import locate_robot_file
+from swerve.core.atomic import check_writable
+from swerve.driver.bus import Bus
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.tools import calibrate as cal
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_bus_options
 
-NAME = "calibrate"
-HELP = "measure steering zero, wheel direction signs and wheel radius; print or --write them"
 
 STEPS = ("steering", "directions", "radius")
 
@@ -59,15 +65,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import contextlib
-    import sys
-
-    from swerve.configs import locate_robot_file
-    from swerve.driver.bus import Bus
-    from swerve.driver.errors import ConfigError
-    from swerve.driver.robot_config import load_robot_config
-    from swerve.tools import calibrate as cal
-
     if not args.time_scale > 0 or (args.time_scale != 1.0 and not args.emulate):
         raise ConfigError("--time-scale must be positive and needs --emulate")
     if args.lockstep and not args.emulate:
@@ -83,7 +80,6 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError(f"--write will not edit the shipped robot file {cfg_path}: copy it, then pass "
                           "--config FILE (or set $SWERVE_CONFIG)")
     if args.write:          # a read-only file, folder or mount is refused before the robot moves
-        from swerve.core.atomic import check_writable
 
         check_writable(cfg_path, mkdir=False)
 

@@ -12,10 +12,13 @@ import argparse
 import sys
 from pathlib import Path
 
+from swerve.core.errors import ConfigError
 from swerve.tools.argtypes import int_range
-
-NAME = "campaign"
-HELP = "run a campaign of emulated scenarios (a process pool or Ray), or replay one of its scenarios"
+from swerve.tools.campaign.report import table, write_summary
+from swerve.tools.campaign.runner import run_missing
+from swerve.tools.campaign.scenario import run_scenario
+from swerve.tools.campaign.spec import load_campaign
+from swerve.tools.campaign.store import Store, load_folder, read_results
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -44,13 +47,8 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from swerve.core.errors import ConfigError
     from swerve.tools.campaign.engines import make_engine, require_ray
     from swerve.tools.campaign.figures import plot_campaign
-    from swerve.tools.campaign.report import table, write_summary
-    from swerve.tools.campaign.runner import run_missing
-    from swerve.tools.campaign.spec import load_campaign
-    from swerve.tools.campaign.store import Store
 
     campaign = load_campaign(args.file)
     if args.samples is not None:
@@ -86,10 +84,6 @@ def _run(args: argparse.Namespace) -> int:
 
 
 def _replay(args: argparse.Namespace) -> int:
-    from swerve.core.errors import ConfigError
-    from swerve.tools.campaign.scenario import run_scenario
-    from swerve.tools.campaign.store import load_folder, read_results
-
     campaign = load_folder(args.dir)
     cells = len(campaign.cells)
     if args.index // cells + 1 > campaign.samples:

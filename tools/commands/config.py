@@ -7,9 +7,12 @@ one. An existing file is never overwritten.
 from __future__ import annotations
 
 import argparse
+import shutil
+from pathlib import Path
 
-NAME = "config"
-HELP = "copy the shipped robot.yaml and emulator.yaml into DIR (default ~/.config/swerve) to edit"
+from swerve.configs import shipped, user_robot_file
+from swerve.core.errors import ConfigError
+
 
 #: The shipped files ``config init`` copies.
 FILES = ("robot.yaml", "emulator.yaml")
@@ -25,12 +28,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import shutil
-    from pathlib import Path
-
-    from swerve.configs import shipped, user_robot_file
-    from swerve.core.errors import ConfigError
-
     target = Path(args.dir).expanduser() if args.dir else user_robot_file().parent
     existing = [target / name for name in FILES if (target / name).exists()]
     if existing:

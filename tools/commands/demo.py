@@ -22,8 +22,6 @@ from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
 
-NAME = "demo"
-HELP = "synthesise gains, run the paper's three trajectories on the emulator, write logs, plots, summary"
 
 TRAJECTORIES = ("line", "circle", "curvilinear")
 KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m", "max_abs_v1_mps",

@@ -9,15 +9,16 @@ latency timer is checked as a ttyUSB's is on the robot.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 
+from swerve.configs import locate_robot_file
+from swerve.driver.errors import ConfigError
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.robot_emulator import build_emulator
 from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_adapter_option, add_bus_options
-
-NAME = "doctor"
-HELP = ("check the bus against the robot file: latency timer, IDs and baud, model and firmware, "
-        "voltage, temperature, hardware errors, settings, timed read/write cycle. Exit 0: every check "
-        "passed or only warned; 1: a check failed")
+from swerve.tools.doctor import EmulatedLatencyTimer, diagnose
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -34,13 +35,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import contextlib
-
-    from swerve.configs import locate_robot_file
-    from swerve.driver.errors import ConfigError
-    from swerve.driver.robot_config import load_robot_config
-    from swerve.tools.doctor import EmulatedLatencyTimer, diagnose
-
     if args.adapter_latency_ms is not None and not args.emulate:
         raise ConfigError("--adapter-latency-ms needs --emulate (on the robot, doctor reads the adapter's own)")
     cfg = load_robot_config(locate_robot_file(args.config).path)
@@ -48,8 +42,6 @@ def run(args: argparse.Namespace) -> int:
     latency = None
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from swerve.emulator.robot_emulator import build_emulator
-
             emu = stack.enter_context(build_emulator(cfg, wire_timing=True,       # register-only: nothing moves
                                                      adapter_latency_ms=args.adapter_latency_ms))
             port = emu.port

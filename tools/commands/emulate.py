@@ -13,19 +13,22 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import logging
 import signal
 import sys
 import threading
 
+from swerve.configs import locate_robot_file
 from swerve.core.options import parse_ids
 from swerve.driver.control_table import ID_MAX, table_for
 from swerve.driver.errors import ConfigError
-from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP, resolve_emulator_config
+from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import freeze_startup_heap
 from swerve.tools.argtypes import baud_rate, finite_float
 from swerve.tools.cli import add_adapter_option
-
-NAME = "emulate"
-HELP = "serve emulated Dynamixel X servos on a pseudo-terminal (prints PORT /dev/pts/N BAUD b IDS ...)"
 
 
 def format_ids(ids) -> str:
@@ -108,15 +111,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import logging
-
-    from swerve.configs import locate_robot_file
-    from swerve.driver.robot_config import load_robot_config
-    from swerve.emulator.physics.params import load_config
-    from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import build_emulator
-    from swerve.emulator.server import freeze_startup_heap
-
     if args.verbose:
         logging.basicConfig(level=logging.DEBUG, stream=sys.stderr)
     ids = parse_ids(args.ids, max_id=ID_MAX) if args.ids else None

@@ -5,8 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-NAME = "export-csv"
-HELP = "export a run log (ROS 2 bag) to CSV, one row per control cycle"
+from swerve.tools.logs import export_csv, read_log
+from swerve.tools.logs.bag import LogDamaged
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -16,12 +16,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.tools.logs.bag import LogDamaged
-    from swerve.tools.logs import export_csv, read_log
-
     log = read_log(args.log)
     if log.recovery_note and not log.damage:
-        print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
+        print(f"swerve {args.command}: {log.recovery_note}", file=sys.stderr)
     base = args.log.with_suffix("") if args.log.suffix == ".mcap" else args.log
     out = args.out or base.with_name(base.name + ".csv")
     export_csv(log, out)

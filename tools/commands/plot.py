@@ -9,8 +9,9 @@ import argparse
 import sys
 from pathlib import Path
 
-NAME = "plot"
-HELP = "plot a run log: path, pose, velocities, steering angles, tracking error (PNG)"
+from swerve.core.atomic import files_into
+from swerve.tools.logs import plot_run, read_log
+from swerve.tools.logs.bag import LogDamaged
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,13 +22,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.core.atomic import files_into
-    from swerve.tools.logs.bag import LogDamaged
-    from swerve.tools.logs import plot_run, read_log
-
     log = read_log(args.log)
     if log.recovery_note and not log.damage:
-        print(f"swerve {NAME}: {log.recovery_note}", file=sys.stderr)
+        print(f"swerve {args.command}: {log.recovery_note}", file=sys.stderr)
     sim = read_log(args.sim) if args.sim is not None else None
     with files_into(args.out) as tmp:       # all figures or none: no partial folder on a full disk
         written = plot_run(log, tmp, sim=sim)

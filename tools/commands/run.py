@@ -18,12 +18,12 @@ import sys
 import time
 from pathlib import Path
 
+from swerve.core.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_adapter_option, add_config_option
-
-NAME = "run"
-HELP = "track a trajectory on the robot (--port) or on the emulator (--emulate)"
+from swerve.tools.commands.sim import parse_x0
+from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,10 +65,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.core.errors import ConfigError
-    from swerve.tools.commands.sim import parse_x0
-    from swerve.tools.run.orchestrate import RunRequest, run_tracking
-
     if args.lockstep and not args.emulate:
         raise ConfigError("--lockstep needs --emulate (a real bus, or --port, runs on the wall clock)")
     if args.time_scale is None and not args.lockstep:

@@ -3,18 +3,17 @@ from __future__ import annotations
 
 import argparse
 
+from swerve.core.errors import ConfigError
+from swerve.core.options import parse_id_range
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import ID_MAX
+from swerve.driver.errors import DxlError
+from swerve.driver.transport import STANDARD_BAUDS
 from swerve.tools.argtypes import baud_rate, finite_float
-
-NAME = "scan"
-HELP = "find Dynamixel servos on a serial port (broadcast ping, then per-ID ping)"
 
 
 def _id_range(text: str) -> range:
     """``"0-252"`` or ``"5"`` -> a range of IDs."""
-    from swerve.core.errors import ConfigError
-    from swerve.core.options import parse_id_range
-    from swerve.driver.control_table import ID_MAX
-
     try:
         return parse_id_range(text, max_id=ID_MAX)
     except ConfigError as exc:
@@ -34,10 +33,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.driver.bus import Bus
-    from swerve.driver.errors import DxlError
-    from swerve.driver.transport import STANDARD_BAUDS
-
     bauds = STANDARD_BAUDS if args.all_bauds else (args.baud,)
     total = 0
     for baud in bauds:

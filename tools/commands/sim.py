@@ -1,11 +1,23 @@
 """``swerve sim``: closed-loop simulation of the tracking law on the nonlinear model (1)-(5)."""
 from __future__ import annotations
 
+import json
+import sys
+
+import numpy as np
+
+from swerve.configs import locate_robot_file
+from swerve.controller.errors import ControllerError
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import load_gains
+from swerve.controller.reference import build_reference
+from swerve.controller.simulate import metrics, simulate
+from swerve.controller.tracking import TrackingLaw
+from swerve.controller.trajectory import load_trajectory
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_config_option
+from swerve.tools.run.geometry import load_robot
 
-NAME = "sim"
-HELP = "simulate LQ trajectory tracking on the kinematic model and report tracking errors"
 
 #: Largest final position error of a run that converged, m (the paper's trajectories end within mm).
 FINAL_ERROR_TOL_M = 0.1
@@ -53,10 +65,6 @@ def add_arguments(parser) -> None:
 
 def parse_x0(text: str):
     """``--x0 x,y,θ,δ1,δ2`` (m, rad) as an array (5,); a one-line error otherwise."""
-    import numpy as np
-
-    from swerve.controller.errors import ControllerError
-
     try:
         vals = [float(v) for v in text.split(",")]
     except ValueError:
@@ -68,21 +76,6 @@ def parse_x0(text: str):
 
 
 def run(args) -> int:
-    import json
-    import sys
-
-    import numpy as np
-
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.errors import ControllerError
-    from swerve.controller.gains_io import load_gains
-    from swerve.configs import locate_robot_file
-    from swerve.controller.reference import build_reference
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.controller.simulate import metrics, simulate
-    from swerve.controller.tracking import TrackingLaw
-    from swerve.tools.run.geometry import load_robot
-
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom, limits)

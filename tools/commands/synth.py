@@ -1,11 +1,18 @@
 """``swerve synth``: gain schedule K(t) for a trajectory (Riccati or the paper's CG)."""
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
+from swerve.configs import locate_robot_file
+from swerve.controller.errors import ControllerError
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import save_gains
+from swerve.controller.trajectory import load_trajectory
 from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_config_option
-
-NAME = "synth"
-HELP = "synthesise the time-varying LQ gain schedule K(t) of a trajectory (.npz + .dat)"
+from swerve.tools.commands.sim import parse_x0
+from swerve.tools.run.geometry import load_robot
 
 
 def add_arguments(parser) -> None:
@@ -52,17 +59,6 @@ def add_arguments(parser) -> None:
 
 
 def run(args) -> int:
-    import sys
-    from pathlib import Path
-
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.errors import ControllerError
-    from swerve.controller.gains_io import save_gains
-    from swerve.configs import locate_robot_file
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.tools.commands.sim import parse_x0
-    from swerve.tools.run.geometry import load_robot
-
     choice = locate_robot_file(args.config)
     geom, limits = load_robot(choice.path)
     traj = load_trajectory(args.trajectory, geom, limits)

@@ -8,17 +8,32 @@ in the servo's RAM; ``--write-config`` also stores them in the robot config.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import math
-from pathlib import Path
 import sys
+from pathlib import Path
 
-from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
+from tqdm import tqdm
+
+from swerve.configs import locate_robot_file
+from swerve.core.atomic import check_writable, files_into
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
+from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP, resolve_emulator_config
+from swerve.emulator.robot_emulator import robot_emulator
 from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
 from swerve.tools.cli import add_config_option
-
-NAME = "tune"
-HELP = "identify a servo's motor (Levenberg-Marquardt) and design its gains to a step spec"
+from swerve.tools.run.lockstep import LockstepLoopClock
+from swerve.tools.tune.config_io import write_gains
+from swerve.tools.tune.emulated import make_emulator, noise_spec
+from swerve.tools.tune.experiments import Limits
+from swerve.tools.tune.gain_search import Spec
+from swerve.tools.tune.pipeline import tune_servo
+from swerve.tools.tune.report import write_report
 
 
 #: Bus reply slack against the lockstep emulator, wall s: its replies are never late in robot
@@ -70,24 +85,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    import contextlib
-
-    from tqdm import tqdm
-
-    from swerve.driver.bus import Bus
-    from swerve.driver.control_table import Reg
-    from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
-    from swerve.configs import locate_robot_file
-    from swerve.driver.robot_config import load_robot_config
-    from swerve.emulator.physics.params import load_config
-    from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.core.atomic import check_writable, files_into
-    from swerve.tools.tune.config_io import write_gains
-    from swerve.tools.tune.gain_search import Spec
-    from swerve.tools.tune.experiments import Limits
-    from swerve.tools.tune.pipeline import tune_servo
-    from swerve.tools.tune.report import write_report
-
     choice = locate_robot_file(args.config)
     robot_file = choice.path
     emulator_file = resolve_emulator_config(args.emulator_config or "ideal")
@@ -122,12 +119,8 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         clock = None
         if args.emulate:            # in lockstep: the emulator owns time, every run samples alike
-            from swerve.tools.run.lockstep import LockstepLoopClock
-            from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
-                from swerve.emulator.robot_emulator import robot_emulator
-
                 emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, lockstep=True,
                                                          noise=noise_spec(args.seed) if args.noise else None))
             else:

@@ -6,7 +6,9 @@ is only ever a port: the driver, the wheel set and the loop are the same code as
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -14,9 +16,26 @@ from pathlib import Path
 import numpy as np
 
 from swerve.configs import ConfigChoice
-from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
-from swerve.tools.run.loop import LoopResult
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import load_gains
+from swerve.controller.reference import build_reference
+from swerve.controller.riccati import finite_horizon_lqr
+from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
+from swerve.controller.simulate import simulate
+from swerve.controller.tracking import TrackingLaw
+from swerve.controller.trajectory import load_trajectory
+from swerve.core.errors import ConfigError
+from swerve.driver.bus import Bus, ExchangeSettings
+from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
+from swerve.driver.wheelset import WheelSet
+from swerve.emulator.physics.profiles import resolve_emulator_config
+from swerve.emulator.process import EmulatorProcess
+from swerve.tools.logs.bag import RunLogWriter
+from swerve.tools.logs.record import CycleRecord
+from swerve.tools.recovery import policy
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
+from swerve.tools.run.loop import LoopResult, TrackingLoop
 from swerve.tools.run.summary import EmulatorStats, LiveStats, RunSummary
 from swerve.tools.signals import shielded_exit
 
@@ -65,32 +84,24 @@ class RunRequest:
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
     """``(trajectory, TrackingLaw)``: load the trajectory, load or synthesise (Riccati) its gains."""
-    from swerve.controller.gains_io import load_gains
-    from swerve.controller.trajectory import load_trajectory
-
     traj = load_trajectory(trajectory, geom, limits)
     gains = load_gains(gains_path) if gains_path is not None else None
     return traj, law_for(traj, gains, geom, limits, progress)
 
 
-def law_for(traj, gains, geom, limits, progress: bool = False):
+def law_for(traj, gains, geom, limits, progress: bool = False, lqr=finite_horizon_lqr):
     """The :class:`TrackingLaw` of the loaded trajectory ``traj`` with the loaded gain schedule
-    ``gains``, or with gains synthesised now (Riccati) for ``None``."""
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.reference import build_reference
-    from swerve.controller.tracking import TrackingLaw
-
+    ``gains``, or with gains synthesised now for ``None`` by the Riccati solver ``lqr``
+    (:func:`finite_horizon_lqr`, or a :class:`RiccatiCache`'s ``solve``)."""
     if gains is not None:           # the reference must use the schedule's chained frames
         ref = build_reference(traj, geom, limits, gains.meta.get("frames", "rotating"))
     else:
-        ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress)
+        ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress, lqr=lqr)
     return TrackingLaw(ref, gains, limits)
 
 
 def simulated_poses(law, start) -> np.ndarray:
     """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
-    from swerve.controller.simulate import simulate
-
     poses = simulate(law, start).states[:, :3]
     law.reset()
     return poses
@@ -105,11 +116,6 @@ def wall_clock_guards(cfg, time_scale: float):
     machine at 5x is not taken for a dead controller. The watchdog is capped at the item's
     2.54 s.
     """
-    import dataclasses
-    import math
-
-    from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
-
     if time_scale <= 1.0:
         return cfg
     return dataclasses.replace(
@@ -138,14 +144,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     were written with the cycle's fields (as the log gets them) and the run's lockstep clock
     (None on the wall clock), e.g. to inject a fault at a chosen robot time with ``clock.fault``.
     """
-    from swerve.core.errors import ConfigError
-    from swerve.controller.gains_io import load_gains
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.driver.bus import Bus, ExchangeSettings
-    from swerve.driver.wheelset import WheelSet
-    from swerve.tools.recovery import policy
-    from swerve.tools.run.loop import TrackingLoop
-
     if req.lockstep and not (req.emulate or (req.control and req.port)):
         raise ConfigError("lockstep needs the emulator (--emulate); a real bus runs on the wall clock")
     if req.control and not req.lockstep:
@@ -167,8 +165,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     with contextlib.ExitStack() as stack:
         emu = None
         if req.emulate:     # launched first: the child starts while the gains are synthesised
-            from swerve.emulator.physics.profiles import resolve_emulator_config
-            from swerve.emulator.process import EmulatorProcess
 
             physics = resolve_emulator_config(req.emulator_config or "ideal")
             if req.lockstep:
@@ -182,12 +178,13 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
                                       rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms)
             stack.callback(emu.close)
             emu.launch()
-        law = law_for(traj, gains, geom, limits, req.progress)
+        # the Riccati solution of an input already seen comes from the user's cache, bit for bit
+        law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
         sim = simulated_poses(law, start) if req.log is not None else None
+        # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
+        log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
-            from swerve.tools.run.lockstep import LockstepLoopClock
-
             if emu is not None:
                 emu.start()
                 port, control = emu.port, emu.control_path
@@ -219,8 +216,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         with bus.exchanging(setup):
             wheels.configure()
         callbacks = []
-        if req.log is not None:
-            callbacks.append(_log_writer(stack, req, cfg, traj, sim, choice))
+        if log_writer is not None:
+            callbacks.append(_log_callback(stack.enter_context(shielded_exit(log_writer)), sim))
         live = None
         if req.live is not None:
             from swerve.tools.live import RUN_TOPICS, LivePublisher, parse_live
@@ -241,8 +238,9 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         if clock is not None:
             clock.align(1.0 / rate_hz)       # deadlines on the physics step grid
         robot0, wall0 = (clock.now() if clock is not None else None), time.monotonic()
+        started_unix_s, cpu0 = time.time(), time.process_time()
         result = loop.run(start)
-        wall_s = time.monotonic() - wall0
+        wall_s, cpu_s = time.monotonic() - wall0, time.process_time() - cpu0
         robot_s = clock.now() - robot0 if clock is not None else wall_s * loop_scale
         bus_counts = dict(bus_stray_replies=bus.stray_replies, bus_corrupt_frames=bus.corrupt_frames)
         counters = clock.counters() if clock is not None else None
@@ -267,6 +265,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         log=None if req.log is None else str(req.log), emulator=emulator,
         clock="lockstep" if req.lockstep else "wall", wall_time_s=wall_s,
         real_time_factor=robot_s / wall_s if wall_s > 0 else None,
+        loop_cpu_s=cpu_s, loop_started_unix_s=started_unix_s,
         servo_faults=fault_policy.summary(), live=live_stats)
     return RunResult(summary, result)
 
@@ -293,18 +292,20 @@ def _seeded(faults: str | None) -> str | None:
     return f"{faults},seed={LOCKSTEP_SEED}"
 
 
-def _log_writer(stack, req: RunRequest, cfg, traj, sim: np.ndarray, choice):
-    """Open the run log and return the loop's ``on_cycle`` callback."""
-    from swerve.tools.logs.bag import RunLogWriter
-    from swerve.tools.logs.record import CycleRecord
-
+def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
+    """The run log's writer, not yet open (nothing is written until it is entered)."""
     meta = dict(trajectory=traj.name, trajectory_source=str(traj.source), gains=str(req.gains or "riccati"),
                 time_scale=req.time_scale, port="emulator" if req.emulate or req.lockstep else (req.port or cfg.link.port),
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
     req.log.parent.mkdir(parents=True, exist_ok=True)
-    writer = stack.enter_context(shielded_exit(RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])))
+    return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
+
+
+def _log_callback(writer: RunLogWriter, sim: np.ndarray):
+    """The loop's ``on_cycle`` callback writing each cycle, with the overlay pose ``sim[k]``,
+    into the open ``writer``."""
 
     def on_cycle(fields: dict) -> None:
         k = fields["cycle"]

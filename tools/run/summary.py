@@ -98,7 +98,10 @@ class RunSummary:
     ``servo_faults`` how hardware errors were handled; ``live`` the live view (None without).
     ``clock``: ``"wall"`` or ``"lockstep"`` (robot time owned by the emulator; ``time_scale``
     is then the pacing, ``None`` for as fast as possible); ``wall_time_s`` of the loop and
-    ``real_time_factor`` (robot s per wall s over the loop) are host-measured.
+    ``real_time_factor`` (robot s per wall s over the loop) are host-measured, as are
+    ``loop_cpu_s`` (the controller process's CPU time over the loop, all its threads) and
+    ``loop_started_unix_s`` (the wall-clock time, s since the epoch, at which the loop began its
+    first cycle: a benchmark subtracts the time it started the command to get the start-up).
     """
 
     trajectory: str
@@ -122,6 +125,8 @@ class RunSummary:
     clock: str = "wall"
     wall_time_s: float | None = None
     real_time_factor: float | None = None
+    loop_cpu_s: float | None = None
+    loop_started_unix_s: float | None = None
 
     def to_dict(self) -> dict:
         """Flat ``{key: value}`` of every field that applies (nested records inlined)."""

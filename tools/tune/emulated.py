@@ -9,7 +9,7 @@ should be done — so the identified values compare with Table 1 directly.
 from __future__ import annotations
 
 from swerve.driver.robot_config import RobotConfig
-from swerve.emulator import Emulator
+from swerve.emulator.server import Emulator
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams
 from swerve.emulator.robot_emulator import build_emulator
 
