@@ -32,7 +32,7 @@ def bus_times(latency_ms: int | None, cycles: int, fast: bool) -> tuple[list[flo
     from swerve.driver.bus import Bus
     from swerve.driver.robot_config import load_robot_config
     from swerve.driver.wheelset import WheelSet
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     cfg = load_robot_config(shipped("robot.yaml"))

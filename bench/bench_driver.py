@@ -27,7 +27,7 @@ from swerve.driver.bus import Bus  # noqa: E402
 from swerve.driver.parser import PacketParser  # noqa: E402
 from swerve.driver.robot_config import load_robot_config  # noqa: E402
 from swerve.driver.wheelset import WheelSet  # noqa: E402
-from swerve.emulator.robot_emulator import build_emulator  # noqa: E402
+from swerve.emulator.factory import build_emulator  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Driver"

@@ -52,7 +52,8 @@ from swerve.driver.wheelset import WheelSet  # noqa: E402
 from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import load_config  # noqa: E402
 from swerve.emulator.physics.steptest import step_metrics  # noqa: E402
-from swerve.emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
+from swerve.emulator.factory import robot_emulator  # noqa: E402
+from swerve.emulator.status_file import read_status  # noqa: E402
 from swerve.tools.commands.emulate import format_ids, parse_port_line  # noqa: E402
 
 ROBOT = ROOT / "configs" / "robot.yaml"
@@ -158,7 +159,7 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
     (``thread_time``) per cycle, per physics tick and per servo-tick: the median over the
     cycles (``mean_rtf``: from the mean)."""
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
 
     physics = load_config(resolve_emulator_config(profile))
     emu = build_emulator(None, physics, ids=range(1, n_servos + 1), time_scale=0, rate_hz=rate_hz)

@@ -29,7 +29,7 @@ from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, single_effect
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.factory import robot_emulator
 from swerve.emulator.server import Emulator
 from swerve.tools.run.loop import TrackingLoop
 from swerve.tools.run.orchestrate import EMULATOR_PHYSICS_RATE_HZ, prepare_law

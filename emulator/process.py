@@ -53,7 +53,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     robot_config, emulator_config, kwargs = conn.recv()
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
@@ -100,7 +100,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
 
 
 class EmulatorProcess:
-    """:func:`emulator.robot_emulator.build_emulator` with the robot body, in a child process.
+    """:func:`swerve.emulator.factory.build_emulator` with the robot body, in a child process.
 
     ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
     ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword

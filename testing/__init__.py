@@ -41,13 +41,13 @@ def emulated_bus(request) -> Iterator[str]:
 
     Default: IDs 1-8, XH430-W210, 1 Mbps, a register-only bus (every instruction and error
     rule of the control table; Present* items stay put). Marker keywords are those of
-    :func:`swerve.emulator.robot_emulator.build_emulator` plus ``physics`` (True: every servo
+    :func:`swerve.emulator.factory.build_emulator` plus ``physics`` (True: every servo
     runs its motor and firmware loops at ``time_scale`` x real time, as ``swerve emulate``). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
     serial tool. The emulator object is ``request.node.emulator`` (faults, counters).
     """
     from swerve.configs import shipped
     from swerve.emulator.physics.params import load_config
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
 
     kw = _marker_kwargs(request, "emulated_bus")
     physics = load_config(shipped("emulator.yaml")) if kw.pop("physics", False) else None

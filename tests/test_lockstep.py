@@ -17,7 +17,7 @@ from swerve.emulator.physics.params import load_config
 from swerve.driver.control_table import Reg
 from swerve.driver.errors import DxlTimeoutError
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.tools.commands.emulate import parse_control, parse_port_line
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock, LockstepError
 

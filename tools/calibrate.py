@@ -354,7 +354,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
     Yields ``(bus, clock, emu)``: ``clock`` the lockstep clock (``lockstep``), else None.
     """
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import robot_emulator
+    from swerve.emulator.factory import robot_emulator
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     if margin_s is None:
@@ -373,7 +373,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
 
 def emulator_operator(emu, clock, cfg: RobotConfig, settle: Callable[[float], None]) -> "EmulatorOperator":
     """The :class:`EmulatorOperator` of a running emulated robot (what ``--yes`` answers with)."""
-    from swerve.emulator.robot_emulator import status
+    from swerve.emulator.status_file import status
 
     def true_state() -> dict:
         if clock is not None:
@@ -425,7 +425,7 @@ class DefaultOperator:
 
 class EmulatorOperator:
     """``--yes`` on the emulator: looks at the emulated robot's true state (``status()`` of a
-    :class:`~swerve.emulator.robot_emulator.RobotEmulator`), as a person looks at the robot."""
+    :class:`~swerve.emulator.server.Emulator`), as a person looks at the robot."""
 
     def __init__(self, status: Callable[[], dict], *, rad_per_pulse: float, settle: Callable[[float], None]):
         self.status = status

@@ -20,7 +20,7 @@ from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config, parse_robot_config
 from swerve.emulator.adapter import (AdapterSettings, UsbAdapter, byte_arrivals, check_latency_ms, deliver)
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.tools.cli import main
 from swerve.tools.commands.emulate import parse_control, parse_port_line
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock

@@ -28,7 +28,7 @@ from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.physics.servo_model import ServoModel
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 RATE_HZ = 1000.0
 CYCLE_S = 0.016
@@ -258,7 +258,7 @@ def test_the_emulator_loads_the_compiled_kernel_when_built():
     code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
             "from swerve.emulator.physics.params import load_config; "
             "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
-            "from swerve.emulator.robot_emulator import build_emulator; "
+            "from swerve.emulator.factory import build_emulator; "
             "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
             "body=True, time_scale=0, rate_hz=1000.0); print(len(k.signatures)); "
             "emu.advance(0.016); print(len(k.signatures))")

@@ -20,7 +20,7 @@ from swerve.emulator import Emulator, WallPhysicsClock, make_servos
 from swerve.emulator.clock import LockstepPhysicsClock
 from swerve.emulator.lockstep_socket import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 
 #: First words of every reply line the protocol defines.

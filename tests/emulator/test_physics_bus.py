@@ -1,4 +1,4 @@
-"""Servo step tests THROUGH THE BUS: driver.bus.Bus against robot_emulator.
+"""Servo step tests THROUGH THE BUS: driver.bus.Bus against the emulator of swerve.emulator.factory.robot_emulator.
 
 Deterministic: the emulator runs without a clock (``time_scale=0``) and the test advances
 simulated time with ``emu.advance`` between bus transactions, so nothing depends on machine load.
@@ -18,7 +18,8 @@ from swerve.driver.control_table import Reg
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.steptest import StepMetrics, step_metrics
-from swerve.emulator.robot_emulator import _INPUTS, robot_emulator
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.physics.servo_adapter import INPUTS as _INPUTS
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine

@@ -13,7 +13,8 @@ from swerve.driver.bus import Bus
 from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
-from swerve.emulator.robot_emulator import robot_emulator, status
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.status_file import status
 
 ROBOT = shipped("robot.yaml")
 CFG = load_robot_config(ROBOT)

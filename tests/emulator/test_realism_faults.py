@@ -11,7 +11,7 @@ from swerve.driver.errors import ServoError
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.factory import robot_emulator
 
 REALISTIC = resolve_emulator_config("realistic")
 OVERLOAD_S = load_config(REALISTIC).protection.overload_time_s

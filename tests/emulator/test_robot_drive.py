@@ -23,7 +23,9 @@ from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.params import SensorParams
 from swerve.emulator.clock import HandOverLock
-from swerve.emulator.robot_emulator import parse_noise, read_status, robot_emulator, status
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.sensor_noise import parse_noise
+from swerve.emulator.status_file import read_status, status
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine

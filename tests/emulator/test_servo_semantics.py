@@ -12,9 +12,10 @@ from swerve.driver.errors import ConfigError
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator import Emulator, Faults, WallPhysicsClock, make_servos
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.instructions import execute
 from swerve.emulator.memory import ServoMemory, WriteRejected
-from swerve.emulator.server import SteppedWorld
+from swerve.emulator.stepping import SteppedWorld
 from swerve.emulator.servo import StepDynamics, VirtualServo
 
 TABLE = table_for("xh430-w210")
@@ -65,16 +66,16 @@ def test_operating_mode_change_resets_goal_limits_and_profile():
 
 def test_unknown_instruction_and_action_without_registration():
     s = servo()
-    assert s.execute(pk.InstructionPacket(1, 0x30)).error == ErrorNumber.INSTRUCTION
-    assert s.execute(pk.action(1)).error == ErrorNumber.INSTRUCTION
-    assert s.execute(pk.InstructionPacket(1, pk.Instruction.READ, b"\x84\x00")).error == ErrorNumber.DATA_LENGTH
+    assert execute(s, pk.InstructionPacket(1, 0x30)).error == ErrorNumber.INSTRUCTION
+    assert execute(s, pk.action(1)).error == ErrorNumber.INSTRUCTION
+    assert execute(s, pk.InstructionPacket(1, pk.Instruction.READ, b"\x84\x00")).error == ErrorNumber.DATA_LENGTH
 
 
 def test_golden_ping_reply_bytes():
     s = VirtualServo(TABLE, 1)
     s.memory.set(Reg.MODEL_NUMBER, 1030)      # the e-Manual example is an XM430-W210, FW 38
     s.memory.set(Reg.FIRMWARE_VERSION, 38)
-    st = s.execute(pk.InstructionPacket.decode(bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")))
+    st = execute(s, pk.InstructionPacket.decode(bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")))
     assert st.encode() == bytes.fromhex("FF FF FD 00 01 07 00 55 00 06 04 26 65 5D")
 
 

@@ -8,7 +8,7 @@ import serial
 from swerve.driver import packets as pk
 from swerve.driver.control_table import Reg
 from swerve.driver.parser import PacketParser
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 BAUD = 1_000_000
 STATUS_BYTES = 11 + 4            # status of a 4-byte read

@@ -10,7 +10,7 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.parser import PacketParser
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 QUIET_S = 0.15      # how long "no reply" is listened for
 

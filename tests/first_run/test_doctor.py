@@ -8,7 +8,7 @@ import pytest
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.tools import doctor
 from swerve.tools.cli import main
 

@@ -10,7 +10,7 @@ from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, ServoError
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
 from swerve.driver.wheelset import WheelSet
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.tools import recovery
 
 

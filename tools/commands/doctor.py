@@ -48,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     latency = None
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            from swerve.emulator.robot_emulator import build_emulator
+            from swerve.emulator.factory import build_emulator
 
             emu = stack.enter_context(build_emulator(cfg, wire_timing=True,       # register-only: nothing moves
                                                      adapter_latency_ms=args.adapter_latency_ms))

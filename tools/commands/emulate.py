@@ -114,7 +114,7 @@ def run(args: argparse.Namespace) -> int:
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
     from swerve.emulator.server import freeze_startup_heap
 
     if args.verbose:

@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
-                from swerve.emulator.robot_emulator import robot_emulator
+                from swerve.emulator.factory import robot_emulator
 
                 emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, lockstep=True,
                                                          noise=noise_spec(args.seed) if args.noise else None))

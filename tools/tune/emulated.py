@@ -2,7 +2,7 @@
 
 Each servo of the robot config runs the emulator's own :class:`ServoModel` with the physics of
 ``configs/emulator.yaml`` (drive or steering motor by the servo's role; steering servos start at
-their centre), built by :func:`swerve.emulator.robot_emulator.build_emulator` without the robot
+their centre), built by :func:`swerve.emulator.factory.build_emulator` without the robot
 body: the servos are unloaded — a wheel lifted off the ground, as a tuning session on the robot
 should be done — so the identified values compare with Table 1 directly.
 """
@@ -11,7 +11,7 @@ from __future__ import annotations
 from swerve.driver.robot_config import RobotConfig
 from swerve.emulator import Emulator
 from swerve.emulator.physics.params import PhysicsConfig, SensorParams
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 #: ``--noise``: encoder noise before quantisation (pulse) and current-sensor noise (A), std.
 NOISE = SensorParams(position_noise_std_pulse=0.5, current_noise_std_a=0.004)
