@@ -16,6 +16,7 @@ prints Markdown tables to paste into BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import statistics
@@ -33,13 +34,14 @@ def bus_times(latency_ms: int | None, cycles: int, fast: bool) -> tuple[list[flo
     from swerve.driver.robot_config import load_robot_config
     from swerve.driver.wheelset import WheelSet
     from swerve.emulator.factory import build_emulator
+    from swerve.emulator.timing import Lockstep
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     cfg = load_robot_config(shipped("robot.yaml"))
     read_s, cycle_s = [], []
-    with build_emulator(cfg, lockstep=True, adapter_latency_ms=latency_ms) as emu:
-        if latency_ms is None:
-            emu.adapter = None                          # the host reads the cable directly
+    if latency_ms is None:                              # the host reads the cable directly
+        cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, adapter_latency_ms=None))
+    with build_emulator(cfg, timing=Lockstep(), adapter_latency_ms=latency_ms) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, cfg.link.baud, default_model=cfg.model,
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
@@ -95,7 +97,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for lat in [x for x in latencies if x is not None]:
             w0 = time.monotonic()
-            s = run_tracking(RunRequest(trajectory="line", emulate=True, lockstep=True, time_scale=None,
+            s = run_tracking(RunRequest(trajectory="line", emulate=True, timing=Lockstep(), time_scale=None,
                                         log=Path(tmp) / f"l{lat}", adapter_latency_ms=lat)).summary.to_dict()
             print(f"| {lat} ms | {s['cycles']} | {s['overruns']} | {s['missed_slots']} | "
                   f"{s['loop_period_p50_ms']:.2f} / {s['loop_period_max_ms']:.2f} | "

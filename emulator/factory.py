@@ -5,17 +5,20 @@
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.factory import build_emulator
+    from swerve.emulator.robot_body import RobotBody
+    from swerve.emulator.timing import Frozen
 
     robot = load_robot_config(path)                       # parsed once, by the caller
-    with build_emulator(robot, load_config(), time_scale=0) as emu:   # 0: frozen clock
+    with build_emulator(robot, load_config(), timing=Frozen(), body=RobotBody()) as emu:
         ...                                               # open emu.port with driver.bus.Bus
         emu.advance(0.016)                                # 16 ms of simulated time, 2 kHz steps
         x, y, theta = emu.pose                            # true pose, never through the bus
 
 The physics (:mod:`emulator.physics`) advances in fixed steps of ``1 / physics.rate_hz``
-simulated seconds, run by the clock object (:mod:`emulator.clock`) in the bus thread between
-requests. With a robot config whose eight servos are all on the bus, the servos also move one
-:class:`~swerve.emulator.physics.robot_world.RobotWorld` (the body); otherwise each servo turns a free shaft.
+simulated seconds, run by the clock (:mod:`emulator.clock`, built by the ``timing`` passed in,
+:mod:`emulator.timing`) in the bus thread between requests. With a :class:`RobotBody`, the
+servos also move one :class:`~swerve.emulator.physics.robot_world.RobotWorld`; otherwise each
+servo turns a free shaft.
 
 The true pose leaves the emulator through one channel, its observers (called under the bus lock
 after each run of physics steps): :class:`~swerve.emulator.status_file.StatusFile` writes the JSON
@@ -34,18 +37,18 @@ from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import RobotConfig, load_robot_config
 from swerve.emulator.adapter import AdapterSettings, UsbAdapter
-from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S, LockstepPhysicsClock, clock_for
 from swerve.emulator.faults import Faults
-from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.physics.params import PhysicsConfig, load_config
 from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
 from swerve.emulator.physics.robot_world import RobotWorld
 from swerve.emulator.physics.servo_adapter import ServoDynamics
 from swerve.emulator.physics.servo_model import wheel_servo
+from swerve.emulator.robot_body import RobotBody
 from swerve.emulator.sensor_noise import parse_noise
-from swerve.emulator.server import DEFAULT_BAUD, DEFAULT_MODEL, Emulator, LinkSettings
+from swerve.emulator.server import DEFAULT_BAUD, DEFAULT_IDS, DEFAULT_MODEL, Emulator, LinkSettings
 from swerve.emulator.servo import make_servos
 from swerve.emulator.status_file import StatusFile
+from swerve.emulator.timing import Timing, WallTime
 
 #: Clock rate of a register-only bus (Realtime Tick and Bus Watchdog), Hz.
 FROZEN_RATE_HZ = 1000.0
@@ -53,14 +56,10 @@ FROZEN_RATE_HZ = 1000.0
 
 def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | None = None, *,
                    ids: Iterable[int] | None = None, model: str | None = None, baud: int | None = None,
-                   body: bool | None = None, time_scale: float = 1.0, rate_hz: float | None = None,
-                   noise: str | Mapping[str, float] | None = None, wheel_load: bool | None = None,
-                   start_pose: tuple[float, float, float] = (0.0, 0.0, 0.0),
-                   faults: Faults | str | None = None, status_file: str | os.PathLike | None = None,
-                   status_hz: float = 20.0, limit_error=None, lockstep: bool = False,
-                   control_path: str | os.PathLike | None = None,
-                   reply_latency_s: float = DEFAULT_REPLY_LATENCY_S,
-                   adapter_latency_ms: int | None = None, **link: object) -> Emulator:
+                   timing: Timing = WallTime(), rate_hz: float | None = None, body: RobotBody | None = None,
+                   noise: str | Mapping[str, float] | None = None, faults: Faults | str | None = None,
+                   status_file: str | os.PathLike | None = None, status_hz: float = 20.0, limit_error=None,
+                   adapter_latency_ms: int | None = None, link: LinkSettings = LinkSettings()) -> Emulator:
     """The emulated bus, built from already-parsed configs (nothing is read from disk here).
 
     Parameters
@@ -71,34 +70,31 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     physics : PhysicsConfig, optional
         ``configs/emulator.yaml``. Given: every servo runs its motor and firmware loops.
         ``None``: a register-only bus (Present* items stay put).
-    body : bool, optional
-        Add the robot body (needs ``robot`` and ``physics``; raises if a robot servo is missing).
-        Default: when all of the robot's servos are on the bus.
-    time_scale : float
-        Simulated seconds per wall second; 0: frozen clock (step with ``emu.advance(dt_s)``).
+    timing : Timing
+        How simulated time runs (:mod:`swerve.emulator.timing`): ``Frozen()`` (step with
+        ``emu.advance(dt_s)``), ``WallTime(scale)`` (default real time) or ``Lockstep()`` (a
+        client moves robot time through ``emu.control``).
     rate_hz : float, optional
         Clock rate (physics: >= 1000, default ``physics.rate_hz``; register-only: 1000).
+    body : RobotBody, optional
+        The robot body, moved by the servos (needs ``robot`` and ``physics``, and every robot
+        servo on the bus: :func:`~swerve.emulator.robot_body.robot_on_bus`). ``None``: each servo turns a free shaft.
     noise : str or mapping, optional
-        Sensor noise overriding the config (:func:`parse_noise`), e.g. ``"position=0.5,seed=1"``.
-    wheel_load : bool, optional
-        Reflect the robot's mass onto the drive shafts (with a body); default ``body.load_enabled``.
-    start_pose : (x_m, y_m, theta_rad)
-        Initial true pose of the body.
+        Sensor noise overriding the config (:func:`~swerve.emulator.sensor_noise.parse_noise`),
+        e.g. ``"position=0.5,seed=1"``.
     faults : Faults or str, optional
         Fault injection (:mod:`emulator.faults`).
     status_file : path, optional
-        JSON status (:func:`status`) rewritten atomically at ``status_hz`` wall Hz (needs a body).
-    lockstep : bool
-        Robot time advances only when a client asks, through the control channel (a Unix socket
-        at ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is
-        charged at its wire time plus ``reply_latency_s`` per answering servo
-        (:class:`~swerve.emulator.clock.LockstepPhysicsClock`). ``time_scale`` is then ignored.
+        JSON status (:func:`~swerve.emulator.status_file.status`) rewritten atomically at
+        ``status_hz`` wall Hz (needs a body).
+    limit_error : ErrorNumber, optional
+        Error for a value beyond a limit item (default Data Limit Error).
     adapter_latency_ms : int, optional
         The USB-serial adapter's latency timer, ms (1..255; :mod:`swerve.emulator.adapter`),
         overriding the robot file's ``link.adapter_latency_ms``. Neither: no adapter (the host
         reads the cable directly).
-    **link
-        :class:`~swerve.emulator.server.LinkSettings` fields (``path``, ``wire_timing``, ...).
+    link : LinkSettings
+        How the bus behaves on the line (symlink ``path``, ``wire_timing``, ...).
 
     Returns
     -------
@@ -106,9 +102,7 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         Not started: use it as a context manager (or call ``start()``); ``emu.port`` is the pty.
     """
     robot_ids = sorted(robot.drive_ids + robot.steer_ids) if robot is not None else None
-    ids = sorted(ids) if ids is not None else (robot_ids or list(range(1, 9)))
-    if not (math.isfinite(time_scale) and time_scale >= 0):
-        raise ConfigError(f"time scale must be a finite number >= 0, got {time_scale}")
+    ids = sorted(ids) if ids is not None else (robot_ids or list(DEFAULT_IDS))
     if rate_hz is not None and not (math.isfinite(rate_hz) and rate_hz > 0):
         raise ConfigError(f"clock rate must be a finite number > 0 Hz, got {rate_hz}")
     if isinstance(faults, str):
@@ -120,38 +114,38 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
                               f"(IDs {', '.join(map(str, ids))})")
     model = model or (robot.model if robot is not None else DEFAULT_MODEL)
     baud = int(baud or (robot.link.baud if robot is not None else DEFAULT_BAUD))
-    settings = LinkSettings(baud=baud, **link)
     if adapter_latency_ms is None and robot is not None:
         adapter_latency_ms = robot.link.adapter_latency_ms
     adapter = None if adapter_latency_ms is None else UsbAdapter(AdapterSettings(adapter_latency_ms))
-    if body is None:
-        body = physics is not None and robot_ids is not None and set(robot_ids) <= set(ids)
-    if body and (robot is None or physics is None):
+    if body is not None and (robot is None or physics is None):
         raise ConfigError("the robot body needs a robot config and a physics config")
-    if status_file is not None and not body:
+    if status_file is not None and body is None:
         raise ConfigError("a status file needs the robot body (all the robot's servos on the bus)")
     extra = {} if limit_error is None else {"limit_error": limit_error}
     if physics is None:
         if noise is not None:
             raise ConfigError("sensor noise needs physics")
         servos = make_servos(ids, model, baud, **extra)
-        clock, control = _clock(lockstep, time_scale, rate_hz or FROZEN_RATE_HZ, control_path, reply_latency_s)
-        return Emulator(servos, link=settings, clock=clock, faults=faults, control=control, adapter=adapter)
+        clock, control = timing.build(rate_hz or FROZEN_RATE_HZ)
+        return Emulator(servos, link=link, clock=clock, faults=faults, control=control, adapter=adapter)
 
     rate_hz = float(rate_hz or physics.rate_hz)
     if rate_hz < 1000:
         raise ConfigError(f"physics rate must be >= 1000 Hz, got {rate_hz:g}")
     sensors, seed = parse_noise(noise, physics.sensors)
-    load = physics.body if wheel_load is None else dataclasses.replace(physics.body, load_enabled=bool(wheel_load))
+    load = physics.body
+    if body is not None and body.wheel_load is not None:
+        load = dataclasses.replace(physics.body, load_enabled=bool(body.wheel_load))
     physics = dataclasses.replace(physics, sensors=sensors, body=load)
     rng = np.random.default_rng(seed)
     world = None
-    if body:
+    if body is not None:
         missing = set(robot_ids) - set(ids)
         if missing:
             raise ConfigError(f"the robot's servos {sorted(missing)} are not on the emulated bus")
         robot_physics = RobotPhysics(physics, RobotGeometry(robot.model, robot.wheel_radius_m, robot.wheels), rng)
-        robot_physics.body.x_m, robot_physics.body.y_m, robot_physics.body.theta_rad = (float(v) for v in start_pose)
+        robot_physics.body.x_m, robot_physics.body.y_m, robot_physics.body.theta_rad = (
+            float(v) for v in body.start_pose)
         models = dict(robot_physics.servos)
         world = RobotWorld(robot_physics)
     else:
@@ -167,9 +161,8 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     for s in servos:                    # present items from the physics, not the table defaults
         if s.dynamics is not None:
             s.memory.stale = True
-    clock, control = _clock(lockstep, time_scale, rate_hz, control_path, reply_latency_s)
-    emu = Emulator(servos, link=settings, clock=clock, faults=faults, world=world, control=control,
-                   adapter=adapter)
+    clock, control = timing.build(rate_hz)
+    emu = Emulator(servos, link=link, clock=clock, faults=faults, world=world, control=control, adapter=adapter)
     if status_file is not None:
         writer = StatusFile(status_file, status_hz)
         writer.write(emu, strict=True)      # an unwritable path is an error before anything is served
@@ -177,23 +170,14 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
     return emu
 
 
-def _clock(lockstep: bool, time_scale: float, rate_hz: float, control_path, reply_latency_s: float):
-    """``(clock, control channel or None)`` for :func:`build_emulator`."""
-    if not lockstep:
-        return clock_for(time_scale, rate_hz), None
-    clock = LockstepPhysicsClock(rate_hz, reply_latency_s)
-    try:
-        return clock, ControlServer(control_path)
-    except OSError as exc:
-        raise ConfigError(f"cannot open the lockstep control socket: {exc}") from None
-
-
 def robot_emulator(robot_config: str | os.PathLike | None = None, emulator_config: str | os.PathLike | None = None,
                    **kwargs) -> Emulator:
     """:func:`build_emulator` from file paths (each parsed once here): the robot file located by
-    :func:`swerve.configs.locate_robot_file` and ``configs/emulator.yaml`` by default."""
+    :func:`swerve.configs.locate_robot_file` and ``configs/emulator.yaml`` by default; the robot
+    body (:class:`RobotBody`) unless ``body`` says otherwise."""
     robot = load_robot_config(locate_robot_file(robot_config).path)
     physics = load_config(emulator_config or shipped("emulator.yaml"))
+    kwargs.setdefault("body", RobotBody())
     return build_emulator(robot, physics, **kwargs)
 
 

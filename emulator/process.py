@@ -7,13 +7,13 @@ timing is the loop's own. The true pose, which never crosses the bus, comes back
 shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
 emulator after every run of physics steps (at least every millisecond of wall time while the
 clock runs). The child parses the robot file and the physics config, once each. With
-``lockstep=True`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
+``timing=Lockstep()`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
 its control socket (read the pose through it, since shared memory is not synchronised with the
 bytes on the pty).
 
 ::
 
-    with EmulatorProcess("configs/robot.yaml", time_scale=5) as emu:
+    with EmulatorProcess("configs/robot.yaml", timing=WallTime(5)) as emu:
         bus = Bus(emu.port, 1_000_000)
         ...
         t_sim, (x, y, theta) = emu.sim_time_s, emu.pose
@@ -54,6 +54,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.factory import build_emulator
+    from swerve.emulator.robot_body import RobotBody
     from swerve.emulator.server import freeze_startup_heap
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
@@ -61,7 +62,8 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         _SHARED.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
     try:
-        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
+                             **{"body": RobotBody(), **kwargs})
         emu.observers.append(publish)
         emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
@@ -104,8 +106,8 @@ class EmulatorProcess:
 
     ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
     ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword
-    parameters are those of ``build_emulator`` (``time_scale``, ``faults``, ``noise``,
-    ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
+    parameters are those of ``build_emulator`` (``timing``, ``faults``, ``noise``,
+    ``body``, ...; default body :class:`~swerve.emulator.robot_body.RobotBody`). Attributes once started: :attr:`port` (the pty
     path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
     after :meth:`close`, :attr:`final_stats`.
 
@@ -124,7 +126,7 @@ class EmulatorProcess:
         self._proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
         self.port: str | None = None
-        #: The lockstep control socket (``lockstep=True``), else None.
+        #: The lockstep control socket (``timing=Lockstep()``), else None.
         self.control_path: str | None = None
         self.final_stats: dict | None = None
 

@@ -72,8 +72,7 @@ OUTPUT_FLUSH_NOTICE = ("swerve emulator: the client flushed its output (tcflush 
 class LinkSettings:
     """How the emulated bus behaves on the line (everything but the servos, clock and faults).
 
-    ``baud``: line speed the servos' Baud Rate item starts at, also assumed when the client's
-    termios speed reads as 0 or unknown. ``path``: symlink to create to the pty slave.
+    ``path``: symlink to create to the pty slave.
     ``wire_timing``: pace replies as on a cable (10 bits per byte). ``baud_check``: servos only
     hear a client whose line speed equals their Baud Rate item. ``crc_error_reply``: answer a
     unicast frame with a bad CRC with CRC Error (0x03) instead of dropping it.
@@ -82,7 +81,6 @@ class LinkSettings:
     ``broadcast_slot_s``: spacing of the replies to a broadcast Ping.
     """
 
-    baud: int = DEFAULT_BAUD
     path: str | os.PathLike | None = None
     wire_timing: bool = False
     baud_check: bool = True
@@ -90,10 +88,6 @@ class LinkSettings:
     sync_chain_break: bool = True
     inter_byte_timeout_s: float = 1.5e-3
     broadcast_slot_s: float = 1e-4
-
-    def __post_init__(self):
-        if self.baud not in BAUD_RATES:
-            raise ConfigError(f"baud {self.baud} is not an X-series rate ({', '.join(map(str, BAUD_RATES))})")
 
 
 #: Called with the emulator, under its lock, after each run of clock steps and each ``advance``.
@@ -138,7 +132,9 @@ class Emulator:
         self.table = self.servos[0].table
         self.model = self.table.model
         self.settings = link
-        self.baud = link.baud
+        #: Line speed the servos' Baud Rate items start at (the lowest ID's), also assumed when the
+        #: client's termios speed reads as 0 or unknown.
+        self.baud = self.servos[0].baud_bps
         self.clock: PhysicsClock = clock if clock is not None else FrozenClock()
         self.faults = faults if isinstance(faults, Faults) else Faults.parse(faults)
         if control is not None and self.clock.now_s is None:

@@ -29,7 +29,8 @@ def target(hw_port, hw_baud):
         yield Target(hw_port, hw_baud, None)
         return
     build_emulator = pytest.importorskip("swerve.emulator.factory").build_emulator
-    with build_emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, time_scale=0) as emu:
+    Frozen = pytest.importorskip("swerve.emulator.timing").Frozen
+    with build_emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, timing=Frozen()) as emu:
         yield Target(emu.port, 1_000_000, emu)
 
 

@@ -13,6 +13,7 @@ from swerve.driver.packets import ErrorNumber
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator import Emulator, Faults, WallPhysicsClock, make_servos
 from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen
 from swerve.emulator.instructions import execute
 from swerve.emulator.memory import ServoMemory, WriteRejected
 from swerve.emulator.stepping import SteppedWorld
@@ -161,7 +162,7 @@ def test_emulator_clock_drives_dynamics_and_world():
 
 
 def test_frozen_time_and_manual_advance():
-    with build_emulator(ids=[1], time_scale=0) as emu:
+    with build_emulator(ids=[1], timing=Frozen()) as emu:
         time.sleep(0.02)
         assert emu.servo(1).read(Reg.REALTIME_TICK) == 0
         emu.advance(0.1)
@@ -169,7 +170,7 @@ def test_frozen_time_and_manual_advance():
 
 
 def test_robot_config_and_bad_arguments():
-    with build_emulator(load_robot_config("configs/robot.yaml"), time_scale=0) as emu:
+    with build_emulator(load_robot_config("configs/robot.yaml"), timing=Frozen()) as emu:
         assert [s.id for s in emu.servos] == list(range(1, 9))
         assert emu.model == "XH430-W210" and emu.baud == 1_000_000
     with pytest.raises(ConfigError):
@@ -180,16 +181,16 @@ def test_robot_config_and_bad_arguments():
         Faults.parse("drop=2")
     f = Faults.parse("drop=0.5,corrupt=0.1,delay=0.001,vanish=3+4,hwerror=2:overload+input_voltage,seed=3")
     assert (f.drop_rate, f.corrupt_rate, f.delay_s, f.vanished) == (0.5, 0.1, 0.001, {3, 4})
-    with build_emulator(ids=[2, 3, 4], faults=f, time_scale=0) as emu:
+    with build_emulator(ids=[2, 3, 4], faults=f, timing=Frozen()) as emu:
         assert emu.servo(2).read(Reg.HARDWARE_ERROR_STATUS) == 0x21
     with pytest.raises(ConfigError, match="not on the emulated bus"):
-        build_emulator(ids=[2], faults=f, time_scale=0)
+        build_emulator(ids=[2], faults=f, timing=Frozen())
 
 
 def test_baud_gating_follows_client_speed():
     import serial
 
-    with build_emulator(ids=[1, 2], time_scale=0) as emu:
+    with build_emulator(ids=[1, 2], timing=Frozen()) as emu:
         emu.servo(2).write(Reg.BAUD_RATE, 1)          # 57600
         with serial.Serial(emu.port, 57600, timeout=0.5) as port:
             port.write(pk.ping(2).encode())

@@ -48,9 +48,10 @@ def run(args: argparse.Namespace) -> int:
     latency = None
     with contextlib.ExitStack() as stack:
         if args.emulate:
+            from swerve.emulator import LinkSettings
             from swerve.emulator.factory import build_emulator
 
-            emu = stack.enter_context(build_emulator(cfg, wire_timing=True,       # register-only: nothing moves
+            emu = stack.enter_context(build_emulator(cfg, link=LinkSettings(wire_timing=True),  # register-only
                                                      adapter_latency_ms=args.adapter_latency_ms))
             port = emu.port
             latency = EmulatedLatencyTimer(emu.adapter)

@@ -123,16 +123,17 @@ def run(args: argparse.Namespace) -> int:
         clock = None
         if args.emulate:            # in lockstep: the emulator owns time, every run samples alike
             from swerve.tools.run.lockstep import LockstepLoopClock
+            from swerve.emulator.timing import Lockstep
             from swerve.tools.tune.emulated import make_emulator, noise_spec
 
             if args.emulator == "robot":
                 from swerve.emulator.factory import robot_emulator
 
-                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, lockstep=True,
+                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, timing=Lockstep(),
                                                          noise=noise_spec(args.seed) if args.noise else None))
             else:
                 emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
-                                                        seed=args.seed, baud=args.baud, lockstep=True))
+                                                        seed=args.seed, baud=args.baud, timing=Lockstep()))
             clock = stack.enter_context(LockstepLoopClock(emu.control.path))
             port, margin = emu.port, TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
         else:
