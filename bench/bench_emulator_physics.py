@@ -53,7 +53,7 @@ from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import load_config  # noqa: E402
 from swerve.emulator.physics.steptest import step_metrics  # noqa: E402
 from swerve.emulator.factory import robot_emulator  # noqa: E402
-from swerve.emulator.robot_body import RobotBody  # noqa: E402
+from swerve.emulator.body_settings import BodySettings  # noqa: E402
 from swerve.emulator.timing import Frozen, scaled  # noqa: E402
 from swerve.emulator.status_file import read_status  # noqa: E402
 from swerve.tools.commands.emulate import format_ids, parse_port_line  # noqa: E402
@@ -264,7 +264,7 @@ class _Bench:
     """A fresh unloaded robot (no clock) and a bus to it, per step test."""
 
     def __enter__(self):
-        self.emu = robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=RobotBody(wheel_load=False)).start()
+        self.emu = robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=False)).start()
         self.bus = Bus(self.emu.port, self.emu.baud, timeout_margin_s=0.3).__enter__()
         return self
 

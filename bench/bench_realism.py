@@ -30,7 +30,7 @@ from swerve.emulator.physics.contact import ContactBody
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, single_effect
 from swerve.emulator.factory import robot_emulator
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Frozen
 from swerve.emulator.server import Emulator
 from swerve.tools.run.loop import TrackingLoop
@@ -109,7 +109,7 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
     start = traj.start_state(geom)
     with contextlib.ExitStack() as stack:
         emu = stack.enter_context(robot_emulator(cfg_path, physics_file(choice, tmp), timing=Frozen(),
-                                                 rate_hz=EMULATOR_PHYSICS_RATE_HZ, body=RobotBody(start_pose=tuple(start[:3]))))
+                                                 rate_hz=EMULATOR_PHYSICS_RATE_HZ, body=BodySettings(start_pose=tuple(start[:3]))))
         bus = stack.enter_context(Bus(emu.port, cfg.link.baud, retries=1, default_model=cfg.model,
                                       timeout_margin_s=1.0))
         wheels = stack.enter_context(WheelSet(bus, cfg))

@@ -5,18 +5,18 @@
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.factory import build_emulator
-    from swerve.emulator.robot_body import RobotBody
+    from swerve.emulator.body_settings import BodySettings
     from swerve.emulator.timing import Frozen
 
     robot = load_robot_config(path)                       # parsed once, by the caller
-    with build_emulator(robot, load_config(), timing=Frozen(), body=RobotBody()) as emu:
+    with build_emulator(robot, load_config(), timing=Frozen(), body=BodySettings()) as emu:
         ...                                               # open emu.port with driver.bus.Bus
         emu.advance(0.016)                                # 16 ms of simulated time, 2 kHz steps
         x, y, theta = emu.pose                            # true pose, never through the bus
 
 The physics (:mod:`emulator.physics`) advances in fixed steps of ``1 / physics.rate_hz``
 simulated seconds, run by the clock (:mod:`emulator.clock`, built by the ``timing`` passed in,
-:mod:`emulator.timing`) in the bus thread between requests. With a :class:`RobotBody`, the
+:mod:`emulator.timing`) in the bus thread between requests. With a :class:`BodySettings`, the
 servos also move one :class:`~swerve.emulator.physics.robot_world.RobotWorld`; otherwise each
 servo turns a free shaft.
 
@@ -43,7 +43,7 @@ from swerve.emulator.physics.robot import RobotGeometry, RobotPhysics
 from swerve.emulator.physics.robot_world import RobotWorld
 from swerve.emulator.physics.servo_adapter import ServoDynamics
 from swerve.emulator.physics.servo_model import wheel_servo
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.sensor_noise import parse_noise
 from swerve.emulator.server import DEFAULT_BAUD, DEFAULT_IDS, DEFAULT_MODEL, Emulator, LinkSettings
 from swerve.emulator.servo import make_servos
@@ -56,7 +56,7 @@ FROZEN_RATE_HZ = 1000.0
 
 def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | None = None, *,
                    ids: Iterable[int] | None = None, model: str | None = None, baud: int | None = None,
-                   timing: Timing = WallTime(), rate_hz: float | None = None, body: RobotBody | None = None,
+                   timing: Timing = WallTime(), rate_hz: float | None = None, body: BodySettings | None = None,
                    noise: str | Mapping[str, float] | None = None, faults: Faults | str | None = None,
                    status_file: str | os.PathLike | None = None, status_hz: float = 20.0, limit_error=None,
                    adapter_latency_ms: int | None = None, link: LinkSettings = LinkSettings()) -> Emulator:
@@ -76,9 +76,9 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         client moves robot time through ``emu.control``).
     rate_hz : float, optional
         Clock rate (physics: >= 1000, default ``physics.rate_hz``; register-only: 1000).
-    body : RobotBody, optional
+    body : BodySettings, optional
         The robot body, moved by the servos (needs ``robot`` and ``physics``, and every robot
-        servo on the bus: :func:`~swerve.emulator.robot_body.robot_on_bus`). ``None``: each servo turns a free shaft.
+        servo on the bus: :func:`~swerve.emulator.body_settings.robot_on_bus`). ``None``: each servo turns a free shaft.
     noise : str or mapping, optional
         Sensor noise overriding the config (:func:`~swerve.emulator.sensor_noise.parse_noise`),
         e.g. ``"position=0.5,seed=1"``.
@@ -174,10 +174,10 @@ def robot_emulator(robot_config: str | os.PathLike | None = None, emulator_confi
                    **kwargs) -> Emulator:
     """:func:`build_emulator` from file paths (each parsed once here): the robot file located by
     :func:`swerve.configs.locate_robot_file` and ``configs/emulator.yaml`` by default; the robot
-    body (:class:`RobotBody`) unless ``body`` says otherwise."""
+    body (:class:`BodySettings`) unless ``body`` says otherwise."""
     robot = load_robot_config(locate_robot_file(robot_config).path)
     physics = load_config(emulator_config or shipped("emulator.yaml"))
-    kwargs.setdefault("body", RobotBody())
+    kwargs.setdefault("body", BodySettings())
     return build_emulator(robot, physics, **kwargs)
 
 

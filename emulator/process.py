@@ -54,7 +54,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     from swerve.driver.robot_config import load_robot_config
     from swerve.emulator.physics.params import load_config
     from swerve.emulator.factory import build_emulator
-    from swerve.emulator.robot_body import RobotBody
+    from swerve.emulator.body_settings import BodySettings
     from swerve.emulator.server import freeze_startup_heap
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
@@ -63,7 +63,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
 
     try:
         emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
-                             **{"body": RobotBody(), **kwargs})
+                             **{"body": BodySettings(), **kwargs})
         emu.observers.append(publish)
         emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
@@ -107,7 +107,7 @@ class EmulatorProcess:
     ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
     ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword
     parameters are those of ``build_emulator`` (``timing``, ``faults``, ``noise``,
-    ``body``, ...; default body :class:`~swerve.emulator.robot_body.RobotBody`). Attributes once started: :attr:`port` (the pty
+    ``body``, ...; default body :class:`~swerve.emulator.body_settings.BodySettings`). Attributes once started: :attr:`port` (the pty
     path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
     after :meth:`close`, :attr:`final_stats`.
 

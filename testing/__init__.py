@@ -133,7 +133,7 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
     """
     from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
     from swerve.emulator.process import EmulatorProcess
-    from swerve.emulator.robot_body import RobotBody
+    from swerve.emulator.body_settings import BodySettings
     from swerve.emulator.timing import Lockstep
     from swerve.tools.run.lockstep import LockstepLoopClock
 
@@ -146,7 +146,7 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
     kw.setdefault("noise", "seed=0")
     config = os.fspath(config) if isinstance(config, Path) else config
     timing = Lockstep(reply_latency_s=kw.pop("reply_latency_s", DEFAULT_REPLY_LATENCY_S))
-    body = RobotBody(start_pose=tuple(kw.pop("start_pose", (0.0, 0.0, 0.0))))
+    body = BodySettings(start_pose=tuple(kw.pop("start_pose", (0.0, 0.0, 0.0))))
     with EmulatorProcess(config, timing=timing, body=body, **kw) as process:
         with LockstepLoopClock(process.control_path) as clock:
             yield EmulatedRobot(process, clock)

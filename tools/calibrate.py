@@ -355,7 +355,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
     """
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.factory import robot_emulator
-    from swerve.emulator.robot_body import RobotBody
+    from swerve.emulator.body_settings import BodySettings
     from swerve.emulator.timing import Lockstep, scaled
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
@@ -363,7 +363,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
         margin_s = LOCKSTEP_TIMEOUT_MARGIN_S if lockstep else 0.05
     with contextlib.ExitStack() as stack:
         emu = stack.enter_context(robot_emulator(robot_path, resolve_emulator_config(emulator_config or "ideal"),
-                                                 body=RobotBody(), rate_hz=EMULATOR_RATE_HZ,
+                                                 body=BodySettings(), rate_hz=EMULATOR_RATE_HZ,
                                                  timing=Lockstep() if lockstep else scaled(time_scale)))
         clock = stack.enter_context(LockstepLoopClock(emu.control.path)) if lockstep else None
         bus = stack.enter_context(Bus(emu.port, cfg.link.baud, default_model=cfg.model, retries=1,

@@ -29,7 +29,7 @@ from swerve.emulator.physics.params import ContactParams, SupplyParams, load_con
 from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.physics.servo_model import ServoModel
 from swerve.emulator.factory import build_emulator
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Frozen
 
 RATE_HZ = 1000.0
@@ -58,7 +58,7 @@ def _emulator(profile: str, body: bool, noise: str | None = None, kinematic: boo
     robot = load_robot_config(shipped("robot.yaml"))
     emu = build_emulator(robot if body else None, _physics(profile, kinematic, placement),
                          ids=None if body else range(1, 9),
-                         timing=Frozen(), rate_hz=RATE_HZ, noise=noise, body=RobotBody() if body else None)
+                         timing=Frozen(), rate_hz=RATE_HZ, noise=noise, body=BodySettings() if body else None)
     modes = ROBOT_MODES if body else ALL_MODES
     for s in emu.servos:
         _write(s, Reg.OPERATING_MODE, modes[s.id])
@@ -260,10 +260,10 @@ def test_the_emulator_loads_the_compiled_kernel_when_built():
     code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
             "from swerve.emulator.physics.params import load_config; "
             "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
-            "from swerve.emulator.factory import build_emulator; from swerve.emulator.robot_body import RobotBody; "
+            "from swerve.emulator.factory import build_emulator; from swerve.emulator.body_settings import BodySettings; "
             "from swerve.emulator.timing import Frozen; "
             "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
-            "body=RobotBody(), timing=Frozen(), rate_hz=1000.0); print(len(k.signatures)); "
+            "body=BodySettings(), timing=Frozen(), rate_hz=1000.0); print(len(k.signatures)); "
             "emu.advance(0.016); print(len(k.signatures))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["1", "1"]

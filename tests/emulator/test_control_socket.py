@@ -21,7 +21,7 @@ from swerve.emulator.clock import LockstepPhysicsClock
 from swerve.emulator.lockstep_socket import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.factory import build_emulator
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Lockstep
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S
 
@@ -35,7 +35,7 @@ REPLY_WAIT_S = 30.0
 def lockstep_robot():
     """A lockstep robot emulator (8 servos and a body) and a driver on its pty."""
     robot = load_robot_config(shipped("robot.yaml"))
-    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=RobotBody()) as emu:
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with Bus(emu.port, 1_000_000, default_model="xh430-w210",
                  timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             yield emu, bus

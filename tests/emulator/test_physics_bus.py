@@ -19,7 +19,7 @@ from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.steptest import StepMetrics, step_metrics
 from swerve.emulator.factory import robot_emulator
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Frozen
 from swerve.emulator.physics.servo_adapter import INPUTS as _INPUTS
 
@@ -39,7 +39,7 @@ SAMPLE_S = 1e-3
 def emu():
     """The 8-servo robot without a clock and without the body's mass on the drive shafts
     (the gains were tuned on the bare servo, as a bench step test would be)."""
-    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=RobotBody(wheel_load=False)) as e:
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=False)) as e:
         yield e
 
 
@@ -158,7 +158,7 @@ def test_higher_position_p_gain_settles_faster(emu, bus):
 
 def test_drive_step_reaches_goal_under_wheel_load():
     """With the body's mass on the shaft the same gains overshoot more (more inertia, same PI)."""
-    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=RobotBody(wheel_load=True)) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=True)) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus:
         present, true = velocity_step(emu, bus, 100, velocity_p_gain=SPEC["velocity_p_gain"],
                                       velocity_i_gain=SPEC["velocity_i_gain"])

@@ -24,7 +24,7 @@ from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.params import SensorParams
 from swerve.emulator.clock import HandOverLock
 from swerve.emulator.factory import robot_emulator
-from swerve.emulator.robot_body import RobotBody
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Frozen, WallTime
 from swerve.emulator.sensor_noise import parse_noise
 from swerve.emulator.status_file import read_status, status
@@ -97,7 +97,7 @@ def test_mismatched_wheels_follow_the_least_squares_fit():
 
 
 def test_start_pose_is_honoured():
-    log, _, _ = drive([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4, 1.0, body=RobotBody(start_pose=(1.0, -2.0, math.pi / 2)))
+    log, _, _ = drive([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4, 1.0, body=BodySettings(start_pose=(1.0, -2.0, math.pi / 2)))
     x, y, theta = log[-1, 1:]
     assert x == pytest.approx(1.0, abs=1e-3)          # heading +y: x stays, y grows
     assert y > -2.0 + 0.05
@@ -152,7 +152,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
 def test_status_file_holds_the_true_pose_at_close(tmp_path):
     """Deterministic: with a frozen clock the status file is written at start, and last at close."""
     path = tmp_path / "pose.json"
-    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), status_file=path, body=RobotBody(start_pose=(0.5, 0.0, 0.0))) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), status_file=path, body=BodySettings(start_pose=(0.5, 0.0, 0.0))) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         assert read_status(path)["pose"] == [0.5, 0.0, 0.0] and read_status(path)["t_s"] == 0.0
         wheels.configure()
@@ -204,7 +204,7 @@ def test_position_noise_reaches_the_bus():
 
 def test_robot_config_ids_must_be_on_the_bus():
     with pytest.raises(ConfigError, match="not on the emulated bus"):
-        robot_emulator(ROBOT, PHYSICS, timing=Frozen(), ids=[1, 2, 3, 4, 5, 6, 7], body=RobotBody())
+        robot_emulator(ROBOT, PHYSICS, timing=Frozen(), ids=[1, 2, 3, 4, 5, 6, 7], body=BodySettings())
 
 
 def test_hand_over_lock_shows_who_waits():

@@ -116,7 +116,7 @@ def run(args: argparse.Namespace) -> int:
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
     from swerve.emulator.factory import build_emulator
-    from swerve.emulator.robot_body import RobotBody, robot_on_bus
+    from swerve.emulator.body_settings import BodySettings, robot_on_bus
     from swerve.emulator.server import LinkSettings, freeze_startup_heap
     from swerve.emulator.timing import Lockstep, scaled
 
@@ -148,7 +148,7 @@ def run(args: argparse.Namespace) -> int:
         physics = None
     try:
         emu = build_emulator(robot, physics, ids=ids, model=args.model, baud=args.baud,
-                             body=RobotBody() if args.physics or (physics is not None and robot_on_bus(robot, ids))
+                             body=BodySettings() if args.physics or (physics is not None and robot_on_bus(robot, ids))
                              else None, timing=timing,
                              rate_hz=args.clock_hz, noise=args.noise, faults=args.faults,
                              status_file=args.status_file, adapter_latency_ms=args.adapter_latency_ms,

@@ -169,18 +169,18 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         if req.emulate:     # launched first: the child starts while the gains are synthesised
             from swerve.emulator.physics.profiles import resolve_emulator_config
             from swerve.emulator.process import EmulatorProcess
-            from swerve.emulator.robot_body import RobotBody
+            from swerve.emulator.body_settings import BodySettings
             from swerve.emulator.timing import Lockstep, scaled
 
             physics = resolve_emulator_config(req.emulator_config or "ideal")
             if req.lockstep:
                 emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, timing=Lockstep(),
                                       faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
-                                      body=RobotBody(start_pose=tuple(start[:3])), rate_hz=rate_hz,
+                                      body=BodySettings(start_pose=tuple(start[:3])), rate_hz=rate_hz,
                                       adapter_latency_ms=req.adapter_latency_ms)
             else:
                 emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, timing=scaled(req.time_scale),
-                                      faults=req.faults, noise=req.noise, body=RobotBody(start_pose=tuple(start[:3])),
+                                      faults=req.faults, noise=req.noise, body=BodySettings(start_pose=tuple(start[:3])),
                                       rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms)
             stack.callback(emu.close)
             emu.launch()

@@ -1,4 +1,4 @@
-"""The robot body as :func:`swerve.emulator.factory.build_emulator` takes it (``body=RobotBody()``).
+"""The robot body as :func:`swerve.emulator.factory.build_emulator` takes it (``body=BodySettings()``).
 
 A frozen value, so it travels to another process (:class:`swerve.emulator.process.EmulatorProcess`);
 the factory builds the body's physics from it (:class:`~swerve.emulator.physics.robot_world.RobotWorld`).
@@ -12,7 +12,7 @@ from swerve.driver.robot_config import RobotConfig
 
 
 @dataclass(frozen=True)
-class RobotBody:
+class BodySettings:
     """The robot body on an emulated bus: the eight servos move it through their wheels.
 
     ``start_pose``: initial true pose ``(x_m, y_m, theta_rad)``. ``wheel_load``: reflect the
@@ -30,4 +30,4 @@ def robot_on_bus(robot: RobotConfig, ids: Iterable[int] | None) -> bool:
     return ids is None or set(robot.drive_ids + robot.steer_ids) <= set(ids)
 
 
-__all__ = ["RobotBody", "robot_on_bus"]
+__all__ = ["BodySettings", "robot_on_bus"]
