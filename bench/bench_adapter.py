@@ -97,7 +97,7 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         for lat in [x for x in latencies if x is not None]:
             w0 = time.monotonic()
-            s = run_tracking(RunRequest(trajectory="line", emulate=True, timing=Lockstep(), time_scale=None,
+            s = run_tracking(RunRequest(trajectory="line", emulate=True, lockstep=True, time_scale=None,
                                         log=Path(tmp) / f"l{lat}", adapter_latency_ms=lat)).summary.to_dict()
             print(f"| {lat} ms | {s['cycles']} | {s['overruns']} | {s['missed_slots']} | "
                   f"{s['loop_period_p50_ms']:.2f} / {s['loop_period_max_ms']:.2f} | "

@@ -1,7 +1,7 @@
 """The counters of one emulated bus run (:class:`Stats`, ``emu.stats``)."""
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import asdict, dataclass
 
 
 @dataclass
@@ -24,4 +24,4 @@ class Stats:
     clock_ticks: int = 0           # physics steps (clock and advance)
 
     def as_dict(self) -> dict[str, int]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+        return asdict(self)

@@ -23,13 +23,11 @@ from __future__ import annotations
 
 import mmap
 import os
-import signal
 import socket
 import struct
 import subprocess
 import sys
 import tempfile
-import time
 from multiprocessing.connection import Connection
 
 from swerve.configs import locate_robot_file, shipped
@@ -39,66 +37,7 @@ _START_TIMEOUT_S = 60.0
 #: How long :meth:`EmulatorProcess.close` waits for the child to exit after "stop", then after SIGTERM, s.
 _EXIT_TIMEOUT_S = 5.0
 #: The shared true-state block: ``[sim_time_s, x_m, y_m, theta_rad]`` as native doubles.
-_SHARED = struct.Struct("4d")
-
-
-def child_main(conn_fd: int, shared_fd: int) -> None:
-    """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
-    the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
-    of the connection closes)."""
-    for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
-        signal.signal(s, signal.SIG_IGN)
-    conn = Connection(conn_fd)
-    shared = mmap.mmap(shared_fd, _SHARED.size)
-    robot_config, emulator_config, kwargs = conn.recv()
-    from swerve.driver.robot_config import load_robot_config
-    from swerve.emulator.physics.params import load_config
-    from swerve.emulator.factory import build_emulator
-    from swerve.emulator.body_settings import BodySettings
-    from swerve.emulator.server import freeze_startup_heap
-
-    def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
-        x, y, theta = emu.world.pose
-        _SHARED.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
-
-    try:
-        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
-                             **{"body": BodySettings(), **kwargs})
-        emu.observers.append(publish)
-        emu.start()
-    except Exception as exc:  # noqa: BLE001 - reported to the parent as text
-        conn.send(("error", f"{type(exc).__name__}: {exc}"))
-        return
-    freeze_startup_heap()
-    try:
-        conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
-    except OSError:                    # the parent gave up while we started
-        emu.close()
-        return
-    cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
-    while True:                        # "stop" (or EOF: the parent died) ends the loop
-        try:
-            msg = conn.recv()
-        except EOFError:
-            break
-        if msg == "stop":
-            break
-        try:                           # ("fault", method, args): e.g. ("fault", "vanish", (3,))
-            _, method, fargs = msg
-            # Faults are safe to change while the emulator runs; raise_hardware_error takes the
-            # emulator's (non-reentrant) lock itself.
-            getattr(emu.faults, method)(*fargs)
-            conn.send(("ok", None))
-        except Exception as exc:  # noqa: BLE001 - reported to the parent
-            conn.send(("error", f"{type(exc).__name__}: {exc}"))
-    serve_cpu_s = time.process_time() - cpu0
-    emu.close()
-    try:
-        t, pose = emu.true_state()
-        conn.send(("stats", dict(bus=emu.stats.as_dict(), clock=emu.clock_stats.as_dict(),
-                                 pose=list(pose), sim_time_s=t, serve_cpu_s=serve_cpu_s)))
-    except (BrokenPipeError, OSError):
-        pass
+SHARED_STATE = struct.Struct("4d")
 
 
 class EmulatorProcess:
@@ -135,14 +74,13 @@ class EmulatorProcess:
         if self._proc is not None:
             return self
         with tempfile.TemporaryFile() as block:
-            block.write(bytes(_SHARED.size))
+            block.write(bytes(SHARED_STATE.size))
             block.flush()
-            self._shared = mmap.mmap(block.fileno(), _SHARED.size)
+            self._shared = mmap.mmap(block.fileno(), SHARED_STATE.size)
             parent, child = socket.socketpair()
             try:
                 self._proc = subprocess.Popen(
-                    [sys.executable, "-c", "import sys; from swerve.emulator.process import child_main; "
-                                           "child_main(int(sys.argv[1]), int(sys.argv[2]))",
+                    [sys.executable, "-m", "swerve.emulator.child",
                      str(child.fileno()), str(block.fileno())],
                     pass_fds=(child.fileno(), block.fileno()), stdin=subprocess.DEVNULL)
             finally:
@@ -178,13 +116,13 @@ class EmulatorProcess:
     @property
     def pose(self) -> tuple[float, float, float]:
         """True body pose ``(x_m, y_m, theta_rad)`` after the emulator's latest physics steps."""
-        _, x, y, theta = _SHARED.unpack_from(self._shared)
+        _, x, y, theta = SHARED_STATE.unpack_from(self._shared)
         return x, y, theta
 
     @property
     def sim_time_s(self) -> float:
         """Simulated seconds of the emulator's clock at the last pose update."""
-        return _SHARED.unpack_from(self._shared)[0]
+        return SHARED_STATE.unpack_from(self._shared)[0]
 
     def fault(self, method: str, *args) -> None:
         """Call ``emu.faults.<method>(*args)`` in the child, e.g. ``fault("vanish", 3)``."""

@@ -240,10 +240,6 @@ class Emulator:
         return self._pacer.adapter
 
     @property
-    def wire_timing(self) -> bool:
-        return self.settings.wire_timing
-
-    @property
     def sim_time_s(self) -> float:
         """Simulated seconds stepped so far (clock and :meth:`advance` together)."""
         return self._stepper.sim_time_s
@@ -386,7 +382,7 @@ class Emulator:
         """A fault from the control channel: ``vanish ID``, ``restore ID``, ``hwerror ID BITS``."""
         if what in ("vanish", "restore") and len(args) == 1:
             with self._lock:
-                getattr(self.faults, what)(int(args[0]))
+                self.faults.apply(what, int(args[0]))
         elif what == "hwerror" and len(args) == 2:
             bits = int(args[1]) if args[1].isdigit() else args[1]
             self.faults.raise_hardware_error(int(args[0]), bits)
@@ -448,7 +444,7 @@ class Emulator:
                         s.apply_pending()
             # replies are timed from the instant the request ended on the wire, not from the
             # end of the dispatch above: the emulator's own work is not charged on top
-            end_t = max(rx_t, first_byte_t + wire_s) if self.wire_timing else rx_t
+            end_t = max(rx_t, first_byte_t + wire_s) if self.settings.wire_timing else rx_t
             self._pacer.send(replies, end_t, byte_t)
         except Exception:  # noqa: BLE001 - one bad packet must never stop the bus
             self.stats.dispatch_errors += 1

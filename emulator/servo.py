@@ -17,7 +17,7 @@ from typing import Callable, Iterable, Mapping, Protocol
 from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
 from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg, baud_index, table_for
 from swerve.driver.errors import ConfigError
-from swerve.driver.packets import MAX_ID, ErrorNumber, StatusPacket, status_frame
+from swerve.driver.packets import ALERT_BIT, MAX_ID, ErrorNumber, StatusPacket, status_frame
 from swerve.emulator.memory import ServoMemory, WriteRejected
 
 log = logging.getLogger(__name__)
@@ -180,7 +180,7 @@ class VirtualServo:
 
     # --- status helpers -----------------------------------------------------------------------
     def _error_byte(self, number: ErrorNumber = ErrorNumber.NONE) -> int:
-        alert = 0x80 if self.memory.byte(self._hardware_error_address) else 0
+        alert = ALERT_BIT if self.memory.byte(self._hardware_error_address) else 0
         return int(number) | alert
 
     def status(self, number: ErrorNumber = ErrorNumber.NONE, params: bytes = b"",

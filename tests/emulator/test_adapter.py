@@ -270,7 +270,7 @@ def test_emulate_option_reaches_the_emulated_adapter():
 def test_a_lockstep_run_through_a_16_ms_adapter_overruns_every_cycle():
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
-    s = run_tracking(RunRequest(trajectory="line", emulate=True, timing=Lockstep(), time_scale=None,
+    s = run_tracking(RunRequest(trajectory="line", emulate=True, lockstep=True, time_scale=None,
                                 adapter_latency_ms=16)).summary.to_dict()
     # the read ends 18.2 ms into its 16 ms slot: every cycle runs into the next slot, which is skipped
     assert s["completed"] and s["overruns"] == s["cycles"] == s["missed_slots"] == 1250

@@ -1,0 +1,80 @@
+"""The emulator's child process (started by :class:`swerve.emulator.process.EmulatorProcess`).
+
+``python -m swerve.emulator.child CONN_FD SHARED_FD``: reads the start request (robot file,
+emulator config, :func:`~swerve.emulator.factory.build_emulator` keywords) from the connection,
+serves the robot emulator, publishes its true pose into the shared block after every run of
+physics steps, and answers fault requests until the parent says stop. Only this process loads
+the physics; the parent imports :mod:`swerve.emulator.process` alone.
+"""
+from __future__ import annotations
+
+import mmap
+import signal
+import sys
+import time
+from multiprocessing.connection import Connection
+
+from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.process import SHARED_STATE
+from swerve.emulator.server import freeze_startup_heap
+
+
+def child_main(conn_fd: int, shared_fd: int) -> None:
+    """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
+    the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
+    of the connection closes)."""
+    for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
+        signal.signal(s, signal.SIG_IGN)
+    conn = Connection(conn_fd)
+    shared = mmap.mmap(shared_fd, SHARED_STATE.size)
+    robot_config, emulator_config, kwargs = conn.recv()
+
+    def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
+        x, y, theta = emu.world.pose
+        SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
+
+    try:
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
+                             **{"body": BodySettings(), **kwargs})
+        emu.observers.append(publish)
+        emu.start()
+    except Exception as exc:  # noqa: BLE001 - reported to the parent as text
+        conn.send(("error", f"{type(exc).__name__}: {exc}"))
+        return
+    freeze_startup_heap()
+    try:
+        conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
+    except OSError:                    # the parent gave up while we started
+        emu.close()
+        return
+    cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
+    while True:                        # "stop" (or EOF: the parent died) ends the loop
+        try:
+            msg = conn.recv()
+        except EOFError:
+            break
+        if msg == "stop":
+            break
+        try:                           # ("fault", method, args): e.g. ("fault", "vanish", (3,))
+            _, method, fargs = msg
+            # Faults are safe to change while the emulator runs; raise_hardware_error takes the
+            # emulator's (non-reentrant) lock itself.
+            emu.faults.apply(method, *fargs)
+            conn.send(("ok", None))
+        except Exception as exc:  # noqa: BLE001 - reported to the parent
+            conn.send(("error", f"{type(exc).__name__}: {exc}"))
+    serve_cpu_s = time.process_time() - cpu0
+    emu.close()
+    try:
+        t, pose = emu.true_state()
+        conn.send(("stats", dict(bus=emu.stats.as_dict(), clock=emu.clock_stats.as_dict(),
+                                 pose=list(pose), sim_time_s=t, serve_cpu_s=serve_cpu_s)))
+    except (BrokenPipeError, OSError):
+        pass
+
+
+if __name__ == "__main__":
+    child_main(int(sys.argv[1]), int(sys.argv[2]))
