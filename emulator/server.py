@@ -105,7 +105,7 @@ class Emulator:
     servos : sequence of VirtualServo
         The servos on the bus (one model; distinct IDs).
     link : LinkSettings
-        Line speed, pty symlink and protocol options.
+        Pty symlink, wire timing and protocol options (the line speed is the servos' Baud Rate).
     clock : PhysicsClock, optional
         Owner of simulated time (:mod:`swerve.emulator.clock`); default frozen.
     faults : Faults or str, optional
