@@ -16,6 +16,7 @@ prints Markdown tables to paste into BENCHMARKS.md.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import os
 import platform
 import statistics
@@ -32,14 +33,15 @@ def bus_times(latency_ms: int | None, cycles: int, fast: bool) -> tuple[list[flo
     from swerve.driver.bus import Bus
     from swerve.driver.robot_config import load_robot_config
     from swerve.driver.wheelset import WheelSet
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
+    from swerve.emulator.timing import Lockstep
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     cfg = load_robot_config(shipped("robot.yaml"))
     read_s, cycle_s = [], []
-    with build_emulator(cfg, lockstep=True, adapter_latency_ms=latency_ms) as emu:
-        if latency_ms is None:
-            emu.adapter = None                          # the host reads the cable directly
+    if latency_ms is None:                              # the host reads the cable directly
+        cfg = dataclasses.replace(cfg, link=dataclasses.replace(cfg.link, adapter_latency_ms=None))
+    with build_emulator(cfg, timing=Lockstep(), adapter_latency_ms=latency_ms) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, cfg.link.baud, default_model=cfg.model,
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)

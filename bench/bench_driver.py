@@ -27,7 +27,9 @@ from swerve.driver.bus import Bus  # noqa: E402
 from swerve.driver.parser import PacketParser  # noqa: E402
 from swerve.driver.robot_config import load_robot_config  # noqa: E402
 from swerve.driver.wheelset import WheelSet  # noqa: E402
-from swerve.emulator.robot_emulator import build_emulator  # noqa: E402
+from swerve.emulator.server import LinkSettings  # noqa: E402
+from swerve.emulator.factory import build_emulator  # noqa: E402
+from swerve.emulator.timing import Frozen  # noqa: E402
 from benchutil import cpu_model, write_section  # noqa: E402
 
 SECTION = "## Driver"
@@ -74,8 +76,8 @@ def codec() -> list[tuple[str, float]]:
 
 def cycle(cycles: int, *, fast: bool, wire_timing: bool) -> dict:
     cfg = load_robot_config()
-    with build_emulator(load_robot_config(ROOT / "configs" / "robot.yaml"), wire_timing=wire_timing,
-                        time_scale=0) as emu, \
+    with build_emulator(load_robot_config(ROOT / "configs" / "robot.yaml"), link=LinkSettings(wire_timing=wire_timing),
+                        timing=Frozen()) as emu, \
             Bus(emu.port, cfg.link.baud, timeout_margin_s=0.2) as bus, \
             WheelSet(bus, cfg, fast=fast) as ws:
         ws.configure()
@@ -102,7 +104,7 @@ def sdk_cycle(cycles: int) -> dict | None:
         import dynamixel_sdk as dxl
     except ImportError:
         return None
-    with build_emulator(time_scale=0) as emu:
+    with build_emulator(timing=Frozen()) as emu:
         for i in range(1, 9):  # same Return Delay Time as the WheelSet runs
             emu.servo(i).write("return_delay_time", 0)
         port = dxl.PortHandler(emu.port)

@@ -98,6 +98,7 @@ def main() -> None:
     from swerve.driver.wheelset import WheelSet
     from swerve.emulator.physics.profiles import resolve_emulator_config
     from swerve.emulator.process import EmulatorProcess
+    from swerve.emulator.timing import Lockstep
     from swerve.tools.run.lockstep import LockstepLoopClock
 
     ap = argparse.ArgumentParser()
@@ -134,7 +135,7 @@ def main() -> None:
 
     robot = locate_robot_file(None).path
     cfg = load_robot_config(robot)
-    with EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), lockstep=True,
+    with EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), timing=Lockstep(),
                          noise="seed=1", rate_hz=1 / STEP_S) as emu, \
             LockstepLoopClock(emu.control_path) as clock, Bus(emu.port, cfg.link.baud, retries=0,
                                                           default_model=cfg.model,

@@ -8,7 +8,7 @@ Usage::
     python bench/bench_emulator_physics.py --serve --time-scale S [--rate HZ]   # emulator process
     python bench/bench_emulator_physics.py --bank 8,16,32 --rate 1000 [--cost-seconds 10]  # physics alone
 
-1. **Cost.** ``robot_emulator(time_scale=0)``; all eight loops busy (4 drives at 0.1 m/s, 4
+1. **Cost.** ``robot_emulator(timing=Frozen())``; all eight loops busy (4 drives at 0.1 m/s, 4
    steering servos sweeping ±0.3 rad, set through the bus with WheelSet), one read and one write
    per 16 ms of robot time as in a run; ``emu.advance`` over 10 s; CPU of the calling thread
    (``thread_time``) per simulated second; real-time factor = simulated s / CPU s. The served runs below also report
@@ -23,7 +23,7 @@ The servo ticks run compiled when numba is installed (``pip install swerve[fast]
 ``--bank 8,16,32``: instead, the physics alone: the CPU of one 16 ms lockstep cycle for N
 free-shaft servos (:func:`cost_bank`, how the cost grows with the bank), then item 1 (the robot), then the
 robot's physics in a lockstep run's batches (:func:`cost_lockstep`).
-3. **Step tests** through the bus (deterministic, ``time_scale=0``): overshoot and settle times.
+3. **Step tests** through the bus (deterministic, ``timing=Frozen()``): overshoot and settle times.
 Prints a markdown section for BENCHMARKS.md.
 """
 from __future__ import annotations
@@ -52,7 +52,10 @@ from swerve.driver.wheelset import WheelSet  # noqa: E402
 from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import load_config  # noqa: E402
 from swerve.emulator.physics.steptest import step_metrics  # noqa: E402
-from swerve.emulator.robot_emulator import read_status, robot_emulator  # noqa: E402
+from swerve.emulator.factory import robot_emulator  # noqa: E402
+from swerve.emulator.body_settings import BodySettings  # noqa: E402
+from swerve.emulator.timing import Frozen, scaled  # noqa: E402
+from swerve.emulator.status_file import read_status  # noqa: E402
 from swerve.tools.commands.emulate import format_ids, parse_port_line  # noqa: E402
 
 ROBOT = ROOT / "configs" / "robot.yaml"
@@ -79,7 +82,7 @@ def cost_in_process(seconds: float, rate_hz: float | None) -> dict[str, float]:
     ``read_state`` + ``write_goals`` (so the watchdog stays fed and the present items are read),
     then ``emu.advance(16 ms)``; only the ``advance`` calls are timed."""
     cfg = load_robot_config(ROBOT)
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, rate_hz=rate_hz) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), rate_hz=rate_hz) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
         wheels.configure()
         wheels.enable()
@@ -113,7 +116,7 @@ def cost_lockstep(seconds: float, rate_hz: float | None) -> dict[str, float]:
     one step, then thirteen; direct calls, no pty. CPU of the calling thread in
     ``emu.step_many`` per cycle, median over the cycles."""
     cfg = load_robot_config(ROBOT)
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, rate_hz=rate_hz) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), rate_hz=rate_hz) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=0.3) as bus, WheelSet(bus, cfg) as wheels:
         wheels.configure()
         wheels.enable()
@@ -158,10 +161,10 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
     (``thread_time``) per cycle, per physics tick and per servo-tick: the median over the
     cycles (``mean_rtf``: from the mean)."""
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
 
     physics = load_config(resolve_emulator_config(profile))
-    emu = build_emulator(None, physics, ids=range(1, n_servos + 1), time_scale=0, rate_hz=rate_hz)
+    emu = build_emulator(None, physics, ids=range(1, n_servos + 1), timing=Frozen(), rate_hz=rate_hz)
     for s in emu.servos:
         m = s.memory
         m.set(Reg.OPERATING_MODE, u.MODE_VELOCITY if s.id % 2 == 0 else u.MODE_POSITION)
@@ -192,7 +195,7 @@ def cost_bank(n_servos: int, seconds: float, rate_hz: float | None, profile: str
 
 # --- 2. served emulator + client cycle -------------------------------------------------------------
 def serve(time_scale: float, rate_hz: float | None, status_file: str | None) -> int:
-    emu = robot_emulator(ROBOT, PHYSICS, time_scale=time_scale, rate_hz=rate_hz, status_file=status_file,
+    emu = robot_emulator(ROBOT, PHYSICS, timing=scaled(time_scale), rate_hz=rate_hz, status_file=status_file,
                          status_hz=5.0)
     stop = []
     signal.signal(signal.SIGTERM, lambda *_: stop.append(1))
@@ -261,7 +264,7 @@ class _Bench:
     """A fresh unloaded robot (no clock) and a bus to it, per step test."""
 
     def __enter__(self):
-        self.emu = robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=False).start()
+        self.emu = robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=False)).start()
         self.bus = Bus(self.emu.port, self.emu.baud, timeout_margin_s=0.3).__enter__()
         return self
 

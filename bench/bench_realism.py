@@ -29,7 +29,9 @@ from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EFFECTS, resolve_emulator_config, single_effect
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Frozen
 from swerve.emulator.server import Emulator
 from swerve.tools.run.loop import TrackingLoop
 from swerve.tools.run.orchestrate import EMULATOR_PHYSICS_RATE_HZ, prepare_law
@@ -106,8 +108,8 @@ def run_one(trajectory: str, choice: str, tmp: Path) -> dict:
     traj, law = prepare_law(trajectory, None, geom, limits)
     start = traj.start_state(geom)
     with contextlib.ExitStack() as stack:
-        emu = stack.enter_context(robot_emulator(cfg_path, physics_file(choice, tmp), time_scale=0,
-                                                 rate_hz=EMULATOR_PHYSICS_RATE_HZ, start_pose=tuple(start[:3])))
+        emu = stack.enter_context(robot_emulator(cfg_path, physics_file(choice, tmp), timing=Frozen(),
+                                                 rate_hz=EMULATOR_PHYSICS_RATE_HZ, body=BodySettings(start_pose=tuple(start[:3]))))
         bus = stack.enter_context(Bus(emu.port, cfg.link.baud, retries=1, default_model=cfg.model,
                                       timeout_margin_s=1.0))
         wheels = stack.enter_context(WheelSet(bus, cfg))

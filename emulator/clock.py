@@ -92,6 +92,18 @@ class PhysicsClock(Protocol):
         true state is read or a fault applied."""
 
 
+class RobotTimeClock(PhysicsClock, Protocol):
+    """A :class:`PhysicsClock` that keeps robot time of its own (``now_s`` is never None) and
+    moves it on a client's request: the clock a lockstep control channel needs
+    (:class:`LockstepPhysicsClock`)."""
+
+    now_s: float
+
+    def move_to(self, t_s: float) -> float:
+        """Move robot time to ``t_s`` (never back); the physics follows in :meth:`PhysicsClock.run`
+        or :meth:`PhysicsClock.catch_up`. Returns the new robot time, s."""
+
+
 @dataclass
 class ClockStats:
     """How the physics clock kept up with wall time (written by the bus thread)."""

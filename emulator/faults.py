@@ -42,8 +42,7 @@ class Faults:
         self._check()
 
     def _check(self) -> None:
-        for name in ("drop_rate", "corrupt_rate"):
-            v = getattr(self, name)
+        for name, v in (("drop_rate", self.drop_rate), ("corrupt_rate", self.corrupt_rate)):
             if not 0.0 <= v <= 1.0:
                 raise ConfigError(f"fault {name} = {v} must be within 0..1")
         if self.delay_s < 0:
@@ -65,6 +64,15 @@ class Faults:
             self.pending_hw_errors[int(id_)] = self.pending_hw_errors.get(int(id_), 0) | b
         else:
             self._raise_hook(int(id_), b)
+
+    def apply(self, what: str, *args) -> None:
+        """The fault operation named ``what`` (``vanish``, ``restore``, ``raise_hardware_error``)
+        with ``args``, as a control channel or a parent process asks for it by name."""
+        operations = {"vanish": self.vanish, "restore": self.restore,
+                      "raise_hardware_error": self.raise_hardware_error}
+        if what not in operations:
+            raise ConfigError(f"unknown fault {what!r} (one of {', '.join(operations)})")
+        operations[what](*args)
 
     def attach(self, hook: Callable[[int, int], None]) -> None:
         """Connect to an emulator (called by :class:`emulator.server.Emulator`)."""

@@ -7,13 +7,13 @@ timing is the loop's own. The true pose, which never crosses the bus, comes back
 shared-memory block ``[sim_time_s, x_m, y_m, theta_rad]``, written by an observer of the child's
 emulator after every run of physics steps (at least every millisecond of wall time while the
 clock runs). The child parses the robot file and the physics config, once each. With
-``lockstep=True`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
+``timing=Lockstep()`` the child's emulator owns robot time; :attr:`EmulatorProcess.control_path` is
 its control socket (read the pose through it, since shared memory is not synchronised with the
 bytes on the pty).
 
 ::
 
-    with EmulatorProcess("configs/robot.yaml", time_scale=5) as emu:
+    with EmulatorProcess("configs/robot.yaml", timing=WallTime(5)) as emu:
         bus = Bus(emu.port, 1_000_000)
         ...
         t_sim, (x, y, theta) = emu.sim_time_s, emu.pose
@@ -37,27 +37,27 @@ _START_TIMEOUT_S = 60.0
 #: How long :meth:`EmulatorProcess.close` waits for the child to exit after "stop", then after SIGTERM, s.
 _EXIT_TIMEOUT_S = 5.0
 #: The shared true-state block: ``[sim_time_s, x_m, y_m, theta_rad]`` as native doubles.
-SHARED_POSE = struct.Struct("4d")
+SHARED_STATE = struct.Struct("4d")
 
 #: The child's program. The emulator uses no SciPy, and an import of ``scipy`` in it fails:
 #: numba, loading the cached kernels, then skips its BLAS check (``numba.np.linalg.ensure_blas``
 #: imports ``scipy.linalg``, ~0.4 s), which only numba's ``np.dot``/``np.linalg`` need, and the
 #: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise). The
-#: cyclic garbage collector is off until the emulator is built (:func:`process_child.child_main`
+#: cyclic garbage collector is off until the emulator is built (:func:`child.child_main`
 #: then collects once, freezes what start-up made and turns it on): start-up allocates much and
 #: frees little, and the collections it would trigger cost ~0.2 s of CPU.
 _CHILD_PROGRAM = ("import gc, sys; gc.disable(); sys.modules['scipy'] = None; "
-                  "from swerve.emulator.process_child import child_main; "
+                  "from swerve.emulator.child import child_main; "
                   "child_main(int(sys.argv[1]), int(sys.argv[2]))")
 
 
 class EmulatorProcess:
-    """:func:`emulator.robot_emulator.build_emulator` with the robot body, in a child process.
+    """:func:`swerve.emulator.factory.build_emulator` with the robot body, in a child process.
 
     ``robot_config`` is a path (default: :func:`swerve.configs.locate_robot_file`);
     ``emulator_config`` a path (default the shipped ``emulator.yaml``); the other keyword
-    parameters are those of ``build_emulator`` (``time_scale``, ``faults``, ``noise``,
-    ``start_pose``, ...). Attributes once started: :attr:`port` (the pty
+    parameters are those of ``build_emulator`` (``timing``, ``faults``, ``noise``,
+    ``body``, ...; default body :class:`~swerve.emulator.body_settings.BodySettings`). Attributes once started: :attr:`port` (the pty
     path), :attr:`pose` and :attr:`sim_time_s` (true state, shared memory), :attr:`pid`;
     after :meth:`close`, :attr:`final_stats`.
 
@@ -76,7 +76,7 @@ class EmulatorProcess:
         self._proc: subprocess.Popen | None = None
         self._conn: Connection | None = None
         self.port: str | None = None
-        #: The lockstep control socket (``lockstep=True``), else None.
+        #: The lockstep control socket (``timing=Lockstep()``), else None.
         self.control_path: str | None = None
         self.final_stats: dict | None = None
 
@@ -85,9 +85,9 @@ class EmulatorProcess:
         if self._proc is not None:
             return self
         with tempfile.TemporaryFile() as block:
-            block.write(bytes(SHARED_POSE.size))
+            block.write(bytes(SHARED_STATE.size))
             block.flush()
-            self._shared = mmap.mmap(block.fileno(), SHARED_POSE.size)
+            self._shared = mmap.mmap(block.fileno(), SHARED_STATE.size)
             parent, child = socket.socketpair()
             try:
                 self._proc = subprocess.Popen(
@@ -127,13 +127,13 @@ class EmulatorProcess:
     @property
     def pose(self) -> tuple[float, float, float]:
         """True body pose ``(x_m, y_m, theta_rad)`` after the emulator's latest physics steps."""
-        _, x, y, theta = SHARED_POSE.unpack_from(self._shared)
+        _, x, y, theta = SHARED_STATE.unpack_from(self._shared)
         return x, y, theta
 
     @property
     def sim_time_s(self) -> float:
         """Simulated seconds of the emulator's clock at the last pose update."""
-        return SHARED_POSE.unpack_from(self._shared)[0]
+        return SHARED_STATE.unpack_from(self._shared)[0]
 
     def fault(self, method: str, *args) -> None:
         """Call ``emu.faults.<method>(*args)`` in the child, e.g. ``fault("vanish", 3)``."""

@@ -28,15 +28,21 @@ from typing import Callable
 
 #: Linux ``TCGETS2`` (struct termios2, 44 bytes: c_ispeed/c_ospeed at offsets 36/40).
 _TCGETS2 = 0x802C542A
-_SPEED_CONSTANTS = {getattr(termios, n): int(n[1:]) for n in dir(termios)
-                    if n.startswith("B") and n[1:].isdigit()}
+_SPEED_CONSTANTS = {value: int(name[1:]) for name, value in vars(termios).items()
+                    if name.startswith("B") and name[1:].isdigit()}
 
 
 #: Linux ``prctl`` option that sets the calling thread's timer slack (``linux/prctl.h``).
 _PR_SET_TIMERSLACK = 29
 #: Timer slack asked for by :func:`precise_timers`, ns (the Linux default is 50 000).
 TIMER_SLACK_NS = 1000
-_precise = threading.local()
+class _ThreadFlag(threading.local):
+    """A per-thread flag, False in every thread until set."""
+
+    done = False
+
+
+_precise = _ThreadFlag()
 #: Packet-mode control byte before data, and the status bit of a client's output flush.
 _PKT_DATA = termios.TIOCPKT_DATA
 _PKT_FLUSHWRITE = termios.TIOCPKT_FLUSHWRITE
@@ -49,7 +55,7 @@ def precise_timers() -> None:
     reply paced with ``time.sleep`` would reach the client that much after its wire time.
     Elsewhere, or if the call fails, the thread keeps its slack.
     """
-    if getattr(_precise, "done", False):
+    if _precise.done:
         return
     _precise.done = True
     if not sys.platform.startswith("linux"):

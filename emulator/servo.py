@@ -1,32 +1,27 @@
-"""One virtual X-series servo: instruction semantics, clock, watchdog, hardware-error latch.
+"""One virtual X-series servo: its memory, identity, timers, Bus Watchdog and hardware-error latch.
 
-:class:`VirtualServo` turns one instruction into a :class:`~driver.packets.StatusPacket` (or
-``None`` where the protocol sends nothing). It does no I/O and no timing: the server
-(:mod:`emulator.server`) decides who is addressed, orders replies and writes them. Physics
-plugs in through :meth:`VirtualServo.advance` and the ``dynamics`` object (see
-:class:`Dynamics`).
+:class:`VirtualServo` holds the state the instructions act on and offers the changes they make
+(:meth:`~VirtualServo.bus_write`, :meth:`~VirtualServo.read_status`, :meth:`~VirtualServo.reboot`,
+...); what each instruction does with them, who is addressed and who answers is
+:mod:`swerve.emulator.instructions`. It does no I/O and no timing. Physics plugs in through
+:meth:`VirtualServo.advance` and the ``dynamics`` object (see :class:`Dynamics`).
+Item units and ranges come from the model's control table (``configs/models/*.yaml``).
 """
 from __future__ import annotations
 
 import logging
 import operator
 import struct
-from typing import Mapping, Protocol
+from typing import Callable, Iterable, Mapping, Protocol
 
 from swerve.driver.control_table import BAUD_RATES_BPS as BAUD_RATES
-from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg, baud_index
+from swerve.driver.control_table import ControlTable, HardwareError, OperatingMode, Reg, baud_index, table_for
 from swerve.driver.errors import ConfigError
-from swerve.driver.packets import (BACKUP_KEY, BROADCAST_ID, CLEAR_MULTI_TURN, ErrorNumber,
-                            Instruction, InstructionPacket, StatusPacket, parse_address_length,
-                            status_frame)
-
-from swerve.emulator.memory import (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD, ServoMemory,
-                             WriteRejected)
+from swerve.driver.packets import ALERT_BIT, MAX_ID, ErrorNumber, StatusPacket, status_frame
+from swerve.emulator.memory import ServoMemory, WriteRejected
 
 log = logging.getLogger(__name__)
 
-WATCHDOG_UNIT_S = 0.020
-REALTIME_TICK_WRAP = 32768
 #: Items the physics model returns (written into memory when the bus next reads).
 DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "present_position",
                     "velocity_trajectory", "position_trajectory", "present_input_voltage",
@@ -41,7 +36,7 @@ _FOLLOWED_UP = frozenset((Reg.OPERATING_MODE, Reg.BUS_WATCHDOG))
 
 
 class Dynamics(Protocol):
-    """What the physics model must provide (e.g. ``emulator.robot_emulator._ServoDynamics``).
+    """What the physics model must provide (e.g. :class:`swerve.emulator.physics.servo_adapter.ServoDynamics`).
 
     The servo calls :meth:`advance_many` every run of ticks and :meth:`outputs` only when
     someone reads a present item, so physics ticks cost no table writes. A model that steps one
@@ -59,7 +54,7 @@ class Dynamics(Protocol):
         """Up to ``n`` (>= 1) steps of ``dt_s`` s under the raw items ``table``, stopping after a
         step that raised a Hardware Error (:meth:`take_hardware_error`); ``traces``: the
         per-step lists a batched run records for the body (see
-        :meth:`swerve.emulator.server.World.traces`). Returns the steps run."""
+        :meth:`swerve.emulator.stepping.World.traces`). Returns the steps run."""
 
     def take_hardware_error(self) -> int:
         """Hardware Error bits the physics raised since the last call (then cleared)."""
@@ -131,6 +126,9 @@ class VirtualServo:
         self._identity_raw = b""
         self._torque_address = table[Reg.TORQUE_ENABLE].address
         self._return_delay_address = _byte_item(table, Reg.RETURN_DELAY_TIME)
+        self._return_delay_unit_s = table[Reg.RETURN_DELAY_TIME].scale
+        self._watchdog_unit_s = table[Reg.BUS_WATCHDOG].scale
+        self._tick_wrap_ms = table[Reg.REALTIME_TICK].max + 1     # Realtime Tick counts ms and wraps
         self._hardware_error_address = _byte_item(table, Reg.HARDWARE_ERROR_STATUS)
         self.memory.set(Reg.ID, id_)
         self.memory.set(Reg.BAUD_RATE, baud_index(baud_bps))
@@ -159,8 +157,12 @@ class VirtualServo:
 
     @property
     def return_delay_s(self) -> float:
-        """Return Delay Time (9) in seconds (2 us units)."""
-        return self.memory.byte(self._return_delay_address) * 2e-6
+        """Return Delay Time (9) in seconds (its unit from the model table, 2 us on the X series)."""
+        return self.memory.byte(self._return_delay_address) * self._return_delay_unit_s
+
+    @property
+    def firmware_version(self) -> int:
+        return self.memory.get(Reg.FIRMWARE_VERSION)
 
     @property
     def status_return_level(self) -> int:
@@ -178,7 +180,7 @@ class VirtualServo:
 
     # --- status helpers -----------------------------------------------------------------------
     def _error_byte(self, number: ErrorNumber = ErrorNumber.NONE) -> int:
-        alert = 0x80 if self.memory.byte(self._hardware_error_address) else 0
+        alert = ALERT_BIT if self.memory.byte(self._hardware_error_address) else 0
         return int(number) | alert
 
     def status(self, number: ErrorNumber = ErrorNumber.NONE, params: bytes = b"",
@@ -231,60 +233,10 @@ class VirtualServo:
             m.watchdog_tripped = False
             self._since_traffic_s = 0.0
 
-    # --- instructions ---------------------------------------------------------------------------
-    def execute(self, pkt: InstructionPacket) -> StatusPacket | None:
-        """Execute ``pkt`` (addressed to this servo, its Secondary ID or broadcast).
-
-        Returns the status to send, before Status Return Level and broadcast rules are applied
-        by :meth:`filter_reply`. Sync/Bulk instructions are handled by the server.
-        """
-        self.note_traffic()
-        reply_id = self.id
-        inst = pkt.instruction
-        p = pkt.params
-        if inst == Instruction.PING:
-            return self.status(params=self.model_number.to_bytes(2, "little")
-                               + bytes((self.memory.get(Reg.FIRMWARE_VERSION),)))
-        if inst == Instruction.READ:
-            if len(p) != 4:
-                return self.status(ErrorNumber.DATA_LENGTH)
-            return self.read_status(*parse_address_length(p))
-        if inst in (Instruction.WRITE, Instruction.REG_WRITE):
-            if len(p) < 3:
-                return self.status(ErrorNumber.DATA_LENGTH)
-            address, data = int.from_bytes(p[:2], "little"), p[2:]
-            if inst == Instruction.WRITE:
-                return self.status(self.bus_write(address, data), reply_id=reply_id)
-            return self.status(self._reg_write(address, data))
-        if inst == Instruction.ACTION:
-            return self.status(self._action())
-        if inst == Instruction.REBOOT:
-            status = self.status()
-            self.reboot()
-            return status
-        if inst == Instruction.FACTORY_RESET:
-            return self._factory_reset(pkt)
-        if inst == Instruction.CLEAR:
-            return self.status(self._clear(p))
-        if inst == Instruction.CONTROL_TABLE_BACKUP:
-            return self._control_table_backup(p)
-        return self.status(ErrorNumber.INSTRUCTION)
-
-    def filter_reply(self, pkt: InstructionPacket, status: StatusPacket | None) -> StatusPacket | None:
-        """Apply broadcast, Secondary ID and Status Return Level rules to a unicast-style reply."""
-        if status is None or pkt.id == BROADCAST_ID:
-            return status if (status is not None and pkt.instruction == Instruction.PING) else None
-        if pkt.id != status.id and pkt.id == self.secondary_id:
-            return None          # addressed through the Secondary ID: executed, never answered
-        level = self.status_return_level
-        if pkt.instruction == Instruction.PING:
-            return status
-        if level == 0 or (level == 1 and pkt.instruction != Instruction.READ):
-            return None
-        return status
-
-    def _reg_write(self, address: int, data: bytes) -> ErrorNumber:
-        # Checked now against the current memory so the host learns of a bad value at once.
+    # --- state changes the instructions make (:mod:`swerve.emulator.instructions`) ----------------
+    def register_write(self, address: int, data: bytes) -> ErrorNumber:
+        """Reg Write: check ``data`` at ``address`` against the current memory now (so the host
+        learns of a bad value at once) and hold it for :meth:`action`; the error number."""
         try:
             self.memory.copy().write(address, data)
         except WriteRejected as exc:
@@ -293,7 +245,8 @@ class VirtualServo:
         self.memory.set(Reg.REGISTERED_INSTRUCTION, 1)
         return ErrorNumber.NONE
 
-    def _action(self) -> ErrorNumber:
+    def action(self) -> ErrorNumber:
+        """Action: write what :meth:`register_write` holds; Instruction Error if nothing is held."""
         if self._registered is None:
             return ErrorNumber.INSTRUCTION
         address, data = self._registered
@@ -304,50 +257,40 @@ class VirtualServo:
             log.debug("ID %d: registered write failed at Action: %s", self.id, err.name)
         return ErrorNumber.NONE
 
-    def _factory_reset(self, pkt: InstructionPacket) -> StatusPacket | None:
-        if len(pkt.params) != 1:
-            return self.status(ErrorNumber.DATA_LENGTH)
-        option = pkt.params[0]
-        if option not in (RESET_ALL, RESET_EXCEPT_ID, RESET_EXCEPT_ID_BAUD):
-            return self.status(ErrorNumber.DATA_RANGE)
-        if pkt.id == BROADCAST_ID and option == RESET_ALL:
-            return None      # firmware >= 42 ignores a broadcast reset-all (would clash IDs)
-        status = self.status()
+    def factory_reset(self, option: int) -> None:
+        """Factory Reset with ``option`` (``RESET_ALL`` / ``RESET_EXCEPT_ID`` / ``RESET_EXCEPT_ID_BAUD``), then a reboot."""
         self.memory.factory_reset(option)
         self.reboot(keep_ram=False)
-        return status
 
-    def _clear(self, p: bytes) -> ErrorNumber:
-        if len(p) != len(CLEAR_MULTI_TURN):
-            return ErrorNumber.DATA_LENGTH
-        if bytes(p) != CLEAR_MULTI_TURN:
-            return ErrorNumber.DATA_RANGE
+    def clear_multi_turn(self) -> ErrorNumber:
+        """Clear: Present Position back into one turn (Result Fail while moving); the error number."""
         if self.memory.get(Reg.MOVING):
             return ErrorNumber.RESULT_FAIL
-        self.memory.set(Reg.PRESENT_POSITION, self.memory.get(Reg.PRESENT_POSITION) % 4096)
+        self.memory.set(Reg.PRESENT_POSITION, self.memory.get(Reg.PRESENT_POSITION) % self.table.pulses_per_rev)
         if self.dynamics is not None:
             self.dynamics.clear_multi_turn()
         return ErrorNumber.NONE
 
-    def _control_table_backup(self, p: bytes) -> StatusPacket:
-        if len(p) != 5:
-            return self.status(ErrorNumber.DATA_LENGTH)
-        if bytes(p[1:]) != BACKUP_KEY or p[0] not in (1, 2):
-            return self.status(ErrorNumber.DATA_RANGE)
-        if self.memory.get(Reg.TORQUE_ENABLE):
-            return self.status(ErrorNumber.RESULT_FAIL)
-        if p[0] == 1:
-            self._backup = (self.memory.eeprom_bytes(),
-                            {n: self.memory.get(n) for n in BACKUP_RAM_ITEMS if n in self.table})
-            if Reg.BACKUP_READY in self.table:
-                self.memory.set(Reg.BACKUP_READY, 1)
-            return self.status()
-        if self._backup is None:
-            return self.status(ErrorNumber.RESULT_FAIL)
-        status = self.status()
+    @property
+    def torque_enabled(self) -> bool:
+        return bool(self.memory.get(Reg.TORQUE_ENABLE))
+
+    @property
+    def has_backup(self) -> bool:
+        """True once :meth:`store_backup` ran (the backup outlives reboots)."""
+        return self._backup is not None
+
+    def store_backup(self) -> None:
+        """Control Table Backup (store): the EEPROM area and :data:`BACKUP_RAM_ITEMS`."""
+        self._backup = (self.memory.eeprom_bytes(),
+                        {n: self.memory.get(n) for n in BACKUP_RAM_ITEMS if n in self.table})
+        if Reg.BACKUP_READY in self.table:
+            self.memory.set(Reg.BACKUP_READY, 1)
+
+    def restore_backup(self) -> None:
+        """Control Table Backup (restore): the stored EEPROM area back, then a reboot."""
         self.memory.restore_eeprom(self._backup[0])
         self.reboot()
-        return status
 
     # --- lifecycle ------------------------------------------------------------------------------
     def reboot(self, keep_ram: bool = False) -> None:
@@ -394,7 +337,7 @@ class VirtualServo:
         """``n`` steps of :meth:`advance` with the same result, several at a time where nothing
         can change the input items in between: :meth:`Dynamics.advance_many` runs the steps up
         to the next Bus Watchdog trip or physics-raised Hardware Error in one call (``traces``:
-        passed through, see :meth:`~swerve.emulator.robot_emulator._ServoDynamics.advance_many`);
+        passed through, see :meth:`~swerve.emulator.physics.servo_adapter.ServoDynamics.advance_many`);
         a :class:`StepDynamics` runs one at a time.
         """
         m = self.memory
@@ -419,7 +362,7 @@ class VirtualServo:
 
     def begin_steps(self, dt_s: float, most: int) -> int:
         """The first of up to ``most`` steps whose physics runs elsewhere (coupled with the other
-        servos: :meth:`~swerve.emulator.robot_emulator.RobotWorld.run_coupled`): this step's
+        servos: :meth:`~swerve.emulator.physics.robot_world.RobotWorld.run_coupled`): this step's
         timers (the Bus Watchdog may trip), then how many steps, this one included, pass
         before the watchdog may trip. Finish with :meth:`end_steps`."""
         self._advance_timers(dt_s)
@@ -440,7 +383,7 @@ class VirtualServo:
         if steps <= 0:
             return
         tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
-        wrap = float(REALTIME_TICK_WRAP)
+        wrap = float(self._tick_wrap_ms)
         for _ in range(steps):
             tick_ms += d_ms             # (t + d) % wrap, which is t + d below the wrap
             if tick_ms >= wrap:
@@ -450,9 +393,9 @@ class VirtualServo:
 
     def _advance_timers(self, dt_s: float) -> None:
         """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""
-        self._tick_ms = (self._tick_ms + dt_s * 1e3) % REALTIME_TICK_WRAP
+        self._tick_ms = (self._tick_ms + dt_s * 1e3) % self._tick_wrap_ms
         self._since_traffic_s += dt_s
-        if self._since_traffic_s > WATCHDOG_UNIT_S and not self.memory.watchdog_tripped:
+        if self._since_traffic_s > self._watchdog_unit_s and not self.memory.watchdog_tripped:
             self._check_watchdog()      # the shortest watchdog time is one unit: cheap gate first
 
     def _quiet_steps(self, dt_s: float, most: int) -> int:
@@ -461,24 +404,24 @@ class VirtualServo:
         if most <= 0 or m.watchdog_tripped:
             return max(most, 0)
         since = self._since_traffic_s
-        if since + (most + 1) * dt_s < WATCHDOG_UNIT_S * (1.0 - 1e-9):
+        if since + (most + 1) * dt_s < self._watchdog_unit_s * (1.0 - 1e-9):
             return most                 # within the shortest watchdog time (1 unit), whatever the item says
         wd = m.get(Reg.BUS_WATCHDOG)
         if wd <= 0 or not m.get(Reg.TORQUE_ENABLE):
             return most
-        limit = wd * WATCHDOG_UNIT_S
+        limit = wd * self._watchdog_unit_s
         if since + (most + 1) * dt_s < limit * (1.0 - 1e-9):
             return most                 # far from the limit (the margin covers the sums' round-off)
         for k in range(most):           # the same float sums as the steps will make
             since += dt_s
-            if since > WATCHDOG_UNIT_S and since > limit:
+            if since > self._watchdog_unit_s and since > limit:
                 return k
         return most
 
     def _check_watchdog(self) -> None:
         m = self.memory
         wd = m.get(Reg.BUS_WATCHDOG)
-        if wd > 0 and m.get(Reg.TORQUE_ENABLE) and self._since_traffic_s > wd * WATCHDOG_UNIT_S:
+        if wd > 0 and m.get(Reg.TORQUE_ENABLE) and self._since_traffic_s > wd * self._watchdog_unit_s:
             m.watchdog_tripped = True
             m.set(Reg.BUS_WATCHDOG, -1)
             m.set(Reg.GOAL_VELOCITY, 0)          # stop; physics also sees bus_watchdog == -1
@@ -533,4 +476,22 @@ def hardware_error_bits(spec: str | int) -> int:
     return bits
 
 
-__all__ = ["VirtualServo", "Dynamics", "StepDynamics", "BAUD_RATES", "baud_index", "hardware_error_bits"]
+def make_servos(ids: Iterable[int], model: str, baud: int, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT,
+                dynamics: Callable[[VirtualServo], Dynamics | None] | None = None) -> tuple[VirtualServo, ...]:
+    """One :class:`VirtualServo` of ``model`` per ID (ascending), each with ``dynamics(servo)``.
+
+    ``limit_error``: error for a value beyond a limit item (UNCONFIRMED; default Data Limit Error).
+    """
+    ids = list(ids)
+    if not ids or len(set(ids)) != len(ids) or any(not 0 <= i <= MAX_ID for i in ids):
+        raise ConfigError(f"servo IDs must be distinct values in 0..252, got {ids}")
+    table = table_for(model)
+    servos = tuple(VirtualServo(table, i, baud, limit_error=limit_error) for i in sorted(ids))
+    if dynamics is not None:
+        for s in servos:
+            s.dynamics = dynamics(s)
+    return servos
+
+
+__all__ = ["VirtualServo", "Dynamics", "StepDynamics", "BAUD_RATES", "baud_index", "hardware_error_bits",
+           "make_servos"]

@@ -20,8 +20,11 @@ import pytest
 
 from swerve.configs import shipped
 from swerve.driver.bus import Bus
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.process import EmulatorProcess
+from swerve.emulator.timing import Lockstep
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
 __all__ = ["EmulatedRobot", "emulated_bus", "emulated_robot"]
@@ -30,7 +33,7 @@ __all__ = ["EmulatedRobot", "emulated_bus", "emulated_robot"]
 def pytest_configure(config) -> None:
     config.addinivalue_line(
         "markers", "emulated_bus(**kw): options of the emulated_bus fixture (ids, model, baud, physics, "
-                   "faults, time_scale and other build_emulator keywords)")
+                   "faults, timing and other build_emulator keywords)")
     config.addinivalue_line(
         "markers", "emulated_robot(**kw): options of the emulated_robot fixture (config, faults, noise, "
                    "start_pose, rate_hz, reply_latency_s)")
@@ -47,13 +50,13 @@ def emulated_bus(request) -> Iterator[str]:
 
     Default: IDs 1-8, XH430-W210, 1 Mbps, a register-only bus (every instruction and error
     rule of the control table; Present* items stay put). Marker keywords are those of
-    :func:`swerve.emulator.robot_emulator.build_emulator` plus ``physics`` (True: every servo
-    runs its motor and firmware loops at ``time_scale`` x real time, as ``swerve emulate``). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
+    :func:`swerve.emulator.factory.build_emulator` plus ``physics`` (True: every servo
+    runs its motor and firmware loops in ``timing``, default real time, as ``swerve emulate``). Open the path with ``swerve.driver.bus.Bus``, the dynamixel-sdk or any
     serial tool. The emulator object is ``request.node.emulator`` (faults, counters).
     """
     # the emulator in this process loads numba (the optional ``fast`` extra) and the physics:
     # only a session that asks for this fixture pays for it
-    from swerve.emulator.robot_emulator import build_emulator
+    from swerve.emulator.factory import build_emulator
 
     kw = _marker_kwargs(request, "emulated_bus")
     physics = load_config(shipped("emulator.yaml")) if kw.pop("physics", False) else None
@@ -142,6 +145,8 @@ def emulated_robot(request) -> Iterator[EmulatedRobot]:
             kw[key] = f"{kw[key]},seed=0"
     kw.setdefault("noise", "seed=0")
     config = os.fspath(config) if isinstance(config, Path) else config
-    with EmulatorProcess(config, lockstep=True, **kw) as process:
+    timing = Lockstep(reply_latency_s=kw.pop("reply_latency_s", DEFAULT_REPLY_LATENCY_S))
+    body = BodySettings(start_pose=tuple(kw.pop("start_pose", (0.0, 0.0, 0.0))))
+    with EmulatorProcess(config, timing=timing, body=body, **kw) as process:
         with LockstepLoopClock(process.control_path) as clock:
             yield EmulatedRobot(process, clock)

@@ -17,7 +17,9 @@ from swerve.emulator.physics.params import load_config
 from swerve.driver.control_table import Reg
 from swerve.driver.errors import DxlTimeoutError
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Lockstep
 from swerve.tools.commands.emulate import parse_control, parse_port_line
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock, LockstepError
 
@@ -28,7 +30,7 @@ BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
 @pytest.fixture
 def bus_in_lockstep():
     """A register-only 3-servo bus in lockstep, its driver, and a clock on its control channel."""
-    with build_emulator(ids=[1, 2, 3], lockstep=True) as emu:
+    with build_emulator(ids=[1, 2, 3], timing=Lockstep()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
@@ -118,7 +120,7 @@ def test_any_request_collects_a_pending_sleep_first(bus_in_lockstep):
 def test_now_brings_the_true_pose_with_it():
     """On a robot, the time after a read and the true pose are one request."""
     robot = load_robot_config(shipped("robot.yaml"))
-    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
@@ -136,7 +138,7 @@ def test_now_brings_the_true_pose_with_it():
 
 def test_the_time_after_a_read_can_be_asked_while_its_reply_is_on_the_way():
     robot = load_robot_config(shipped("robot.yaml"))
-    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.attach(bus)

@@ -354,15 +354,17 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
     Yields ``(bus, clock, emu)``: ``clock`` the lockstep clock (``lockstep``), else None.
     """
     from swerve.emulator.physics.profiles import resolve_emulator_config
-    from swerve.emulator.robot_emulator import robot_emulator
+    from swerve.emulator.factory import robot_emulator
+    from swerve.emulator.body_settings import BodySettings
+    from swerve.emulator.timing import Lockstep, scaled
     from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 
     if margin_s is None:
         margin_s = LOCKSTEP_TIMEOUT_MARGIN_S if lockstep else 0.05
     with contextlib.ExitStack() as stack:
         emu = stack.enter_context(robot_emulator(robot_path, resolve_emulator_config(emulator_config or "ideal"),
-                                                 body=True, time_scale=time_scale, rate_hz=EMULATOR_RATE_HZ,
-                                                 lockstep=lockstep))
+                                                 body=BodySettings(), rate_hz=EMULATOR_RATE_HZ,
+                                                 timing=Lockstep() if lockstep else scaled(time_scale)))
         clock = stack.enter_context(LockstepLoopClock(emu.control.path)) if lockstep else None
         bus = stack.enter_context(Bus(emu.port, cfg.link.baud, default_model=cfg.model, retries=1,
                                       timeout_margin_s=margin_s))
@@ -373,7 +375,7 @@ def emulated_bus(robot_path: str | Path, cfg: RobotConfig, *, emulator_config: s
 
 def emulator_operator(emu, clock, cfg: RobotConfig, settle: Callable[[float], None]) -> "EmulatorOperator":
     """The :class:`EmulatorOperator` of a running emulated robot (what ``--yes`` answers with)."""
-    from swerve.emulator.robot_emulator import status
+    from swerve.emulator.status_file import status
 
     def true_state() -> dict:
         if clock is not None:
@@ -425,7 +427,7 @@ class DefaultOperator:
 
 class EmulatorOperator:
     """``--yes`` on the emulator: looks at the emulated robot's true state (``status()`` of a
-    :class:`~swerve.emulator.robot_emulator.RobotEmulator`), as a person looks at the robot."""
+    :class:`~swerve.emulator.server.Emulator`), as a person looks at the robot."""
 
     def __init__(self, status: Callable[[], dict], *, rad_per_pulse: float, settle: Callable[[float], None]):
         self.status = status

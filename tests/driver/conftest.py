@@ -28,8 +28,9 @@ def target(hw_port, hw_baud):
     if hw_port:
         yield Target(hw_port, hw_baud, None)
         return
-    build_emulator = pytest.importorskip("swerve.emulator.robot_emulator").build_emulator
-    with build_emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, time_scale=0) as emu:
+    build_emulator = pytest.importorskip("swerve.emulator.factory").build_emulator
+    Frozen = pytest.importorskip("swerve.emulator.timing").Frozen
+    with build_emulator(ids=range(1, 9), model="xh430-w210", baud=1_000_000, timing=Frozen()) as emu:
         yield Target(emu.port, 1_000_000, emu)
 
 

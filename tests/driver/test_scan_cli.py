@@ -38,8 +38,9 @@ def test_scan_bad_id_range(ids, capsys):
 def test_scan_all_bauds_finds_servos_at_57600(hw_port, capsys):
     if hw_port:
         pytest.skip("needs the emulator")
-    build_emulator = pytest.importorskip("swerve.emulator.robot_emulator").build_emulator
-    with build_emulator(ids=[1, 2], baud=57_600, time_scale=0) as emu:
+    build_emulator = pytest.importorskip("swerve.emulator.factory").build_emulator
+    Frozen = pytest.importorskip("swerve.emulator.timing").Frozen
+    with build_emulator(ids=[1, 2], baud=57_600, timing=Frozen()) as emu:
         assert main(["scan", "--port", emu.port, "--all-bauds", "--ids", "1-2",
                      "--timeout-margin-ms", "50"]) == 0
     out = capsys.readouterr().out

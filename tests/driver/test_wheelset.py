@@ -142,8 +142,9 @@ def test_configure_names_missing_servo(wheels, emu):
 def test_configure_rejects_wrong_model(hw_port):
     if hw_port:
         pytest.skip("needs the emulator")
-    build_emulator = pytest.importorskip("swerve.emulator.robot_emulator").build_emulator
-    with build_emulator(model="xh430-w350", time_scale=0) as emu, \
+    build_emulator = pytest.importorskip("swerve.emulator.factory").build_emulator
+    Frozen = pytest.importorskip("swerve.emulator.timing").Frozen
+    with build_emulator(model="xh430-w350", timing=Frozen()) as emu, \
             Bus(emu.port, timeout_margin_s=0.3) as bus:
         with pytest.raises(ConfigError, match="1000"):
             WheelSet(bus, CFG).configure()

@@ -12,7 +12,7 @@ import sys
 import pytest
 
 from swerve.driver.control_table import Reg, models, table_for
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 TIMEOUT = "timeout"
 MODEL = "xh430-w210"

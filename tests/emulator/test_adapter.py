@@ -20,7 +20,9 @@ from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config, parse_robot_config
 from swerve.emulator.adapter import (AdapterSettings, UsbAdapter, byte_arrivals, check_latency_ms, deliver)
 from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import LinkSettings
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen, Lockstep
 from swerve.tools.cli import main
 from swerve.tools.commands.emulate import parse_control, parse_port_line
 from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
@@ -152,7 +154,7 @@ def test_at_1_ms_a_sparse_byte_reaches_the_host_at_the_next_frame(gaps):
 
 @pytest.fixture(params=[None, 1, 16], ids=["no adapter", "1 ms", "16 ms"])
 def lockstep_bus(request):
-    with build_emulator(ids=[1, 2], lockstep=True, adapter_latency_ms=request.param) as emu:
+    with build_emulator(ids=[1, 2], timing=Lockstep(), adapter_latency_ms=request.param) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
             clock.count_tx(lambda: bus.bytes_written)
@@ -186,7 +188,7 @@ def test_a_write_without_reply_costs_no_adapter_time(lockstep_bus):
 
 
 def test_wire_timing_on_the_wall_clock_never_delivers_before_the_adapter_sends():
-    with build_emulator(ids=[1], wire_timing=True, adapter_latency_ms=16, time_scale=0) as emu:
+    with build_emulator(ids=[1], link=LinkSettings(wire_timing=True), adapter_latency_ms=16, timing=Frozen()) as emu:
         with Bus(emu.port, 1_000_000, default_model="xh430-w210", timeout_margin_s=0.5) as bus:
             bus.read(1, Reg.PRESENT_POSITION)
             received = time.monotonic()

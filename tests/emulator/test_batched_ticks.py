@@ -28,7 +28,9 @@ from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import ContactParams, SupplyParams, load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.physics.servo_model import ServoModel
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Frozen
 
 RATE_HZ = 1000.0
 CYCLE_S = 0.016
@@ -56,7 +58,7 @@ def _emulator(profile: str, body: bool, noise: str | None = None, kinematic: boo
     robot = load_robot_config(shipped("robot.yaml"))
     emu = build_emulator(robot if body else None, _physics(profile, kinematic, placement),
                          ids=None if body else range(1, 9),
-                         time_scale=0, rate_hz=RATE_HZ, noise=noise, body=body)
+                         timing=Frozen(), rate_hz=RATE_HZ, noise=noise, body=BodySettings() if body else None)
     modes = ROBOT_MODES if body else ALL_MODES
     for s in emu.servos:
         _write(s, Reg.OPERATING_MODE, modes[s.id])
@@ -258,9 +260,10 @@ def test_the_emulator_loads_the_compiled_kernel_when_built():
     code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
             "from swerve.emulator.physics.params import load_config; "
             "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
-            "from swerve.emulator.robot_emulator import build_emulator; "
+            "from swerve.emulator.factory import build_emulator; from swerve.emulator.body_settings import BodySettings; "
+            "from swerve.emulator.timing import Frozen; "
             "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
-            "body=True, time_scale=0, rate_hz=1000.0); print(len(k.signatures)); "
+            "body=BodySettings(), timing=Frozen(), rate_hz=1000.0); print(len(k.signatures)); "
             "emu.advance(0.016); print(len(k.signatures))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.split() == ["1", "1"]

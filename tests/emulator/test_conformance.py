@@ -15,7 +15,7 @@ import pytest
 
 from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 
 from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient, check_reads_match, valid_value
 

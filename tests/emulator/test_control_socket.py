@@ -19,8 +19,11 @@ from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.clock import LockstepPhysicsClock, WallPhysicsClock
 from swerve.emulator.lockstep_socket import MAX_ADVANCE_S, MAX_CLIENTS, MAX_LINE_BYTES, MAX_TX_BYTES, ControlServer
 from swerve.emulator.physics.params import load_config
-from swerve.emulator.robot_emulator import build_emulator
-from swerve.emulator.server import Emulator, make_servos
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.server import Emulator
+from swerve.emulator.servo import make_servos
+from swerve.emulator.timing import Lockstep
 
 #: First words of every reply line the protocol defines.
 REPLY_WORDS = {"at", "pose", "ok", "stats", "info", "error"}
@@ -32,7 +35,7 @@ REPLY_WAIT_S = 30.0
 def lockstep_robot():
     """A lockstep robot emulator (8 servos and a body) and a driver on its pty."""
     robot = load_robot_config(shipped("robot.yaml"))
-    with build_emulator(robot, load_config(shipped("emulator.yaml")), lockstep=True, body=True) as emu:
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         # no lockstep clock gates this bus's replies, so its deadline is a wall-clock bound that
         # only turns a deaf bus into a failure (a loaded host must not)
         with Bus(emu.port, 1_000_000, default_model="xh430-w210", timeout_margin_s=REPLY_WAIT_S) as bus:

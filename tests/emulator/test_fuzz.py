@@ -13,7 +13,7 @@ import serial
 
 from swerve.driver import packets as pk
 from swerve.driver.control_table import Reg
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.emulator.server import Emulator
 
 STREAMS = 2000

@@ -12,7 +12,7 @@ import pytest
 from swerve.driver.packets import InstructionPacket, Instruction, StatusPacket
 from swerve.driver.parser import PacketParser
 from swerve.emulator.pty_link import PtyLink
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
 from swerve.emulator.server import OUTPUT_FLUSH_NOTICE
 
 PING_1 = InstructionPacket(1, Instruction.PING).encode()

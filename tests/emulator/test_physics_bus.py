@@ -1,6 +1,6 @@
-"""Servo step tests THROUGH THE BUS: driver.bus.Bus against robot_emulator.
+"""Servo step tests THROUGH THE BUS: driver.bus.Bus against the emulator of swerve.emulator.factory.robot_emulator.
 
-Deterministic: the emulator runs without a clock (``time_scale=0``) and the test advances
+Deterministic: the emulator runs without a clock (``timing=Frozen()``) and the test advances
 simulated time with ``emu.advance`` between bus transactions, so nothing depends on machine load.
 Goals and gains go out as bus writes, Present items come back as bus reads. The true shaft speed
 (``emu.physics``, never on the bus) is sampled at the same instants for the overshoot the paper's
@@ -18,11 +18,14 @@ from swerve.driver.control_table import Reg
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.steptest import StepMetrics, step_metrics
-from swerve.emulator.robot_emulator import _INPUTS, robot_emulator
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Frozen
+from swerve.emulator.physics.servo_adapter import INPUTS as _INPUTS
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
-#: can stall for hundreds of ms; with time_scale=0 nothing is ever lost, so it costs nothing.
+#: can stall for hundreds of ms; with timing=Frozen() nothing is ever lost, so it costs nothing.
 MARGIN_S = 1.0
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"
@@ -36,7 +39,7 @@ SAMPLE_S = 1e-3
 def emu():
     """The 8-servo robot without a clock and without the body's mass on the drive shafts
     (the gains were tuned on the bare servo, as a bench step test would be)."""
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=False) as e:
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=False)) as e:
         yield e
 
 
@@ -155,7 +158,7 @@ def test_higher_position_p_gain_settles_faster(emu, bus):
 
 def test_drive_step_reaches_goal_under_wheel_load():
     """With the body's mass on the shaft the same gains overshoot more (more inertia, same PI)."""
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, wheel_load=True) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), body=BodySettings(wheel_load=True)) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus:
         present, true = velocity_step(emu, bus, 100, velocity_p_gain=SPEC["velocity_p_gain"],
                                       velocity_i_gain=SPEC["velocity_i_gain"])

@@ -9,10 +9,12 @@ import pytest
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError, DxlTimeoutError
 from swerve.emulator.process import EmulatorProcess
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Lockstep, WallTime
 
 
 def test_child_emulator_serves_the_bus_and_shares_the_pose():
-    with EmulatorProcess("configs/robot.yaml", time_scale=1.0, start_pose=(0.5, -0.25, 0.1)) as emu:
+    with EmulatorProcess("configs/robot.yaml", timing=WallTime(1.0), body=BodySettings(start_pose=(0.5, -0.25, 0.1))) as emu:
         with Bus(emu.port, 1_000_000, timeout_margin_s=0.3) as bus:
             found = bus.scan(range(1, 9))
             assert [p.id for p in found] == list(range(1, 9))
@@ -60,7 +62,7 @@ def test_emulator_process_freezes_its_start_up_heap():
 
 
 def test_closed_emulator_process_is_waited_for():
-    emu = EmulatorProcess("configs/robot.yaml", lockstep=True).start()
+    emu = EmulatorProcess("configs/robot.yaml", timing=Lockstep()).start()
     pid = emu.pid
     emu.close()
     with pytest.raises(ChildProcessError):      # reaped: no longer our child, not even a zombie

@@ -1,6 +1,6 @@
 """Wheels that fight each other, THROUGH THE BUS: WheelSet goals to the robot emulator with the
 tyre-contact body; the true pose and slip come from the emulator's status, never the bus.
-No clock (``time_scale=0``): simulated time advances only in ``emu.advance``."""
+No clock (``timing=Frozen()``): simulated time advances only in ``emu.advance``."""
 from __future__ import annotations
 
 import math
@@ -13,7 +13,9 @@ from swerve.driver.bus import Bus
 from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.contact import ContactBody
-from swerve.emulator.robot_emulator import robot_emulator, status
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.timing import Frozen
+from swerve.emulator.status_file import status
 
 ROBOT = shipped("robot.yaml")
 CFG = load_robot_config(ROBOT)
@@ -23,7 +25,7 @@ SPEED_MPS = 0.08
 def drive(physics: str, steer_rad, duration_s: float = 2.0) -> dict:
     """Run the robot at SPEED_MPS with steering ``steer_rad`` (wheel order); return its status."""
     physics_file = shipped("emulator-realistic.yaml" if physics == "realistic" else "emulator.yaml")
-    with robot_emulator(ROBOT, physics_file, time_scale=0, rate_hz=1000) as emu:
+    with robot_emulator(ROBOT, physics_file, timing=Frozen(), rate_hz=1000) as emu:
         with Bus(emu.port, emu.baud, timeout_margin_s=1.0) as bus, WheelSet(bus, CFG) as wheels:
             wheels.configure()
             wheels.enable()

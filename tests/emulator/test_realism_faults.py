@@ -11,7 +11,8 @@ from swerve.driver.errors import ServoError
 from swerve.emulator.physics import units as u
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import resolve_emulator_config
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.timing import Frozen
 
 REALISTIC = resolve_emulator_config("realistic")
 OVERLOAD_S = load_config(REALISTIC).protection.overload_time_s
@@ -20,7 +21,7 @@ DRIVE = 1
 
 @pytest.fixture
 def emu():
-    with robot_emulator(shipped("robot.yaml"), REALISTIC, time_scale=0, rate_hz=1000) as e:
+    with robot_emulator(shipped("robot.yaml"), REALISTIC, timing=Frozen(), rate_hz=1000) as e:
         yield e
 
 

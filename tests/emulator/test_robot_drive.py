@@ -23,11 +23,15 @@ from swerve.driver.robot_config import load_robot_config
 from swerve.driver.wheelset import WheelSet
 from swerve.emulator.physics.params import SensorParams
 from swerve.emulator.clock import HandOverLock
-from swerve.emulator.robot_emulator import parse_noise, read_status, robot_emulator, status
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.timing import Frozen, WallTime
+from swerve.emulator.sensor_noise import parse_noise
+from swerve.emulator.status_file import read_status, status
 
 ROOT = Path(__file__).resolve().parents[2]
 #: Reply-timeout margin: generous, because an in-process emulator on a loaded 2-core machine
-#: can stall for hundreds of ms; with time_scale=0 nothing is ever lost, so it costs nothing.
+#: can stall for hundreds of ms; with timing=Frozen() nothing is ever lost, so it costs nothing.
 MARGIN_S = 1.0
 ROBOT = ROOT / "configs" / "robot.yaml"
 PHYSICS = ROOT / "configs" / "emulator.yaml"
@@ -41,7 +45,7 @@ V1_MPS = 0.1
 def drive(v_radps, steer_rad, seconds: float, **kwargs):
     """Drive the robot for ``seconds`` of simulated time; return the pose log (n, 4) of
     ``(t_s, x, y, theta)`` after each cycle, the last WheelState and the final status."""
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, **kwargs) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), **kwargs) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         wheels.configure()
         wheels.enable()
@@ -93,7 +97,7 @@ def test_mismatched_wheels_follow_the_least_squares_fit():
 
 
 def test_start_pose_is_honoured():
-    log, _, _ = drive([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4, 1.0, start_pose=(1.0, -2.0, math.pi / 2))
+    log, _, _ = drive([V1_MPS / CFG.wheel_radius_m] * 4, [0.0] * 4, 1.0, body=BodySettings(start_pose=(1.0, -2.0, math.pi / 2)))
     x, y, theta = log[-1, 1:]
     assert x == pytest.approx(1.0, abs=1e-3)          # heading +y: x stays, y grows
     assert y > -2.0 + 0.05
@@ -107,7 +111,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
     status_path = tmp_path / "status.json"
     scale = 5.0
     switch_before = sys.getswitchinterval()
-    with robot_emulator(ROBOT, PHYSICS, time_scale=scale, status_file=status_path) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=WallTime(scale), status_file=status_path) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=0.5) as bus, WheelSet(bus, CFG) as wheels:
         wall0 = time.monotonic()
         sim0 = emu.sim_time_s
@@ -148,7 +152,7 @@ def test_wall_clock_at_time_scale_5_with_status_file(tmp_path):
 def test_status_file_holds_the_true_pose_at_close(tmp_path):
     """Deterministic: with a frozen clock the status file is written at start, and last at close."""
     path = tmp_path / "pose.json"
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, status_file=path, start_pose=(0.5, 0.0, 0.0)) as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), status_file=path, body=BodySettings(start_pose=(0.5, 0.0, 0.0))) as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         assert read_status(path)["pose"] == [0.5, 0.0, 0.0] and read_status(path)["t_s"] == 0.0
         wheels.configure()
@@ -185,7 +189,7 @@ def test_noise_spec_parses_and_rejects():
 
 def test_position_noise_reaches_the_bus():
     """With encoder noise the steering servos' Present Position jitters around the goal."""
-    with robot_emulator(ROBOT, PHYSICS, time_scale=0, noise="position=2,seed=3") as emu, \
+    with robot_emulator(ROBOT, PHYSICS, timing=Frozen(), noise="position=2,seed=3") as emu, \
             Bus(emu.port, emu.baud, timeout_margin_s=MARGIN_S) as bus, WheelSet(bus, CFG) as wheels:
         wheels.configure()
         wheels.enable()
@@ -200,7 +204,7 @@ def test_position_noise_reaches_the_bus():
 
 def test_robot_config_ids_must_be_on_the_bus():
     with pytest.raises(ConfigError, match="not on the emulated bus"):
-        robot_emulator(ROBOT, PHYSICS, time_scale=0, ids=[1, 2, 3, 4, 5, 6, 7], body=True)
+        robot_emulator(ROBOT, PHYSICS, timing=Frozen(), ids=[1, 2, 3, 4, 5, 6, 7], body=BodySettings())
 
 
 def test_hand_over_lock_shows_who_waits():

@@ -12,11 +12,14 @@ from swerve.driver.errors import ConfigError
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.clock import WallPhysicsClock
+from swerve.emulator.factory import build_emulator
 from swerve.emulator.faults import Faults
+from swerve.emulator.instructions import execute
 from swerve.emulator.memory import ServoMemory, WriteRejected
-from swerve.emulator.robot_emulator import build_emulator
-from swerve.emulator.server import Emulator, SteppedWorld, make_servos
-from swerve.emulator.servo import StepDynamics, VirtualServo
+from swerve.emulator.server import Emulator
+from swerve.emulator.stepping import SteppedWorld
+from swerve.emulator.timing import Frozen
+from swerve.emulator.servo import StepDynamics, VirtualServo, make_servos
 
 TABLE = table_for("xh430-w210")
 
@@ -66,16 +69,16 @@ def test_operating_mode_change_resets_goal_limits_and_profile():
 
 def test_unknown_instruction_and_action_without_registration():
     s = servo()
-    assert s.execute(pk.InstructionPacket(1, 0x30)).error == ErrorNumber.INSTRUCTION
-    assert s.execute(pk.action(1)).error == ErrorNumber.INSTRUCTION
-    assert s.execute(pk.InstructionPacket(1, pk.Instruction.READ, b"\x84\x00")).error == ErrorNumber.DATA_LENGTH
+    assert execute(s, pk.InstructionPacket(1, 0x30)).error == ErrorNumber.INSTRUCTION
+    assert execute(s, pk.action(1)).error == ErrorNumber.INSTRUCTION
+    assert execute(s, pk.InstructionPacket(1, pk.Instruction.READ, b"\x84\x00")).error == ErrorNumber.DATA_LENGTH
 
 
 def test_golden_ping_reply_bytes():
     s = VirtualServo(TABLE, 1)
     s.memory.set(Reg.MODEL_NUMBER, 1030)      # the e-Manual example is an XM430-W210, FW 38
     s.memory.set(Reg.FIRMWARE_VERSION, 38)
-    st = s.execute(pk.InstructionPacket.decode(bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")))
+    st = execute(s, pk.InstructionPacket.decode(bytes.fromhex("FF FF FD 00 01 03 00 01 19 4E")))
     assert st.encode() == bytes.fromhex("FF FF FD 00 01 07 00 55 00 06 04 26 65 5D")
 
 
@@ -161,7 +164,7 @@ def test_emulator_clock_drives_dynamics_and_world():
 
 
 def test_frozen_time_and_manual_advance():
-    with build_emulator(ids=[1], time_scale=0) as emu:
+    with build_emulator(ids=[1], timing=Frozen()) as emu:
         time.sleep(0.02)
         assert emu.servo(1).read(Reg.REALTIME_TICK) == 0
         emu.advance(0.1)
@@ -169,7 +172,7 @@ def test_frozen_time_and_manual_advance():
 
 
 def test_robot_config_and_bad_arguments():
-    with build_emulator(load_robot_config("configs/robot.yaml"), time_scale=0) as emu:
+    with build_emulator(load_robot_config("configs/robot.yaml"), timing=Frozen()) as emu:
         assert [s.id for s in emu.servos] == list(range(1, 9))
         assert emu.model == "XH430-W210" and emu.baud == 1_000_000
     with pytest.raises(ConfigError):
@@ -180,16 +183,16 @@ def test_robot_config_and_bad_arguments():
         Faults.parse("drop=2")
     f = Faults.parse("drop=0.5,corrupt=0.1,delay=0.001,vanish=3+4,hwerror=2:overload+input_voltage,seed=3")
     assert (f.drop_rate, f.corrupt_rate, f.delay_s, f.vanished) == (0.5, 0.1, 0.001, {3, 4})
-    with build_emulator(ids=[2, 3, 4], faults=f, time_scale=0) as emu:
+    with build_emulator(ids=[2, 3, 4], faults=f, timing=Frozen()) as emu:
         assert emu.servo(2).read(Reg.HARDWARE_ERROR_STATUS) == 0x21
     with pytest.raises(ConfigError, match="not on the emulated bus"):
-        build_emulator(ids=[2], faults=f, time_scale=0)
+        build_emulator(ids=[2], faults=f, timing=Frozen())
 
 
 def test_baud_gating_follows_client_speed():
     import serial
 
-    with build_emulator(ids=[1, 2], time_scale=0) as emu:
+    with build_emulator(ids=[1, 2], timing=Frozen()) as emu:
         emu.servo(2).write(Reg.BAUD_RATE, 1)          # 57600
         with serial.Serial(emu.port, 57600, timeout=0.5) as port:
             port.write(pk.ping(2).encode())

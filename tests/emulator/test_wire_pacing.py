@@ -8,7 +8,9 @@ import serial
 from swerve.driver import packets as pk
 from swerve.driver.control_table import Reg
 from swerve.driver.parser import PacketParser
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import LinkSettings
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen
 
 BAUD = 1_000_000
 STATUS_BYTES = 11 + 4            # status of a 4-byte read
@@ -31,7 +33,7 @@ def _arrivals(port: serial.Serial, request: bytes, count: int) -> tuple[float, l
 
 
 def test_each_sync_read_reply_arrives_no_earlier_than_its_last_byte_on_the_wire():
-    with build_emulator(ids=range(1, 9), baud=BAUD, time_scale=0, wire_timing=True) as emu:
+    with build_emulator(ids=range(1, 9), baud=BAUD, timing=Frozen(), link=LinkSettings(wire_timing=True)) as emu:
         for s in emu.servos:
             s.write(Reg.RETURN_DELAY_TIME, 0)
         request = pk.sync_read(132, 4, range(1, 9)).encode()
@@ -46,7 +48,7 @@ def test_each_sync_read_reply_arrives_no_earlier_than_its_last_byte_on_the_wire(
 
 
 def test_return_delay_spaces_the_replies_without_wire_timing():
-    with build_emulator(ids=range(1, 4), baud=BAUD, time_scale=0) as emu:
+    with build_emulator(ids=range(1, 4), baud=BAUD, timing=Frozen()) as emu:
         for s in emu.servos:
             s.write(Reg.RETURN_DELAY_TIME, 250)          # 500 us
         request = pk.sync_read(132, 4, range(1, 4)).encode()

@@ -10,7 +10,9 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
 from swerve.driver.parser import PacketParser
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.server import LinkSettings
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen
 
 QUIET_S = 0.15      # how long "no reply" is listened for
 
@@ -34,7 +36,7 @@ def _silent(port: serial.Serial) -> bool:
 
 @pytest.fixture
 def wire():
-    with build_emulator(ids=range(1, 9), time_scale=0) as emu:
+    with build_emulator(ids=range(1, 9), timing=Frozen()) as emu:
         with serial.Serial(emu.port, 1_000_000, timeout=1.0) as port:
             yield emu, port
 
@@ -87,7 +89,7 @@ def test_bad_crc_dropped_then_parser_resynchronises(wire):
 
 
 def test_crc_error_reply_option():
-    with build_emulator(ids=[1], time_scale=0, crc_error_reply=True) as emu:
+    with build_emulator(ids=[1], timing=Frozen(), link=LinkSettings(crc_error_reply=True)) as emu:
         with serial.Serial(emu.port, 1_000_000, timeout=1.0) as port:
             bad = bytearray(pk.ping(1).encode())
             bad[-1] ^= 0xFF
@@ -120,7 +122,7 @@ def test_input_voltage_error_sets_alert_but_keeps_torque(wire):
 
 def test_wire_timing_costs_at_least_the_wire_time():
     baud = 57_600
-    with build_emulator(ids=range(1, 9), baud=baud, time_scale=0, wire_timing=True) as emu:
+    with build_emulator(ids=range(1, 9), baud=baud, timing=Frozen(), link=LinkSettings(wire_timing=True)) as emu:
         for s in emu.servos:
             s.write(Reg.RETURN_DELAY_TIME, 0)
         with serial.Serial(emu.port, baud, timeout=2.0) as port:

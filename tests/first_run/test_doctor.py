@@ -8,7 +8,8 @@ import pytest
 from swerve.driver.bus import Bus
 from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen
 from swerve.tools import doctor
 from swerve.tools.cli import main
 
@@ -25,7 +26,7 @@ def cfg():
 
 @pytest.fixture
 def emu():
-    with build_emulator(load_robot_config(DEFAULT_PATH), time_scale=0) as e:
+    with build_emulator(load_robot_config(DEFAULT_PATH), timing=Frozen()) as e:
         yield e
 
 
@@ -142,7 +143,7 @@ def test_cli_fix_sets_the_emulated_adapter_to_1_ms(capsys):
 
 
 def test_cli_exit_1_when_a_check_fails(capsys):
-    with build_emulator(load_robot_config(DEFAULT_PATH), time_scale=0) as emu:
+    with build_emulator(load_robot_config(DEFAULT_PATH), timing=Frozen()) as emu:
         emu.faults.raise_hardware_error(2, "overload")
         code = main(["doctor", "--port", emu.port, "--cycles", "3", "--timeout-margin-ms", "200"])
     out = capsys.readouterr().out

@@ -10,7 +10,8 @@ from swerve.driver.control_table import Reg
 from swerve.driver.errors import ConfigError, ServoError
 from swerve.driver.robot_config import DEFAULT_PATH, load_robot_config
 from swerve.driver.wheelset import WheelSet
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.timing import Frozen
 from swerve.tools import recovery
 
 
@@ -21,7 +22,7 @@ def _fault(ids=(3,), cause="hardware error"):
 @pytest.fixture
 def wheels():
     cfg = load_robot_config(DEFAULT_PATH)
-    with build_emulator(load_robot_config(DEFAULT_PATH), time_scale=0) as emu, \
+    with build_emulator(load_robot_config(DEFAULT_PATH), timing=Frozen()) as emu, \
             Bus(emu.port, cfg.link.baud, timeout_margin_s=0.2) as bus:
         ws = WheelSet(bus, cfg)
         ws.configure()

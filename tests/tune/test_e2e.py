@@ -19,6 +19,7 @@ from swerve.tools import cli
 from swerve.tools.commands.tune import TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.lockstep import LockstepLoopClock
 from swerve.tools.tune.gain_search import DesignError, Spec
+from swerve.emulator.timing import Lockstep
 from swerve.tools.tune.emulated import make_emulator
 from swerve.tools.tune.experiments import Limits, NotMovingError, StallError
 from swerve.tools.tune.pipeline import tune_servo
@@ -84,7 +85,7 @@ def rc():
 def _session(rc, cfg, **kw):
     """``(emulator, bus, clock)``: the emulator in lockstep and a bus on it; tuning with ``clock``
     runs on robot time, the same on a busy or an idle host."""
-    with make_emulator(rc, cfg, lockstep=True, **kw) as emu, LockstepLoopClock(emu.control.path) as clock, \
+    with make_emulator(rc, cfg, timing=Lockstep(), **kw) as emu, LockstepLoopClock(emu.control.path) as clock, \
             Bus(emu.port, emu.baud, retries=3, timeout_margin_s=TUNE_LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
         clock.attach(bus)
         yield emu, bus, clock

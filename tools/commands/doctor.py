@@ -15,7 +15,8 @@ import json
 from swerve.configs import locate_robot_file
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.server import LinkSettings
 from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_adapter_option, add_bus_options
 from swerve.tools.doctor import EmulatedLatencyTimer, diagnose
@@ -42,7 +43,7 @@ def run(args: argparse.Namespace) -> int:
     latency = None
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            emu = stack.enter_context(build_emulator(cfg, wire_timing=True,       # register-only: nothing moves
+            emu = stack.enter_context(build_emulator(cfg, link=LinkSettings(wire_timing=True),  # register-only
                                                      adapter_latency_ms=args.adapter_latency_ms))
             port = emu.port
             latency = EmulatedLatencyTimer(emu.adapter)

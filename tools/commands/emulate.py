@@ -25,8 +25,11 @@ from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP, resolve_emulator_config
-from swerve.emulator.robot_emulator import build_emulator
-from swerve.emulator.server import freeze_startup_heap
+from swerve.emulator.body_settings import BodySettings, robot_on_bus
+from swerve.emulator.clock import DEFAULT_REPLY_LATENCY_S
+from swerve.emulator.factory import build_emulator
+from swerve.emulator.server import LinkSettings, freeze_startup_heap
+from swerve.emulator.timing import Lockstep, scaled
 from swerve.tools.argtypes import baud_rate, finite_float
 from swerve.tools.cli import add_adapter_option
 
@@ -122,13 +125,11 @@ def run(args: argparse.Namespace) -> int:
         raise ConfigError("--control and --reply-latency-us need --lockstep")
     if args.lockstep and args.time_scale is not None:
         raise ConfigError("--time-scale and --lockstep exclude each other (the client paces a lockstep bus)")
-    if args.time_scale is None:
-        args.time_scale = 1.0
-    lockstep = {}
     if args.lockstep:
-        lockstep = dict(lockstep=True, control_path=args.control)
-        if args.reply_latency_us is not None:
-            lockstep["reply_latency_s"] = args.reply_latency_us * 1e-6
+        timing = Lockstep(args.control, DEFAULT_REPLY_LATENCY_S if args.reply_latency_us is None
+                          else args.reply_latency_us * 1e-6)
+    else:
+        timing = scaled(1.0 if args.time_scale is None else args.time_scale)
     robot = load_robot_config(locate_robot_file(args.config).path)
     physics = None if args.frozen else load_config(resolve_emulator_config(args.emulator_config or "ideal"))
     table = table_for(args.model or robot.model)          # an unknown model fails here, named
@@ -141,11 +142,12 @@ def run(args: argparse.Namespace) -> int:
         physics = None
     try:
         emu = build_emulator(robot, physics, ids=ids, model=args.model, baud=args.baud,
-                             body=True if args.physics else None, time_scale=args.time_scale,
+                             body=BodySettings() if args.physics or (physics is not None and robot_on_bus(robot, ids))
+                             else None, timing=timing,
                              rate_hz=args.clock_hz, noise=args.noise, faults=args.faults,
-                             status_file=args.status_file, path=args.link, wire_timing=args.wire_timing,
-                             baud_check=not args.no_baud_check, adapter_latency_ms=args.adapter_latency_ms,
-                             **lockstep)
+                             status_file=args.status_file, adapter_latency_ms=args.adapter_latency_ms,
+                             link=LinkSettings(path=args.link, wire_timing=args.wire_timing,
+                                               baud_check=not args.no_baud_check))
     except ValueError as exc:            # ConfigError is a ValueError too
         raise exc if isinstance(exc, ConfigError) else ConfigError(str(exc)) from None
     stop = threading.Event()

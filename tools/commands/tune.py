@@ -24,7 +24,8 @@ from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP, resolve_emulator_config
-from swerve.emulator.robot_emulator import robot_emulator
+from swerve.emulator.factory import robot_emulator
+from swerve.emulator.timing import Lockstep
 from swerve.tools.argtypes import baud_rate, finite_float, int_range, positive_float, servo_id
 from swerve.tools.cli import add_config_option
 from swerve.tools.run.lockstep import LockstepLoopClock
@@ -119,13 +120,12 @@ def run(args: argparse.Namespace) -> int:
     with contextlib.ExitStack() as stack:
         clock = None
         if args.emulate:            # in lockstep: the emulator owns time, every run samples alike
-
             if args.emulator == "robot":
-                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, lockstep=True,
+                emu = stack.enter_context(robot_emulator(robot_file, emulator_file, baud=args.baud, timing=Lockstep(),
                                                          noise=noise_spec(args.seed) if args.noise else None))
             else:
                 emu = stack.enter_context(make_emulator(rc, load_config(emulator_file), noise=args.noise,
-                                                        seed=args.seed, baud=args.baud, lockstep=True))
+                                                        seed=args.seed, baud=args.baud, timing=Lockstep()))
             clock = stack.enter_context(LockstepLoopClock(emu.control.path))
             port, margin = emu.port, TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
         else:

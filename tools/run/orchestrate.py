@@ -28,8 +28,10 @@ from swerve.core.errors import ConfigError
 from swerve.driver.bus import Bus, ExchangeSettings
 from swerve.driver.robot_config import BUS_WATCHDOG_MAX_S
 from swerve.driver.wheelset import WheelSet
+from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.process import EmulatorProcess
+from swerve.emulator.timing import Lockstep, scaled
 from swerve.tools.logs.bag import RunLogWriter
 from swerve.tools.logs.record import CycleRecord
 from swerve.tools.recovery import policy
@@ -165,16 +167,15 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
     with contextlib.ExitStack() as stack:
         emu = None
         if req.emulate:     # launched first: the child starts while the gains are synthesised
-
             physics = resolve_emulator_config(req.emulator_config or "ideal")
             if req.lockstep:
-                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, lockstep=True,
+                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, timing=Lockstep(),
                                       faults=_seeded(req.faults), noise=_seeded(req.noise) or f"seed={LOCKSTEP_SEED}",
-                                      start_pose=tuple(start[:3]), rate_hz=rate_hz,
+                                      body=BodySettings(start_pose=tuple(start[:3])), rate_hz=rate_hz,
                                       adapter_latency_ms=req.adapter_latency_ms)
             else:
-                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, time_scale=req.time_scale,
-                                      faults=req.faults, noise=req.noise, start_pose=tuple(start[:3]),
+                emu = EmulatorProcess(req.emulated_robot or cfg_path, physics, timing=scaled(req.time_scale),
+                                      faults=req.faults, noise=req.noise, body=BodySettings(start_pose=tuple(start[:3])),
                                       rate_hz=rate_hz, adapter_latency_ms=req.adapter_latency_ms)
             stack.callback(emu.close)
             emu.launch()

@@ -1,7 +1,10 @@
-"""The emulator's child process (:class:`swerve.emulator.process.EmulatorProcess` starts it):
-build the robot emulator, serve its pty, publish the true pose, stop on request.
+"""The emulator's child process (started by :class:`swerve.emulator.process.EmulatorProcess`).
 
-It imports the physics, which the parent never needs, so it is its own module.
+:data:`swerve.emulator.process._CHILD_PROGRAM` runs :func:`child_main`: it reads the start request (robot file,
+emulator config, :func:`~swerve.emulator.factory.build_emulator` keywords) from the connection,
+serves the robot emulator, publishes its true pose into the shared block after every run of
+physics steps, and answers fault requests until the parent says stop. Only this process loads
+the physics; the parent imports :mod:`swerve.emulator.process` alone.
 """
 from __future__ import annotations
 
@@ -12,9 +15,10 @@ import time
 from multiprocessing.connection import Connection
 
 from swerve.driver.robot_config import load_robot_config
+from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.factory import build_emulator
 from swerve.emulator.physics.params import load_config
-from swerve.emulator.process import SHARED_POSE
-from swerve.emulator.robot_emulator import build_emulator
+from swerve.emulator.process import SHARED_STATE
 from swerve.emulator.server import freeze_startup_heap
 
 
@@ -25,15 +29,16 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
         signal.signal(s, signal.SIG_IGN)
     conn = Connection(conn_fd)
-    shared = mmap.mmap(shared_fd, SHARED_POSE.size)
+    shared = mmap.mmap(shared_fd, SHARED_STATE.size)
     robot_config, emulator_config, kwargs = conn.recv()
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
         x, y, theta = emu.world.pose
-        SHARED_POSE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
+        SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
     try:
-        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config), body=True, **kwargs)
+        emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
+                             **{"body": BodySettings(), **kwargs})
         emu.observers.append(publish)
         emu.start()
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
@@ -58,7 +63,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
             _, method, fargs = msg
             # Faults are safe to change while the emulator runs; raise_hardware_error takes the
             # emulator's (non-reentrant) lock itself.
-            getattr(emu.faults, method)(*fargs)
+            emu.faults.apply(method, *fargs)
             conn.send(("ok", None))
         except Exception as exc:  # noqa: BLE001 - reported to the parent
             conn.send(("error", f"{type(exc).__name__}: {exc}"))
