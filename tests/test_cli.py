@@ -109,9 +109,13 @@ def test_the_run_command_loads_only_what_it_uses():
     assert not {m for m in loaded if m.startswith("swerve.tools.commands.") and
                 m not in ("swerve.tools.commands.run", "swerve.tools.commands.sim")}
     assert not {m.split(".")[0] for m in loaded} & set(NOT_ON_THE_RUN_PATH)
+    # the parent launches the emulator child and describes it (its timing and body): it loads
+    # neither the bus server nor the physics
     assert not {m for m in loaded if m.startswith("swerve.emulator.") and
-                m not in ("swerve.emulator.process", "swerve.emulator.physics",
-                          "swerve.emulator.physics.params", "swerve.emulator.physics.profiles")}
+                m not in ("swerve.emulator.process", "swerve.emulator.timing", "swerve.emulator.clock",
+                          "swerve.emulator.lockstep_socket", "swerve.emulator.body_settings",
+                          "swerve.emulator.physics", "swerve.emulator.physics.params",
+                          "swerve.emulator.physics.profiles")}
 
 
 def test_the_chosen_command_is_the_first_word_that_is_no_option():

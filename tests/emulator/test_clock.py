@@ -125,7 +125,8 @@ def _wait(predicate, limit_s: float = 10.0) -> bool:
 
 
 def test_a_clock_passed_in_owns_simulated_time():
-    from swerve.emulator.server import Emulator, make_servos
+    from swerve.emulator.server import Emulator
+    from swerve.emulator.servo import make_servos
 
     c = StepsOnRequest()
     with Emulator(make_servos([1], "xh430-w210", 1_000_000), clock=c) as emu:

@@ -217,7 +217,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         with bus.exchanging(setup):
             wheels.configure()
         callbacks = []
-        if log_writer is not None:
+        if log_writer is not None:       # the first file of the run: the bus is open and set up
+            req.log.parent.mkdir(parents=True, exist_ok=True)
             callbacks.append(_log_callback(stack.enter_context(shielded_exit(log_writer)), sim))
         live = None
         if req.live is not None:
@@ -300,7 +301,6 @@ def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
-    req.log.parent.mkdir(parents=True, exist_ok=True)
     return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
 
 
