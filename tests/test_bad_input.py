@@ -27,8 +27,8 @@ import pytest
 
 from swerve.configs import shipped
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "logs"))
+from .tools.logs import synthetic
+
 
 pytestmark = pytest.mark.slow      # about 130 subprocesses of a second or two each
 
@@ -198,8 +198,6 @@ CASES: list[tuple[str, list[str], str | None]] = [
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
     """A folder of bad files: empty, binary, a directory, truncated gains, a foreign MCAP, a good log."""
-    import synthetic
-
     w = tmp_path_factory.mktemp("bad")
     rnd = os.urandom(4096)
     for name in ("empty.yaml", "empty.npz", "empty.dat", "empty.mcap"):

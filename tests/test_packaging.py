@@ -142,7 +142,7 @@ def test_short_emulated_run_from_an_empty_folder(installed, empty_dir):
 
 
 #: The README's example for the pytest plugin, as a user would paste it into their repository.
-PLUGIN_EXAMPLE = (ROOT / "tests" / "test_testing_plugin.py").read_text()
+PLUGIN_EXAMPLE = (ROOT / "tests" / "testing" / "test_testing_plugin.py").read_text()
 
 
 def test_the_pytest_plugin_works_from_the_installed_wheel(installed, empty_dir):

@@ -68,7 +68,7 @@ def add_adapter_option(parser: argparse.ArgumentParser) -> None:
 def _load(name: str):
     """Import ``tools.commands.<name>``; ``None`` only if that module itself does not exist.
 
-    (tests/test_cli.py asserts that every name in COMMANDS is present, so nothing is hidden.)
+    (tests/tools/test_cli.py asserts that every name in COMMANDS is present, so nothing is hidden.)
     """
     full = f"swerve.tools.commands.{name}"
     try:
