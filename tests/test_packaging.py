@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-pytestmark = pytest.mark.slow
+#: One worker of ``-n`` runs the whole module, so the wheel is built and installed once.
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("wheel")]
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Folder names that must not be installed as top-level packages.
@@ -60,7 +61,9 @@ def installed(tmp_path_factory):
     assert len(wheels) == 1, wheels
     _run([sys.executable, "-m", "venv", tmp / "venv"], timeout=300)
     py = tmp / "venv" / "bin" / "python"
-    _run([py, "-m", "pip", "install", "--quiet", wheels[0]], timeout=900)
+    # --no-compile: Python compiles what it imports; compiling all of SciPy and matplotlib ahead is
+    # most of an install's CPU time and checks nothing of the wheel
+    _run([py, "-m", "pip", "install", "--quiet", "--no-compile", wheels[0]], timeout=900)
     site = Path(_run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
     env = {k: v for k, v in os.environ.items() if k not in ("SWERVE_CONFIG", "PYTHONPATH")}
     env["XDG_CONFIG_HOME"] = str(tmp / "no-user-config")   # the shipped robot file applies
@@ -148,7 +151,7 @@ PLUGIN_EXAMPLE = (ROOT / "tests" / "testing" / "test_testing_plugin.py").read_te
 def test_the_pytest_plugin_works_from_the_installed_wheel(installed, empty_dir):
     """A user's own repository: pytest installed beside the wheel, the README's example pasted in."""
     bin_dir, _, env = installed
-    _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "pytest"], env=env, timeout=600)
+    _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "--no-compile", "pytest"], env=env, timeout=600)
     (empty_dir / "test_drive.py").write_text(PLUGIN_EXAMPLE)
     out = _run([bin_dir / "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_drive.py"],
                cwd=empty_dir, env=env, timeout=600)
