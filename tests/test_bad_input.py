@@ -151,6 +151,8 @@ CASES: list[tuple[str, list[str], str | None]] = [
     ("demo-trajectory-unknown", ["demo", "--trajectories", "spiral", "--out", "{W}/demo"], "demo"),
     ("demo-trajectories-empty", ["demo", "--trajectories", "", "--out", "{W}/demo"], "demo"),
     ("demo-trajectories-commas", ["demo", "--trajectories", ",,", "--out", "{W}/demo"], "demo"),
+    ("demo-workers-zero", ["demo", "--workers", "0", "--out", "{W}/demo"], "demo"),
+    ("demo-workers-word", ["demo", "--workers", "all", "--out", "{W}/demo"], "demo"),
     # --- tune (each fails before a servo is touched) --------------------------------------
     ("tune-pwm-zero", ["tune", "--emulate", "--pwm", "0"], None),
     ("tune-pwm-above-one", ["tune", "--emulate", "--pwm", "1.5"], None),

@@ -13,7 +13,8 @@ import importlib.util
 import multiprocessing as mp
 import os
 import signal
-from collections.abc import Callable
+from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from functools import partial
 from multiprocessing.connection import Connection, wait
@@ -202,6 +203,20 @@ class RayEngine:
         self._ray.shutdown()
 
 
+def run_queue(engine: Engine, todo: deque[int]) -> Iterator[Done]:
+    """Keep ``engine``'s slots busy with the indices of ``todo`` (taken from its left end) and
+    yield each :class:`Done` as it ends. Between two yields the caller may add indices to
+    ``todo``; the iteration ends when ``todo`` is empty and nothing is outstanding."""
+    outstanding = 0
+    while todo or outstanding:
+        while todo and outstanding < engine.slots:
+            engine.submit(todo.popleft())
+            outstanding += 1
+        done = engine.wait()
+        outstanding -= 1
+        yield done
+
+
 def require_ray() -> None:
     """Raise the one-line :data:`RAY_MISSING` error if Ray is not installed (checked before any
     output is made)."""
@@ -217,4 +232,4 @@ def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> 
     return PoolEngine(partial(run_scenario, campaign), workers or len(os.sched_getaffinity(0)))
 
 
-__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray"]
+__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray", "run_queue"]

@@ -43,7 +43,7 @@ from swerve.core.errors import ConfigError, SwerveError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.calibrate import calibrate_emulated, update_robot_text
-from swerve.tools.campaign.engines import Engine, PoolEngine
+from swerve.tools.campaign.engines import Engine, PoolEngine, run_queue
 from swerve.tools.cli import add_config_option
 from swerve.tools.logs.bag import read_log
 from swerve.tools.logs.log_figures import plot_run
@@ -247,16 +247,11 @@ def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibra
     todo = deque([i for i in order if tasks[i].kind == "calibration"] + [i for i in order if tasks[i].robot == "as is"])
     held = [i for i in order if tasks[i].robot == "calibrated"]
     done: dict[int, TaskDone] = {}
-    shown = outstanding = 0
+    shown = 0
     bar = tqdm(total=len(tasks), unit="task", desc=f"demo ({engine.slots} at a time)", disable=None,
                dynamic_ncols=True, leave=False)
     try:
-        while todo or outstanding:
-            while todo and outstanding < engine.slots:
-                engine.submit(todo.popleft())
-                outstanding += 1
-            finished = engine.wait()
-            outstanding -= 1
+        for finished in run_queue(engine, todo):
             task, result = tasks[finished.index], finished.outcome
             if result is None:
                 raise SwerveError(f"the worker process of the demo's {_what(task)} went away ({finished.lost})")
