@@ -8,8 +8,10 @@ package ``swerve`` with its configs inside, and no stray top-level packages.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -17,8 +19,7 @@ from pathlib import Path
 
 import pytest
 
-#: One worker of ``-n`` runs the whole module, so the wheel is built and installed once.
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("wheel")]
+pytestmark = pytest.mark.slow
 
 ROOT = Path(__file__).resolve().parents[1]
 #: Folder names that must not be installed as top-level packages.
@@ -43,12 +44,30 @@ def _run(cmd, **kw) -> subprocess.CompletedProcess:
     return out
 
 
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory):
-    """``(venv bin folder, site-packages folder, environment for the commands)``."""
-    import shutil
+@pytest.fixture(scope="session")
+def installed(tmp_path_factory, worker_id):
+    """``(venv bin folder, site-packages folder, environment for the commands)``. Built once per
+    test session: the workers of ``-n`` share their session's folder, and the first to take its
+    lock builds the wheel and the venv there while the others wait for it."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base if worker_id == "master" else base.parent     # pytest-N/, not pytest-N/popen-gwK/
+    with open(shared / "wheel.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        tmp = shared / "wheel"
+        if not (tmp / "installed").is_file():
+            shutil.rmtree(tmp, ignore_errors=True)        # a build that failed half-way
+            tmp.mkdir()
+            _build_and_install(tmp)
+            (tmp / "installed").touch()
+    site = Path(_run([tmp / "venv" / "bin" / "python", "-c",
+                      "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
+    env = {k: v for k, v in os.environ.items() if k not in ("SWERVE_CONFIG", "PYTHONPATH")}
+    env["XDG_CONFIG_HOME"] = str(tmp / "no-user-config")   # the shipped robot file applies
+    return tmp / "venv" / "bin", site, env
 
-    tmp = tmp_path_factory.mktemp("wheel")
+
+def _build_and_install(tmp: Path) -> None:
+    """Build the wheel from a clean copy of the tree and install it into ``tmp/venv``."""
     # Build from a clean copy: setuptools reuses an existing build/ folder, which may still hold
     # modules the tree no longer has.
     src = tmp / "src"
@@ -64,10 +83,6 @@ def installed(tmp_path_factory):
     # --no-compile: Python compiles what it imports; compiling all of SciPy and matplotlib ahead is
     # most of an install's CPU time and checks nothing of the wheel
     _run([py, "-m", "pip", "install", "--quiet", "--no-compile", wheels[0]], timeout=900)
-    site = Path(_run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
-    env = {k: v for k, v in os.environ.items() if k not in ("SWERVE_CONFIG", "PYTHONPATH")}
-    env["XDG_CONFIG_HOME"] = str(tmp / "no-user-config")   # the shipped robot file applies
-    return tmp / "venv" / "bin", site, env
 
 
 @pytest.fixture()

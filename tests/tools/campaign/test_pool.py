@@ -23,9 +23,6 @@ from swerve.tools.campaign.store import Store
 
 from .conftest import campaign_cmd, run_campaign
 
-#: In the group of test_ray.py: one worker of ``-n`` runs the pool's campaigns once for both modules.
-pytestmark = pytest.mark.xdist_group("campaign-pool")
-
 
 def rows(data: bytes) -> list[dict]:
     return list(csv.DictReader(io.StringIO(data.decode())))

@@ -31,8 +31,7 @@ def _why_not() -> str | None:
     return None
 
 
-#: In the group of test_pool.py: one worker of ``-n`` runs the pool's campaigns once for both modules.
-pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("campaign-pool"), pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")]
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(_why_not() is not None, reason=_why_not() or "")]
 RAY = str(Path(sys.executable).with_name("ray"))
 
 
