@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "logs"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests" / "tools" / "logs"))
 import synthetic  # noqa: E402
 
 from swerve.tools.logs import RunLogWriter, read_log  # noqa: E402

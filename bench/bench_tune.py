@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "tune"))
+sys.path.insert(0, str(ROOT / "tests" / "tools" / "tune"))
 
 from swerve.emulator.physics import units as u  # noqa: E402
 from swerve.emulator.physics.params import MotorParams, load_config  # noqa: E402

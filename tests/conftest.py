@@ -28,6 +28,13 @@ def pytest_addoption(parser):
     parser.addoption("--baud", default=1_000_000, type=int, help="baud rate for --port")
 
 
+def pytest_collection_modifyitems(items):
+    """Tests marked ``slow`` run first (in their collected order, as the rest): with ``-n`` the
+    workers start the long tests early and finish together, instead of one worker running a
+    long test alone at the end. The order is the same in every worker, as pytest-xdist needs."""
+    items.sort(key=lambda item: item.get_closest_marker("slow") is None)
+
+
 @pytest.fixture(scope="session")
 def hw_port(request):
     """The real port given with --port, or None."""

@@ -27,8 +27,8 @@ import pytest
 
 from swerve.configs import shipped
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "logs"))
+from .tools.logs import synthetic
+
 
 pytestmark = pytest.mark.slow      # about 130 subprocesses of a second or two each
 
@@ -151,6 +151,8 @@ CASES: list[tuple[str, list[str], str | None]] = [
     ("demo-trajectory-unknown", ["demo", "--trajectories", "spiral", "--out", "{W}/demo"], "demo"),
     ("demo-trajectories-empty", ["demo", "--trajectories", "", "--out", "{W}/demo"], "demo"),
     ("demo-trajectories-commas", ["demo", "--trajectories", ",,", "--out", "{W}/demo"], "demo"),
+    ("demo-workers-zero", ["demo", "--workers", "0", "--out", "{W}/demo"], "demo"),
+    ("demo-workers-word", ["demo", "--workers", "all", "--out", "{W}/demo"], "demo"),
     # --- tune (each fails before a servo is touched) --------------------------------------
     ("tune-pwm-zero", ["tune", "--emulate", "--pwm", "0"], None),
     ("tune-pwm-above-one", ["tune", "--emulate", "--pwm", "1.5"], None),
@@ -198,8 +200,6 @@ CASES: list[tuple[str, list[str], str | None]] = [
 @pytest.fixture(scope="module")
 def work(tmp_path_factory) -> Path:
     """A folder of bad files: empty, binary, a directory, truncated gains, a foreign MCAP, a good log."""
-    import synthetic
-
     w = tmp_path_factory.mktemp("bad")
     rnd = os.urandom(4096)
     for name in ("empty.yaml", "empty.npz", "empty.dat", "empty.mcap"):

@@ -82,13 +82,13 @@ def test_readme_api_example_runs_and_drives_the_robot_forward(tmp_path):
 
 
 def test_readme_plugin_example_is_the_one_the_tests_run():
-    """The pytest-plugin example in the README is pasted from tests/test_testing_plugin.py."""
+    """The pytest-plugin example in the README is pasted from tests/testing/test_testing_plugin.py."""
     example = _blocks(README.read_text(encoding="utf-8"), "python")[1]
     assert "emulated_bus" in example and "emulated_robot" in example
     def squeeze(code: str) -> str:
         return re.sub(r"\n\s*\n+", "\n", code.strip())     # blank lines do not count
 
-    assert squeeze(example) in squeeze((ROOT / "tests" / "test_testing_plugin.py").read_text(encoding="utf-8"))
+    assert squeeze(example) in squeeze((ROOT / "tests" / "testing" / "test_testing_plugin.py").read_text(encoding="utf-8"))
 
 
 def test_readme_lists_every_subcommand():

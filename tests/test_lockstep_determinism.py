@@ -63,8 +63,7 @@ def test_lockstep_csv_is_the_same_on_other_cpus(tmp_path, profile, other_cpu):
         log = tmp_path / name
         other_cpu(env, "-m", "swerve.tools.cli", "run", "--trajectory", "line", "--emulate", "--lockstep",
                   "--emulator-config", profile, "--log", str(log))
-        other_cpu({}, "-m", "swerve.tools.cli", "export-csv", str(log), "--out", str(tmp_path / f"{name}.csv"))
-        csv[name] = (tmp_path / f"{name}.csv").read_bytes()
+        csv[name] = export_csv(read_log(log), tmp_path / f"{name}.csv").read_bytes()
     assert len(csv["nehalem"].splitlines()) > 2000
     assert csv["haswell"] == csv["nehalem"]
     assert csv["no-simd-dispatch"] == csv["nehalem"]

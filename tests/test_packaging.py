@@ -8,8 +8,10 @@ package ``swerve`` with its configs inside, and no stray top-level packages.
 """
 from __future__ import annotations
 
+import fcntl
 import json
 import os
+import shutil
 import signal
 import subprocess
 import sys
@@ -42,12 +44,30 @@ def _run(cmd, **kw) -> subprocess.CompletedProcess:
     return out
 
 
-@pytest.fixture(scope="module")
-def installed(tmp_path_factory):
-    """``(venv bin folder, site-packages folder, environment for the commands)``."""
-    import shutil
+@pytest.fixture(scope="session")
+def installed(tmp_path_factory, worker_id):
+    """``(venv bin folder, site-packages folder, environment for the commands)``. Built once per
+    test session: the workers of ``-n`` share their session's folder, and the first to take its
+    lock builds the wheel and the venv there while the others wait for it."""
+    base = tmp_path_factory.getbasetemp()
+    shared = base if worker_id == "master" else base.parent     # pytest-N/, not pytest-N/popen-gwK/
+    with open(shared / "wheel.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        tmp = shared / "wheel"
+        if not (tmp / "installed").is_file():
+            shutil.rmtree(tmp, ignore_errors=True)        # a build that failed half-way
+            tmp.mkdir()
+            _build_and_install(tmp)
+            (tmp / "installed").touch()
+    site = Path(_run([tmp / "venv" / "bin" / "python", "-c",
+                      "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
+    env = {k: v for k, v in os.environ.items() if k not in ("SWERVE_CONFIG", "PYTHONPATH")}
+    env["XDG_CONFIG_HOME"] = str(tmp / "no-user-config")   # the shipped robot file applies
+    return tmp / "venv" / "bin", site, env
 
-    tmp = tmp_path_factory.mktemp("wheel")
+
+def _build_and_install(tmp: Path) -> None:
+    """Build the wheel from a clean copy of the tree and install it into ``tmp/venv``."""
     # Build from a clean copy: setuptools reuses an existing build/ folder, which may still hold
     # modules the tree no longer has.
     src = tmp / "src"
@@ -60,11 +80,9 @@ def installed(tmp_path_factory):
     assert len(wheels) == 1, wheels
     _run([sys.executable, "-m", "venv", tmp / "venv"], timeout=300)
     py = tmp / "venv" / "bin" / "python"
-    _run([py, "-m", "pip", "install", "--quiet", wheels[0]], timeout=900)
-    site = Path(_run([py, "-c", "import sysconfig; print(sysconfig.get_paths()['purelib'])"]).stdout.strip())
-    env = {k: v for k, v in os.environ.items() if k not in ("SWERVE_CONFIG", "PYTHONPATH")}
-    env["XDG_CONFIG_HOME"] = str(tmp / "no-user-config")   # the shipped robot file applies
-    return tmp / "venv" / "bin", site, env
+    # --no-compile: Python compiles what it imports; compiling all of SciPy and matplotlib ahead is
+    # most of an install's CPU time and checks nothing of the wheel
+    _run([py, "-m", "pip", "install", "--quiet", "--no-compile", wheels[0]], timeout=900)
 
 
 @pytest.fixture()
@@ -142,13 +160,13 @@ def test_short_emulated_run_from_an_empty_folder(installed, empty_dir):
 
 
 #: The README's example for the pytest plugin, as a user would paste it into their repository.
-PLUGIN_EXAMPLE = (ROOT / "tests" / "test_testing_plugin.py").read_text()
+PLUGIN_EXAMPLE = (ROOT / "tests" / "testing" / "test_testing_plugin.py").read_text()
 
 
 def test_the_pytest_plugin_works_from_the_installed_wheel(installed, empty_dir):
     """A user's own repository: pytest installed beside the wheel, the README's example pasted in."""
     bin_dir, _, env = installed
-    _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "pytest"], env=env, timeout=600)
+    _run([bin_dir / "python", "-m", "pip", "install", "--quiet", "--no-compile", "pytest"], env=env, timeout=600)
     (empty_dir / "test_drive.py").write_text(PLUGIN_EXAMPLE)
     out = _run([bin_dir / "python", "-m", "pytest", "-q", "-p", "no:cacheprovider", "test_drive.py"],
                cwd=empty_dir, env=env, timeout=600)

@@ -25,8 +25,8 @@ import pytest
 
 from swerve.configs import shipped
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "tests" / "logs"))
+from .tools.logs import synthetic
+
 
 pytestmark = pytest.mark.slow      # a few dozen commands, some driving the emulated robot
 
@@ -43,8 +43,6 @@ def _swerve(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
 
 @pytest.fixture(scope="module")
 def log_dir(tmp_path_factory) -> Path:
-    import synthetic
-
     path = tmp_path_factory.mktemp("log") / "run"
     synthetic.write(path, synthetic.records(200))
     return path

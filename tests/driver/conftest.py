@@ -2,13 +2,11 @@
 given with ``--port`` (then fault-injection tests are skipped)."""
 from __future__ import annotations
 
-import sys
 from dataclasses import dataclass
-from pathlib import Path
 
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))  # fake_servos helper
+from .fake_servos import FakeServos
 
 
 @dataclass
@@ -59,7 +57,5 @@ def bus(target):
 @pytest.fixture
 def fake():
     """The scripted responder (wrong IDs, garbage, stray bytes the emulator cannot make)."""
-    from fake_servos import FakeServos
-
     with FakeServos() as f:
         yield f

@@ -13,9 +13,12 @@ import importlib.util
 import multiprocessing as mp
 import os
 import signal
+from collections import deque
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from functools import partial
 from multiprocessing.connection import Connection, wait
-from typing import Protocol
+from typing import Any, Protocol
 
 from swerve.core.errors import ConfigError
 from swerve.tools.signals import signals_as_interrupt
@@ -31,10 +34,11 @@ RAY_MISSING = 'Ray is not installed: pip install "swerve[cluster]" (or pip insta
 
 @dataclass(frozen=True)
 class Done:
-    """A submitted scenario that ended: its ``outcome``, or ``lost`` (why its worker went away)."""
+    """A submitted scenario that ended: its ``outcome`` (an :class:`Outcome` for a campaign, what
+    the job returned for a :class:`PoolEngine` of another job), or ``lost`` (why its worker went away)."""
 
     index: int
-    outcome: Outcome | None = None
+    outcome: Outcome | Any | None = None
     lost: str | None = None
 
 
@@ -54,44 +58,46 @@ class Engine(Protocol):
         """Stop every worker (outstanding scenarios are dropped, not reported)."""
 
 
-def _worker(conn: Connection, campaign: Campaign) -> None:
-    """A pool worker: run each index received, send its :class:`Outcome`; ``None`` stops it.
-    A stop signal ends the running scenario through its clean-up (emulator closed) and exits."""
+def _worker(conn: Connection, job: Callable[[int], Any]) -> None:
+    """A pool worker: run ``job`` on each index received, send what it returns; ``None`` stops it.
+    A stop signal ends the running job through its clean-up (emulator closed) and exits."""
     with signals_as_interrupt():
         try:
             while (index := conn.recv()) is not None:
-                conn.send(run_scenario(campaign, index))
+                conn.send(job(index))
         except (KeyboardInterrupt, EOFError, BrokenPipeError):
             pass
 
 
 class _Slot:
-    def __init__(self, ctx, campaign: Campaign):
+    def __init__(self, ctx, job: Callable[[int], Any]):
         self.conn, child = ctx.Pipe()
-        self.proc = ctx.Process(target=_worker, args=(child, campaign), name="swerve-campaign-worker")
+        self.proc = ctx.Process(target=_worker, args=(child, job), name="swerve-worker")
         self.proc.start()
         child.close()
         self.index: int | None = None
 
 
 class PoolEngine:
-    """``workers`` local processes (started with ``spawn``), each running one scenario at a
-    time. A worker that dies mid-scenario (killed, crashed) is reported as lost and replaced."""
+    """``workers`` local processes (started with ``spawn``), each running ``job(index)`` for one
+    index at a time; ``job`` is picklable and must not raise (a campaign's is
+    ``partial(run_scenario, campaign)``). A worker that dies mid-job (killed, crashed) is
+    reported as lost and replaced."""
 
     name = "pool"
 
-    def __init__(self, campaign: Campaign, workers: int):
+    def __init__(self, job: Callable[[int], Any], workers: int):
         if workers < 1:
             raise ConfigError(f"--workers must be >= 1, got {workers}")
         self._ctx = mp.get_context("spawn")
-        self._campaign = campaign
+        self._job = job
         self.slots = workers
         self._slots: list[_Slot] = []
 
     def submit(self, index: int) -> None:
         free = next((s for s in self._slots if s.index is None), None)
         if free is None:
-            free = _Slot(self._ctx, self._campaign)
+            free = _Slot(self._ctx, self._job)
             self._slots.append(free)
         free.index = index
         free.conn.send(index)
@@ -196,6 +202,20 @@ class RayEngine:
         self._ray.shutdown()
 
 
+def run_queue(engine: Engine, todo: deque[int]) -> Iterator[Done]:
+    """Keep ``engine``'s slots busy with the indices of ``todo`` (taken from its left end) and
+    yield each :class:`Done` as it ends. Between two yields the caller may add indices to
+    ``todo``; the iteration ends when ``todo`` is empty and nothing is outstanding."""
+    outstanding = 0
+    while todo or outstanding:
+        while todo and outstanding < engine.slots:
+            engine.submit(todo.popleft())
+            outstanding += 1
+        done = engine.wait()
+        outstanding -= 1
+        yield done
+
+
 def require_ray() -> None:
     """Raise the one-line :data:`RAY_MISSING` error if Ray is not installed (checked before any
     output is made)."""
@@ -208,7 +228,7 @@ def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> 
     (``workers`` default: the CPUs this process may use)."""
     if ray is not None:
         return RayEngine(campaign, ray, workers)
-    return PoolEngine(campaign, workers or len(os.sched_getaffinity(0)))
+    return PoolEngine(partial(run_scenario, campaign), workers or len(os.sched_getaffinity(0)))
 
 
-__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray"]
+__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray", "run_queue"]

@@ -11,7 +11,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from .engines import Engine
+from .engines import Engine, run_queue
 from .scenario import Outcome, base_row, scenario, text
 from .store import Store
 
@@ -49,16 +49,10 @@ def run_missing(store: Store, engine: Engine, progress: bool = True) -> RunStats
     skipped = total - len(todo)
     failures = ran = 0
     busy_s, t0 = 0.0, time.monotonic()
-    outstanding = 0
     bar = tqdm(total=total, initial=skipped, unit="scenario", disable=not progress, dynamic_ncols=True,
                desc=f"{store.campaign.name} ({engine.name}, {engine.slots} at a time)")
     try:
-        while todo or outstanding:
-            while todo and outstanding < engine.slots:
-                engine.submit(todo.popleft())
-                outstanding += 1
-            done = engine.wait()
-            outstanding -= 1
+        for done in run_queue(engine, todo):
             if done.outcome is None:
                 if store.lose(done.index, done.lost) < MAX_LOSSES:
                     todo.appendleft(done.index)

@@ -9,23 +9,53 @@ wheel radius, read from its true state), write the calibrated robot file to
 ``out/demo/robot-calibrated.yaml`` (the user's file is not touched) and run every trajectory
 again with it, on the same emulated robot. Run logs, plots and a one-page summary with both
 rows per trajectory and what calibration recovered go to ``out/demo/``.
+
+The runs and the calibration are independent lockstep runs, so they go to a pool of worker
+processes (``--workers``, default one per CPU; one on the wall clock, where runs would compete
+for the CPU in real time): the calibrated runs start once the calibration has written its
+file. Each task's messages are printed in the order a one-by-one demo prints them, so the
+output, the files and every number are the same for any number of workers.
 """
 from __future__ import annotations
 
 import argparse
+import os
+import pickle
 import shutil
+import sys
 import time
+import traceback
+from collections import deque
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
+from tqdm import tqdm
+
+from swerve.configs import ConfigChoice
+from swerve.controller.gain_schedule import synthesize
+from swerve.controller.gains_io import save_gains
+from swerve.controller.simulate import metrics, simulate
+from swerve.controller.tracking import TrackingLaw
+from swerve.controller.trajectory import load_trajectory
+from swerve.core.atomic import check_writable, write_text
+from swerve.core.errors import ConfigError, SwerveError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
-from swerve.tools.argtypes import finite_float
+from swerve.tools.argtypes import finite_float, int_range
+from swerve.tools.calibrate import calibrate_emulated, update_robot_text
+from swerve.tools.campaign.engines import Engine, PoolEngine, run_queue
 from swerve.tools.cli import add_config_option
+from swerve.tools.logs.bag import read_log
+from swerve.tools.logs.log_figures import plot_run
+from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
+from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
 
 TRAJECTORIES = ("line", "circle", "curvilinear")
 KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m", "max_abs_v1_mps",
         "max_abs_steer_rate_radps")
+#: Where the demo writes the calibrated robot file, in its output folder.
+CALIBRATED_FILE = "robot-calibrated.yaml"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -43,14 +73,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help=EMULATOR_CONFIG_HELP + "; default realistic")
     parser.add_argument("--no-calibrate", action="store_true",
                         help="run with the robot file as it is only (no calibration and second run)")
+    parser.add_argument("--workers", type=int_range(1, 256), default=None,
+                        help="runs at a time, each in its own process (default: one per CPU in lockstep, "
+                             "1 with --wall-clock); the results do not depend on it")
 
 
 def run(args: argparse.Namespace) -> int:
-    from swerve.core.atomic import check_writable
-    from swerve.core.errors import ConfigError
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
-
     if args.time_scale is not None and not args.time_scale > 0:
         raise ConfigError(f"--time-scale must be positive, got {args.time_scale}")
     lockstep = not args.wall_clock
@@ -68,14 +96,24 @@ def run(args: argparse.Namespace) -> int:
     for name in names:          # every trajectory is valid before any output
         load_trajectory(name, geom, limits)
     check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
+    workers = args.workers or (len(os.sched_getaffinity(0)) if lockstep else 1)
+    plan = DemoPlan(out, choice, tasks(names, calibrate=not args.no_calibrate), str(args.emulator_config),
+                    lockstep, scale, pace)
     created = _missing_folder(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        return _demo(args, out, choice, cfg, geom, limits, names, lockstep, scale, pace)
+        t_start = time.monotonic()
+        values = run_tasks(plan.tasks, PoolEngine(plan, min(workers, len(plan.tasks))))
+        rows = [v for v in values if isinstance(v, DemoRow)]
+        calibration = next((v for v in values if isinstance(v, Calibration)), None)
+        summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
+                                 str(args.emulator_config), calibration)
     except BaseException:
-        if created is not None:     # a failed demo leaves no new folder behind
+        if created is not None:     # a failed demo leaves no new folder behind (every worker has exited)
             shutil.rmtree(created, ignore_errors=True)
         raise
+    print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
+    return 0 if all(r.summary.get("completed") for r in rows) else 1
 
 
 def _missing_folder(path: Path) -> Path | None:
@@ -86,25 +124,6 @@ def _missing_folder(path: Path) -> Path | None:
             break
         missing = folder
     return missing
-
-
-def _demo(args, out, choice, cfg, geom, limits, names, lockstep, scale, pace) -> int:
-    from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
-
-    t_start = time.monotonic()
-    run = dict(lockstep=lockstep, scale=scale, pace=pace, emulator_config=args.emulator_config)
-    rows = [_run_one(out, name, geom, limits, choice, "as is", **run) for name in names]
-    calibration = None
-    if not args.no_calibrate:
-        calibration = _calibrate(out, cfg, choice.path, args.emulator_config)
-        _, calibrated = locate_and_load(calibration.path)
-        geom, limits = geometry_and_limits(calibrated)      # the gains are synthesised for it too
-        rows += [_run_one(out, name, geom, limits, calibration.path, "calibrated", emulated_robot=choice.path, **run)
-                 for name in names]
-    summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
-                             str(args.emulator_config), calibration)
-    print(f"\nsummary: {summary}\nlogs:    {out / 'logs'}\nplots:   {out / 'plots'}\ngains:   {out / 'gains'}")
-    return 0 if all(r.summary.get("completed") for r in rows) else 1
 
 
 @dataclass(frozen=True)
@@ -131,20 +150,142 @@ class Calibration:
     path: Path
 
 
-def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep: bool, scale, pace: str,
-             emulator_config: str, emulated_robot=None) -> DemoRow:
-    """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator."""
-    from swerve.controller.gain_schedule import synthesize
-    from swerve.controller.gains_io import save_gains
-    from swerve.controller.trajectory import load_trajectory
-    from swerve.controller.simulate import metrics, simulate
-    from swerve.controller.tracking import TrackingLaw
-    from swerve.tools.logs.bag import read_log
-    from swerve.tools.logs.log_figures import plot_run
-    from swerve.tools.run.orchestrate import RunRequest, run_tracking
+@dataclass(frozen=True)
+class Task:
+    """One job of the demo: the ``calibration``, or a ``run`` of trajectory ``name`` with the
+    robot file ``robot`` (``"as is"``, or ``"calibrated"``: the file the calibration wrote)."""
 
+    kind: str
+    name: str = ""
+    robot: str = ""
+
+
+def tasks(names: list[str], *, calibrate: bool) -> tuple[Task, ...]:
+    """The demo's tasks in the order their messages are printed: each trajectory with the robot
+    file as it is, then the calibration and each trajectory with the calibrated file."""
+    first = [Task("run", n, "as is") for n in names]
+    if not calibrate:
+        return tuple(first)
+    return (*first, Task("calibration"), *(Task("run", n, "calibrated") for n in names))
+
+
+@dataclass(frozen=True)
+class TaskDone:
+    """What a task left: the ``lines`` it printed, and its ``value`` (a :class:`DemoRow` or the
+    :class:`Calibration`) or the ``error`` it raised (with the worker's ``trace``)."""
+
+    lines: tuple[str, ...]
+    value: DemoRow | Calibration | None = None
+    error: Exception | None = None
+    trace: str = ""
+
+
+class WorkerTraceback(Exception):
+    """The traceback of an error raised in a worker process, as text (the cause of the re-raised error)."""
+
+
+@dataclass(frozen=True)
+class DemoPlan:
+    """Everything a worker process needs to run the demo's task ``index`` (picklable):
+    ``plan(index)`` runs ``tasks[index]`` and returns its :class:`TaskDone`, never raising an
+    :class:`Exception` (a stop signal still ends it through its clean-up)."""
+
+    out: Path
+    choice: ConfigChoice
+    tasks: tuple[Task, ...]
+    emulator_config: str
+    lockstep: bool
+    scale: float | None
+    pace: str
+
+    def __call__(self, index: int) -> TaskDone:
+        lines: list[str] = []
+        task = self.tasks[index]
+        try:
+            if task.kind == "calibration":
+                value = _calibrate(self.out, self.choice.path, self.emulator_config, lines.append)
+            else:
+                value = self.run(task, lines.append)
+            return TaskDone(tuple(lines), value)
+        except Exception as exc:  # noqa: BLE001 - carried to the main process, which raises it
+            return TaskDone(tuple(lines), error=_picklable(exc), trace=traceback.format_exc())
+
+    def run(self, task: Task, say: Callable[[str], None]) -> DemoRow:
+        """The run ``task``, with the robot file as it is or the calibrated one (on the robot as it is)."""
+        if task.robot == "as is":
+            choice, emulated = self.choice, None
+        else:
+            choice, emulated = self.out / CALIBRATED_FILE, self.choice.path
+        _, cfg = locate_and_load(choice)
+        geom, limits = geometry_and_limits(cfg)     # the calibrated file's gains are synthesised for it
+        return _run_one(self.out, task.name, geom, limits, choice, task.robot, say, lockstep=self.lockstep,
+                        scale=self.scale, pace=self.pace, emulator_config=self.emulator_config,
+                        emulated_robot=emulated)
+
+
+def _picklable(exc: Exception) -> Exception:
+    """``exc`` if it crosses a process boundary intact, else a :class:`RuntimeError` naming it."""
+    try:
+        pickle.loads(pickle.dumps(exc))
+        return exc
+    except Exception:  # noqa: BLE001 - any failure to pickle or rebuild
+        return RuntimeError(f"{type(exc).__name__}: {exc}")
+
+
+def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibration]:
+    """Run ``tasks`` on ``engine`` (its jobs return :class:`TaskDone`), ``engine.slots`` at a
+    time, and close it; print each task's messages in the order of ``tasks``. Returns each
+    task's value, in that order.
+
+    The calibration is submitted first: the calibrated runs wait for it. The error of a task is
+    raised as soon as it arrives, after its messages; on any exception (a stop signal too) the
+    engine is closed (every worker has exited) when this returns.
+    """
+    order = range(len(tasks))
+    todo = deque([i for i in order if tasks[i].kind == "calibration"] + [i for i in order if tasks[i].robot == "as is"])
+    held = [i for i in order if tasks[i].robot == "calibrated"]
+    done: dict[int, TaskDone] = {}
+    shown = 0
+    bar = tqdm(total=len(tasks), unit="task", desc=f"demo ({engine.slots} at a time)", disable=None,
+               dynamic_ncols=True, leave=False)
+    try:
+        for finished in run_queue(engine, todo):
+            task, result = tasks[finished.index], finished.outcome
+            if result is None:
+                raise SwerveError(f"the worker process of the demo's {_what(task)} went away ({finished.lost})")
+            if result.error is not None:
+                _show(result.lines)
+                raise result.error from WorkerTraceback(result.trace)
+            done[finished.index] = result
+            bar.update(1)
+            if task.kind == "calibration":
+                todo.extend(held)
+            while shown in done:
+                _show(done[shown].lines)
+                shown += 1
+    finally:
+        bar.close()
+        engine.close()
+    return [done[i].value for i in order]
+
+
+def _show(lines: tuple[str, ...]) -> None:
+    """Print a task's messages above the progress bar."""
+    for line in lines:
+        tqdm.write(line)
+    sys.stdout.flush()
+
+
+def _what(task: Task) -> str:
+    return "calibration" if task.kind == "calibration" else f"run of {task.name} (robot file {task.robot})"
+
+
+def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callable[[str], None], *,
+             lockstep: bool, scale, pace: str, emulator_config: str, emulated_robot=None) -> DemoRow:
+    """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator;
+    ``say`` prints a message."""
     tag = f"[{name}, robot file {robot}]"
-    print(f"{tag} synthesising gains (Riccati) ...", flush=True)
+    say(f"{tag} synthesising gains (Riccati) ...")
     traj = load_trajectory(name, geom, limits)
     ref, gains = synthesize(traj, "riccati", geom, limits)
     stem = Path(name).stem
@@ -152,8 +293,8 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
     gains_file = save_gains(out / "gains" / f"{run_name}.npz", gains)
     save_gains(out / "gains" / f"{run_name}.dat", gains)
     sim = metrics(simulate(TrackingLaw(ref, gains, limits), traj.start_state(geom)), traj.Q, traj.R, traj.tau_s)
-    print(f"{tag} simulated: final error {sim['final_position_error_m'] * 1e3:.1f} mm; running on the emulator "
-          f"{pace} ({traj.tf_s:.0f} s of robot time) ...", flush=True)
+    say(f"{tag} simulated: final error {sim['final_position_error_m'] * 1e3:.1f} mm; running on the emulator "
+        f"{pace} ({traj.tf_s:.0f} s of robot time) ...")
     log_dir = out / "logs" / run_name
     if log_dir.exists():
         shutil.rmtree(log_dir)
@@ -163,28 +304,26 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, *, lockstep
     figs = plot_run(read_log(log_dir), out / "plots" / run_name)
     s = res.summary.to_dict()
     state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"
-    print(f"{tag} {state}; rms error {s.get('rms_position_error_m', float('nan')) * 1e3:.1f} mm, final "
-          f"{s.get('final_position_error_m', float('nan')) * 1e3:.1f} mm, overruns {s.get('overruns')}, "
-          f"real-time factor {s.get('real_time_factor', float('nan')):.1f}", flush=True)
+    say(f"{tag} {state}; rms error {s.get('rms_position_error_m', float('nan')) * 1e3:.1f} mm, final "
+        f"{s.get('final_position_error_m', float('nan')) * 1e3:.1f} mm, overruns {s.get('overruns')}, "
+        f"real-time factor {s.get('real_time_factor', float('nan')):.1f}")
     return DemoRow(name, robot, sim, s, figs, gains_file, log_dir)
 
 
-def _calibrate(out: Path, cfg, robot_path: Path, emulator_config: str) -> Calibration:
+def _calibrate(out: Path, robot_path: Path, emulator_config: str, say: Callable[[str], None]) -> Calibration:
     """Calibrate the emulated robot (built from ``robot_path`` and ``emulator_config``) in lockstep,
     as ``swerve calibrate --emulate --yes --lockstep`` does; write ``out/robot-calibrated.yaml``."""
-    from swerve.core.atomic import write_text
-    from swerve.tools.calibrate import calibrate_emulated, update_robot_text
-
-    print("[calibration] steering zero, direction signs and wheel radius on the emulated robot ...", flush=True)
+    _, cfg = locate_and_load(robot_path)
+    say("[calibration] steering zero, direction signs and wheel radius on the emulated robot ...")
     values = calibrate_emulated(cfg, robot_path, emulator_config=emulator_config, lockstep=True,
-                                log=lambda msg: print(f"[calibration] {msg}", flush=True))
+                                log=lambda msg: say(f"[calibration] {msg}"))
     keys = {k: v for k, v in values.items() if k != "radius_facts"}
-    path = out / "robot-calibrated.yaml"
+    path = out / CALIBRATED_FILE
     write_text(path, update_robot_text(Path(robot_path).read_text(), where=str(path), **keys))
     before = dict(center_pulse=[w.center_pulse for w in cfg.wheels],
                   drive_direction=[w.drive_direction for w in cfg.wheels],
                   steer_direction=[w.steer_direction for w in cfg.wheels], wheel_radius_m=cfg.wheel_radius_m)
-    print(f"[calibration] wrote {path}", flush=True)
+    say(f"[calibration] wrote {path}")
     return Calibration(values, before, path)
 
 
@@ -197,8 +336,6 @@ def _fmt(v, scale=1e3, digits=1) -> str:
 
 def _write_summary(out: Path, rows: list[DemoRow], pace: str, wall_s: float, choice, physics: str = "ideal",
                    calibration: Calibration | None = None) -> Path:
-    from swerve.core.atomic import write_text
-
     lines = ["# swerve demo", "",
              f"Generated {time.strftime('%Y-%m-%d %H:%M')} by `swerve demo`: gains by finite-horizon Riccati, "
              f"closed loop simulated on model (1)-(5) and run at 62.5 Hz against the emulated robot "

@@ -12,6 +12,10 @@ from swerve.tools.cli import main
 from swerve.tools.logs import read_log, repair_log
 
 SCRIPT = Path(__file__).with_name("synthetic.py")
+#: Hang guard for the writer to exit once signalled, s: generous on purpose (a loaded host can take
+#: seconds to close the log and exit); a writer that ignored the signal exits after its 60 s sleep
+#: with status 0, which the return-code check names.
+EXIT_GUARD_S = 120
 
 
 def _kill_after(bag: Path, n: int, flush_every: int, sig=signal.SIGKILL) -> None:
@@ -23,7 +27,7 @@ def _kill_after(bag: Path, n: int, flush_every: int, sig=signal.SIGKILL) -> None
                 break
         os.kill(proc.pid, sig)
     finally:
-        proc.wait(timeout=10)
+        proc.wait(timeout=EXIT_GUARD_S)
         proc.stdout.close()
     assert proc.returncode == -sig  # Python re-raises an unhandled SIGINT after cleanup
 

@@ -4,7 +4,7 @@ import pytest
 
 from swerve.tools.logs import CYCLE_FIELDS, CycleRecord, RunLogWriter, read_log
 from swerve.tools.logs.record import CYCLE_SIZE, pack, unpack
-import synthetic
+from . import synthetic
 
 
 def test_every_field_reads_back_exactly(run_bag, run_records):

@@ -21,7 +21,7 @@ from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
 from swerve.tools.signals import Interrupted, safe_stop, signals_as_interrupt
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CLI = [sys.executable, "-m", "swerve.tools.cli"]
 #: Robot seconds per wall second for the end-to-end runs.
 SCALE = "1"

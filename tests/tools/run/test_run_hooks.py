@@ -6,17 +6,14 @@ from __future__ import annotations
 
 import asyncio
 import socket
-import sys
 import threading
 import time
-from pathlib import Path
 
 import pytest
 
 from swerve.tools import live
 
-sys.path.insert(0, str(Path(__file__).parent))
-from test_live import _client  # noqa: E402
+from ..test_live import _client
 
 pytestmark = pytest.mark.slow
 #: Robot time at which the overload is injected, s (the line runs 40 s after about 1 s of set-up).

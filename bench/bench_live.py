@@ -1,5 +1,5 @@
-"""Cost of the live view to a 62.5 Hz loop: ``python tests/first_run/bench_live.py [cycles]``;
-``python tests/first_run/bench_live.py run [time_scale]`` compares whole emulated runs of the line
+"""Cost of the live view to a 62.5 Hz loop: ``python bench/bench_live.py [cycles]``;
+``python bench/bench_live.py run [time_scale]`` compares whole emulated runs of the line
 (loop period p50/p99/max and overruns) without a live view, with one and no client, and with a
 subscribed client.
 

@@ -10,13 +10,14 @@ import os
 import signal
 import subprocess
 import time
+from functools import partial
 
 import pytest
 
 from swerve.core.errors import ConfigError
 from swerve.tools.campaign.engines import Done, PoolEngine
 from swerve.tools.campaign.runner import MAX_LOSSES, run_missing
-from swerve.tools.campaign.scenario import Outcome, base_row, scenario, text
+from swerve.tools.campaign.scenario import Outcome, base_row, run_scenario, scenario, text
 from swerve.tools.campaign.spec import load_campaign
 from swerve.tools.campaign.store import Store
 
@@ -117,7 +118,7 @@ def test_a_lost_worker_costs_one_retry_and_two_losses_fail_the_row(tmp_path):
 
 
 def test_pool_reports_a_killed_worker_as_lost():
-    engine = PoolEngine(load_campaign("smoke"), 1)
+    engine = PoolEngine(partial(run_scenario, load_campaign("smoke")), 1)
     try:
         engine.submit(0)
         os.kill(engine._slots[0].proc.pid, signal.SIGKILL)
@@ -129,7 +130,7 @@ def test_pool_reports_a_killed_worker_as_lost():
 
 def test_workers_must_be_positive():
     with pytest.raises(ConfigError):
-        PoolEngine(load_campaign("smoke"), 0)
+        PoolEngine(partial(run_scenario, load_campaign("smoke")), 0)
 
 
 def test_smoke_writes_summary_plots_and_replay_commands(smoke_pool):

@@ -6,7 +6,7 @@ import pytest
 from swerve.tools.logs import CycleRecord
 from swerve.tools.logs.bag import TOPICS, _typestore, joint_names
 from swerve.tools.logs.messages import CycleMessages, CycleSerializer
-import synthetic
+from . import synthetic
 
 
 @pytest.fixture(scope="module")

@@ -1,11 +1,7 @@
 """Fixtures for the run-log tests: one synthetic 500-cycle run, written once per session."""
-import sys
-from pathlib import Path
-
 import pytest
 
-sys.path.insert(0, str(Path(__file__).parent))
-import synthetic  # noqa: E402
+from . import synthetic
 
 
 @pytest.fixture(scope="session")
