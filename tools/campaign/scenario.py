@@ -23,7 +23,8 @@ from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import save_gains
 from swerve.controller.trajectory import load_trajectory
 from swerve.driver.robot_config import load_robot_config
-from swerve.tools.calibrate import calibrate_emulated, write_robot_file
+from swerve.tools.calibrate import write_robot_file
+from swerve.tools.calibrate_emulated import calibrate_emulated
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
 from swerve.tools.run.orchestrate import RunRequest, run_tracking
 

@@ -14,8 +14,8 @@ from swerve.core.atomic import check_writable
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError
 from swerve.driver.robot_config import load_robot_config
-from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools import calibrate as cal
+from swerve.tools.calibrate_emulated import emulated_bus, emulator_operator
 from swerve.tools.argtypes import finite_float
 from swerve.tools.cli import add_bus_options
 
@@ -90,7 +90,7 @@ def run(args: argparse.Namespace) -> int:
     steps = dict(jog=args.jog or args.emulate, distance_m=args.distance, speed_mps=args.speed)
     with contextlib.ExitStack() as stack:
         if args.emulate:
-            bus, clock, emu = stack.enter_context(cal.emulated_bus(
+            bus, clock, emu = stack.enter_context(emulated_bus(
                 args.emulated_robot or cfg_path, cfg, emulator_config=args.emulator_config, lockstep=args.lockstep,
                 time_scale=args.time_scale, margin_s=margin_s))
         else:
@@ -99,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
                                           retries=1, timeout_margin_s=2e-3 if margin_s is None else margin_s))
         session = stack.enter_context(cal.Session(bus, cfg, time_scale=args.time_scale, log=log, clock=clock))
         if args.emulate and args.yes:
-            op = cal.emulator_operator(emu, clock, cfg, session.sleep)
+            op = emulator_operator(emu, clock, cfg, session.sleep)
         elif args.yes:
             op = cal.DefaultOperator()
         else:

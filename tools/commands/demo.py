@@ -42,7 +42,8 @@ from swerve.core.atomic import check_writable, write_text
 from swerve.core.errors import ConfigError, SwerveError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float, int_range
-from swerve.tools.calibrate import calibrate_emulated, update_robot_text
+from swerve.tools.calibrate import update_robot_text
+from swerve.tools.calibrate_emulated import calibrate_emulated
 from swerve.tools.campaign.engines import Engine, PoolEngine, run_queue
 from swerve.tools.cli import add_config_option
 from swerve.tools.logs.bag import read_log
