@@ -5,7 +5,8 @@ import argparse
 import sys
 from pathlib import Path
 
-from swerve.tools.logs import export_csv, read_log
+from swerve.tools.logs import read_log
+from swerve.tools.logs.csv_export import export_csv
 from swerve.tools.logs.bag import LogDamaged
 
 

@@ -10,7 +10,8 @@ import sys
 from pathlib import Path
 
 from swerve.core.atomic import files_into
-from swerve.tools.logs import plot_run, read_log
+from swerve.tools.logs import read_log
+from swerve.tools.logs.log_figures import plot_run
 from swerve.tools.logs.bag import LogDamaged
 
 

@@ -16,6 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from swerve.core.atomic import save_figure  # noqa: E402
+from swerve.tools.logs.record import CycleFlag  # noqa: E402
 
 FRONT, REAR = [0, 3], [1, 2]
 #: curve name -> (label, style)
@@ -143,8 +144,6 @@ def plot_error(log, sim, out: Path) -> Path:
 
 def plot_timing(log, sim, out: Path) -> Path:
     """Measured loop period and flagged cycles."""
-    from .record import CycleFlag
-
     t = log.t_s
     fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
     _line(axes[0], t, log.period_s * 1e3, "meas", label="measured period")

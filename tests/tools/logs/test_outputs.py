@@ -4,7 +4,9 @@ import csv
 import pytest
 
 from swerve.tools.cli import main
-from swerve.tools.logs import RunLogWriter, export_csv, plot_run, read_log
+from swerve.tools.logs import RunLogWriter, read_log
+from swerve.tools.logs.csv_export import export_csv
+from swerve.tools.logs.log_figures import plot_run
 from swerve.tools.logs.record import CYCLE_SIZE
 
 
