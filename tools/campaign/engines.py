@@ -13,6 +13,7 @@ import importlib.util
 import multiprocessing as mp
 import os
 import signal
+import socket
 from collections import deque
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -174,6 +175,7 @@ class RayEngine:
         if address == "auto":
             ray.init(num_cpus=workers, **kw)
         else:
+            check_reachable(address)    # ray.init retries an unreachable address for minutes
             ray.init(address=address, **kw)
         self.slots = max(1, int(ray.cluster_resources().get("CPU", 1)))
         self._task = ray.remote(num_cpus=1, max_retries=0)(_ray_task)
@@ -223,6 +225,23 @@ def require_ray() -> None:
         raise ConfigError(RAY_MISSING)
 
 
+#: How long a cluster's address may take to accept a connection before the campaign gives up, s.
+RAY_CONNECT_TIMEOUT_S = 10.0
+
+
+def check_reachable(address: str) -> None:
+    """Raise :class:`ConfigError` unless something accepts a TCP connection at ``address``
+    (``HOST:PORT`` of a Ray head, optionally ``ray://``), within :data:`RAY_CONNECT_TIMEOUT_S`."""
+    host, sep, port = address.removeprefix("ray://").rpartition(":")
+    if not sep or not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise ConfigError(f"--ray {address!r}: expected auto or HOST:PORT of a running Ray cluster")
+    try:
+        socket.create_connection((host.strip("[]"), int(port)), timeout=RAY_CONNECT_TIMEOUT_S).close()
+    except OSError as exc:
+        raise ConfigError(f"--ray {address}: no Ray cluster answers there ({exc.strerror or exc}); "
+                          "start one with `ray start --head` or check the address") from None
+
+
 def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> Engine:
     """The engine the options ask for: Ray with ``ray`` (``auto`` or an address), else the pool
     (``workers`` default: the CPUs this process may use)."""
@@ -231,4 +250,4 @@ def make_engine(campaign: Campaign, *, workers: int | None, ray: str | None) -> 
     return PoolEngine(partial(run_scenario, campaign), workers or len(os.sched_getaffinity(0)))
 
 
-__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "make_engine", "require_ray", "run_queue"]
+__all__ = ["Done", "Engine", "PoolEngine", "RAY_MISSING", "RayEngine", "check_reachable", "make_engine", "require_ray", "run_queue"]

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from swerve.core.errors import ConfigError
 from swerve.tools.argtypes import int_range
+from swerve.tools.campaign.engines import make_engine
 from swerve.tools.campaign.report import table, write_summary
 from swerve.tools.campaign.runner import run_missing
 from swerve.tools.campaign.scenario import run_scenario
@@ -47,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _run(args: argparse.Namespace) -> int:
-    from swerve.tools.campaign.engines import make_engine, require_ray
+    # matplotlib, only when the plots are drawn
     from swerve.tools.campaign.figures import plot_campaign
 
     campaign = load_campaign(args.file)
@@ -55,18 +56,26 @@ def _run(args: argparse.Namespace) -> int:
         campaign = campaign.with_samples(args.samples)
     if args.ray is not None and not args.ray.strip():
         raise ConfigError('--ray needs "auto" or the ADDRESS (HOST:PORT) of a running cluster')
-    if args.ray is not None:
-        require_ray()           # before the results folder is made
+    # Ray is joined before the results folder is made: an address that cannot be reached
+    # leaves nothing behind
+    ray_engine = make_engine(campaign, workers=args.workers, ray=args.ray) if args.ray is not None else None
     out = Path(args.out)
-    store = Store.open(out, campaign)
+    try:
+        store = Store.open(out, campaign)
+    except BaseException:
+        if ray_engine is not None:
+            ray_engine.close()
+        raise
     missing = len(store.missing())
     print(f"campaign {campaign.name}: {campaign.scenarios} scenarios ({campaign.samples} robots x "
           f"{len(campaign.cells)} grid cells), {campaign.scenarios - missing} already in {out}", flush=True)
     stats = None
     if missing:
-        engine = make_engine(campaign, workers=args.workers, ray=args.ray)
+        engine = ray_engine or make_engine(campaign, workers=args.workers, ray=None)
         stats = run_missing(store, engine, progress=sys.stderr.isatty())
     else:
+        if ray_engine is not None:
+            ray_engine.close()
         store.write_results()
     rows = store.rows()
     summary = write_summary(campaign, rows, out)
