@@ -44,7 +44,7 @@ def bus_times(latency_ms: int | None, cycles: int, fast: bool) -> tuple[list[flo
     with build_emulator(cfg, timing=Lockstep(), adapter_latency_ms=latency_ms) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, cfg.link.baud, default_model=cfg.model,
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             wheels = WheelSet(bus, cfg, fast=fast)
             wheels.configure()
             t0 = (int(clock.now() / PERIOD_S) + 1) * PERIOD_S

@@ -95,7 +95,7 @@ class EmulatedRobot:
         """Count ``bus``'s written bytes (a :class:`swerve.driver.bus.Bus`, or anything with
         ``bytes_written``) in every time request; a ``Bus`` also tells the clock of each write,
         so a tracking loop asks for the time after a read while its reply is on the way."""
-        if hasattr(bus, "call_after_write"):
+        if isinstance(bus, Bus):
             self.clock.attach(bus)
         else:
             self.clock.count_tx(lambda: bus.bytes_written)

@@ -33,7 +33,7 @@ def bus_in_lockstep():
     with build_emulator(ids=[1, 2, 3], timing=Lockstep()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             yield emu, bus, clock
 
 
@@ -123,7 +123,7 @@ def test_now_brings_the_true_pose_with_it():
     with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             clock.sleep_until(0.1)
             bus.ping(1)
             n = clock.requests
@@ -179,7 +179,7 @@ def test_emulate_lockstep_prints_its_control_socket_and_stays_paused():
         assert ids == [1, 2] and control is not None and Path(control).exists()
         with LockstepLoopClock(control) as clock, Bus(port, baud, default_model="xh430-w210",
                                                   timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             assert bus.ping(1).id == 1
             t = clock.now()
             assert t > 0

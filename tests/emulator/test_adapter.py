@@ -157,7 +157,7 @@ def lockstep_bus(request):
     with build_emulator(ids=[1, 2], timing=Lockstep(), adapter_latency_ms=request.param) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
                                                            timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             yield request.param, emu, bus, clock
 
 
@@ -252,7 +252,7 @@ def test_emulate_option_reaches_the_emulated_adapter():
         port, baud, _ = parse_port_line(line)
         with LockstepLoopClock(parse_control(line)) as clock, Bus(port, baud, default_model="xh430-w210",
                                                               timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
-            clock.count_tx(lambda: bus.bytes_written)
+            clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             assert clock.info()["adapter_latency_ms"] == 16
             t0 = clock.now()
             bus.read(1, Reg.PRESENT_POSITION)
