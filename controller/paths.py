@@ -34,14 +34,19 @@ class PlanarPath(Protocol):
         ...
 
 
+class _AnalyticPath:
+    """The paper's paths are driven forwards (a trajectory file may still say ``reverse``)."""
+
+    direction: ClassVar[int] = 1
+
+
 @dataclass(frozen=True)
-class LinePath:
+class LinePath(_AnalyticPath):
     """Straight line ``p(t) = start + velocity * t`` (the paper's (61): start 0, velocity 1/20)."""
 
     start_m: tuple[float, float] = (0.0, 0.0)
     velocity_mps: tuple[float, float] = (0.05, 0.05)
     t_end_s: float = 40.0
-    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -53,13 +58,12 @@ class LinePath:
 
 
 @dataclass(frozen=True)
-class CirclePath:
+class CirclePath(_AnalyticPath):
     """The paper's circle (64): ``x = R sin(w t)``, ``y = R (1 - cos(w t))``, ``w = 2 pi / T``."""
 
     radius_m: float = 1.0
     period_s: float = 56.0
     t_end_s: float = 56.0
-    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))
@@ -73,7 +77,7 @@ class CirclePath:
 
 
 @dataclass(frozen=True)
-class CurvilinearPath:
+class CurvilinearPath(_AnalyticPath):
     """The paper's curvilinear path (67), ``w = 2 pi / T``::
 
         x = cos(w t)/2 + sin(2 w t)/2 - 1/2,    y = cos(2 w t)/2 + sin(w t)/2 - offset
@@ -82,7 +86,6 @@ class CurvilinearPath:
     offset_m: float = 0.6
     period_s: float = 140.0
     t_end_s: float = 140.0
-    direction: ClassVar[int] = 1
 
     def derivatives(self, t):
         t = np.atleast_1d(np.asarray(t, dtype=float))

@@ -14,7 +14,7 @@ from pathlib import Path
 
 from swerve.core.errors import ConfigError
 from swerve.tools.argtypes import int_range
-from swerve.tools.campaign.engines import make_engine
+from swerve.tools.campaign.engines import make_engine, require_ray
 from swerve.tools.campaign.report import table, write_summary
 from swerve.tools.campaign.runner import run_missing
 from swerve.tools.campaign.scenario import run_scenario
@@ -58,6 +58,8 @@ def _run(args: argparse.Namespace) -> int:
         raise ConfigError('--ray needs "auto" or the ADDRESS (HOST:PORT) of a running cluster')
     # Ray is joined before the results folder is made: an address that cannot be reached
     # leaves nothing behind
+    if args.ray is not None:
+        require_ray()
     ray_engine = make_engine(campaign, workers=args.workers, ray=args.ray) if args.ray is not None else None
     out = Path(args.out)
     try:
