@@ -3,10 +3,20 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from swerve.controller.path_fit import FittedPath
-from swerve.core.atomic import save_figure
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+from swerve.controller.path_fit import FittedPath  # noqa: E402
+from swerve.core.atomic import save_figure  # noqa: E402
 
 
+def _save(fig, path: Path) -> Path:
+    """Write ``fig`` to ``path`` (PNG, atomically) and close it."""
+    save_figure(fig, path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
 
 
 def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
@@ -22,11 +32,6 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
 
     Returns the written paths.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     files = []
@@ -47,9 +52,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     ax.set(xlabel="x [m]", ylabel="y [m]", title=f"{name}: path (cf. paper Fig. 4a/6a/8a)")
     ax.axis("equal")
     ax.legend()
-    files.append(out / f"{name}_path.png")
-    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    files.append(_save(fig, out / f"{name}_path.png"))
 
     fig, axs = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     for k, lab in enumerate(["x [m]", "y [m]", "θ [rad]"]):
@@ -61,9 +64,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     axs[1].plot(t, res.states[:, 4], label="δ2")
     axs[1].set(xlabel="t [s]", ylabel="steering [rad]")
     axs[1].legend()
-    files.append(out / f"{name}_states.png")
-    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    files.append(_save(fig, out / f"{name}_states.png"))
 
     fig, axs = plt.subplots(2, 1, figsize=(7, 6), sharex=True)
     axs[0].plot(t, res.inputs[:, 0], label="v1")
@@ -72,9 +73,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
     axs[1].plot(t, res.inputs[:, 2], label="ω2")
     axs[1].set(xlabel="t [s]", ylabel="steering rate [rad/s]")
     axs[1].legend()
-    files.append(out / f"{name}_inputs.png")
-    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    files.append(_save(fig, out / f"{name}_inputs.png"))
 
     fig, axs = plt.subplots(3, 1, figsize=(7, 8), sharex=True)
     tk = gains.times_s
@@ -85,9 +84,7 @@ def plot_run(res, ref, gains, out_dir: str | Path, name: str) -> list[Path]:
         axs[r].legend(ncol=5, fontsize=7)
     axs[0].set_title(f"{name}: gain schedule K(t), {gains.method} (cf. paper Fig. 5b/7b/9b)")
     axs[2].set_xlabel("t [s]")
-    files.append(out / f"{name}_gains.png")
-    save_figure(fig, files[-1], dpi=120, bbox_inches="tight")
-    plt.close(fig)
+    files.append(_save(fig, out / f"{name}_gains.png"))
     return files
 
 
