@@ -67,6 +67,13 @@ def add_config_option(parser: argparse.ArgumentParser) -> None:
                              "else the shipped robot.yaml)")
 
 
+def add_trajectory_option(parser: argparse.ArgumentParser) -> None:
+    """``--trajectory NAME|FILE``: a shipped trajectory or a trajectory file, in every command that tracks one."""
+    parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
+                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
+                             "(formats: docs/trajectories.md)")
+
+
 def add_bus_options(parser: argparse.ArgumentParser, emulate_help: str) -> None:
     """``--port PORT | --emulate`` and ``--config FILE``: where the servos are, and the robot file."""
     where = parser.add_mutually_exclusive_group()

@@ -21,15 +21,13 @@ from pathlib import Path
 from swerve.core.errors import ConfigError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float
-from swerve.tools.cli import add_adapter_option, add_config_option
+from swerve.tools.cli import add_adapter_option, add_config_option, add_trajectory_option
 from swerve.tools.commands.sim import parse_x0
 from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trajectory", required=True,
-                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
-                             "(formats: controller/README.md, Trajectory files)")
+    add_trajectory_option(parser)
     parser.add_argument("--gains", default=None,
                         help="gain schedule .npz/.dat from `swerve synth` (default: synthesise with Riccati)")
     where = parser.add_mutually_exclusive_group()

@@ -15,7 +15,7 @@ from swerve.controller.simulate import metrics, simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 from swerve.tools.argtypes import finite_float
-from swerve.tools.cli import add_config_option
+from swerve.tools.cli import add_config_option, add_trajectory_option
 from swerve.tools.run.geometry import load_robot
 
 
@@ -40,9 +40,7 @@ def failure(res, tolerance_m: float) -> str | None:
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
-                             "(formats: controller/README.md, Trajectory files)")
+    add_trajectory_option(parser)
     parser.add_argument("--gains", metavar="FILE",
                         help="gain schedule from 'swerve synth' (.npz/.dat); default: "
                              "synthesise with --method now")

@@ -10,15 +10,13 @@ from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import save_gains
 from swerve.controller.trajectory import load_trajectory
 from swerve.tools.argtypes import finite_float, int_range
-from swerve.tools.cli import add_config_option
+from swerve.tools.cli import add_config_option, add_trajectory_option
 from swerve.tools.commands.sim import parse_x0
 from swerve.tools.run.geometry import load_robot
 
 
 def add_arguments(parser) -> None:
-    parser.add_argument("--trajectory", required=True, metavar="NAME|FILE",
-                        help="line, circle, curvilinear, a preset, or a .yaml / .csv file "
-                             "(formats: controller/README.md, Trajectory files)")
+    add_trajectory_option(parser)
     parser.add_argument("--method", choices=("riccati", "paper"), default="riccati",
                         help="riccati: exact finite-horizon optimum (default); "
                              "paper: nonlinear conjugate gradient (42)-(59)")
