@@ -2,12 +2,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from swerve.tools.logs import read_log
 from swerve.tools.logs.csv_export import export_csv
-from swerve.tools.logs.bag import LogDamaged
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -18,12 +16,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
-    if log.recovery_note and not log.damage:
-        print(f"swerve {args.command}: {log.recovery_note}", file=sys.stderr)
+    log.warn_if_recovered(args.command)
     base = args.log.with_suffix("") if args.log.suffix == ".mcap" else args.log
     out = args.out or base.with_name(base.name + ".csv")
     export_csv(log, out)
     print(f"{out}: {len(log)} cycles")
-    if log.damage:         # what was intact is written; the damage still fails the command
-        raise LogDamaged(f"{args.log}: {log.recovery_note}")
+    log.raise_if_damaged()      # what was intact is written; the damage still fails the command
     return 0

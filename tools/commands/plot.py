@@ -6,13 +6,11 @@ them are written, so a failure (a full disk) leaves ``DIR`` as it was.
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
 
 from swerve.core.atomic import files_into
 from swerve.tools.logs import read_log
 from swerve.tools.logs.log_figures import plot_run
-from swerve.tools.logs.bag import LogDamaged
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -24,14 +22,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     log = read_log(args.log)
-    if log.recovery_note and not log.damage:
-        print(f"swerve {args.command}: {log.recovery_note}", file=sys.stderr)
+    log.warn_if_recovered(args.command)
     sim = read_log(args.sim) if args.sim is not None else None
     with files_into(args.out) as tmp:       # all figures or none: no partial folder on a full disk
         written = plot_run(log, tmp, sim=sim)
     for path in written:
         print(args.out / path.name)
-    for damaged in (log, sim):
-        if damaged is not None and damaged.damage:
-            raise LogDamaged(f"{damaged.path}: {damaged.recovery_note}")
+    for read in (log, sim):
+        if read is not None:
+            read.raise_if_damaged()
     return 0

@@ -9,6 +9,7 @@ from __future__ import annotations
 import io
 import json
 import struct
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -213,6 +214,16 @@ class RunLog:
             more = f" and {len(self.damage) - 1} more place(s)" if len(self.damage) > 1 else ""
             return f"log {first}{more}; recovered the {len(self)} intact cycles"
         return "" if self.clean else f"log was not closed cleanly; recovered {len(self)} cycles"
+
+    def warn_if_recovered(self, command: str) -> None:
+        """Print :attr:`recovery_note` to stderr for a log that was not closed but lost nothing."""
+        if self.recovery_note and not self.damage:
+            print(f"swerve {command}: {self.recovery_note}", file=sys.stderr)
+
+    def raise_if_damaged(self) -> None:
+        """Raise :class:`LogDamaged` naming the first unreadable stretch, if the log has one."""
+        if self.damage:
+            raise LogDamaged(f"{self.path}: {self.recovery_note}")
 
 
 def _mcap_file(path: Path) -> Path:
