@@ -37,8 +37,8 @@ class RobotWorld:
 
     def run_coupled(self, servos: Sequence[VirtualServo], dt_s: float, n: int) -> int:
         """Up to ``n`` steps of the ``servos`` (their timers, Bus Watchdog and physics) and the
-        body in one compiled call (:meth:`RobotPhysics.run_coupled`), where the servos and the
-        body must step together (tyre contact) and the compiled kernel exists; the same result as
+        body in one compiled call (:meth:`RobotPhysics.run_coupled`), where the compiled kernel
+        exists and no servo draws sensor noise; the same result as
         ``n`` times each servo's :meth:`VirtualServo.advance` then :meth:`step`. Runs up to the
         next watchdog trip or physics-raised Hardware Error. Returns the steps run (0: this world
         cannot, step tick by tick)."""
