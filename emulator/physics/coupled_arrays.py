@@ -10,6 +10,7 @@ the models in one flat assignment per array and stored back into them after the 
 """
 from __future__ import annotations
 
+import struct
 from typing import Mapping, Sequence
 
 import numpy as np
@@ -76,7 +77,10 @@ class CoupledArrays:
         self.inputs: np.ndarray | None = None
         self._plant_of: list = [None] * count     # the model's plant / input tuples the rows hold
         self._input_of: list = [None] * count
-        self._flat = (self.fs.reshape(-1), self.ints.reshape(-1), self.servo_i.reshape(-1), self.servo_f.reshape(-1))
+        # the per-run copies in: one struct.pack_into per array (native doubles / int64, C order),
+        # which converts a list of Python numbers in less than half the time NumPy's assignment takes
+        self._packers = tuple((struct.Struct(f"{a.size}{'d' if a.dtype == np.float64 else 'q'}").pack_into, a)
+                              for a in (self.fs, self.ints, self.servo_i, self.servo_f))
 
     def run(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]],
             backlash: list[float] | None) -> tuple[int, list[float] | None]:
@@ -99,8 +103,8 @@ class CoupledArrays:
             servo_i += (plan.homing, m.motor.blocked, *m.run_flags(plan))
             servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, m.motor.load_torque_nm)
         self._load_coefficients(plants, inputs)
-        fs, ints_a, servo_i_a, servo_f_a = self._flat
-        fs[:], ints_a[:], servo_i_a[:], servo_f_a[:] = floats, ints, servo_i, servo_f
+        for (pack, array), values in zip(self._packers, (floats, ints, servo_i, servo_f)):
+            pack(array, 0, *values)
         self.out_i[:, 0] = 0
         half = self.body_f[0]
         if backlash is not None:
