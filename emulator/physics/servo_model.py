@@ -266,8 +266,9 @@ class ServoModel:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
-        self.finish_run(table, plan, out[1], (*out[2:12], out[14], out[15], out[16], out[20], out[21], out[23], out[24]),
-                        (out[12], out[13], out[17], out[18], out[19], out[22], out[25]), out[26], out[27])
+        floats = (*out[2:12], out[14], out[15], out[16], out[20], out[21], out[23], out[24])
+        ints = (out[12], out[13], out[17], out[18], out[19], out[22], out[25])
+        self.finish_run(table, plan, out[1], floats, ints, out[26], out[27])
         return ran
 
     def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
