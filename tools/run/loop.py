@@ -129,7 +129,9 @@ class TrackingLoop:
         ``() -> (x, y, theta)`` ground truth (emulator only), logged beside the estimate.
     on_cycle : callable, optional
         Called each cycle with a dict whose keys are :class:`swerve.tools.logs.record.CycleRecord`
-        fields (SI; NaN where unknown), e.g. to write the log.
+        fields (SI; NaN where unknown), e.g. to write the log. Handed to the clock's ``defer``:
+        on the wall clock it runs before the loop sleeps; in lockstep once the next cycle's read
+        instruction is out, so a control request it sends (e.g. a fault) is served after that read.
     clock : Clock, optional
         Where time comes from (default :class:`~swerve.tools.run.ticker.WallLoopClock`).
     fault_policy : object, optional
