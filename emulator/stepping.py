@@ -105,13 +105,15 @@ class Stepper:
                 time.sleep(HAND_OVER_S)
 
     def ticks(self, dt_s: float, n: int) -> None:
-        """``n`` steps of ``dt_s`` s (the caller holds the lock). Where the servos do not interact
-        within a step (no shared noise draws, a body that does not load the shafts), each servo
-        runs all ``n`` steps at once (:meth:`VirtualServo.advance_many`) and the body follows
-        from their recorded states."""
+        """``n`` steps of ``dt_s`` s (the caller holds the lock). A world that steps its servos
+        and body together in one call (``world.run_coupled``, the compiled robot) runs them so;
+        otherwise, where the servos do not interact within a step (no shared noise draws, a body
+        that does not load the shafts), each servo runs all ``n`` steps at once
+        (:meth:`VirtualServo.advance_many`) and the body follows from their recorded states; the
+        rest one step at a time."""
+        n -= self._coupled_ticks(dt_s, n)
         traces = self._batch_traces() if n > 1 else None
         if traces is None:
-            n -= self._coupled_ticks(dt_s, n)
             for _ in range(n):
                 self._tick(dt_s)
             return

@@ -58,10 +58,10 @@ class RobotBody:
         self._m_rows = self._m.tolist()
         pinv = small_linalg.pinv(self._m_rows)
         self._pinv = np.array(pinv)                # (3, 2n): least-squares solution operator
-        # the same as Python floats for the per-step fit: per wheel, the (vx, vy, ω) coefficients of
-        # its v cos δ and of its v sin δ
+        # the same as Python floats for the per-step fit (the arguments of kinematic_twist): the
+        # (vx, vy, ω) coefficients of each wheel's v cos δ (even columns of pinv) and v sin δ (odd)
         cols = list(zip(*pinv))
-        self._wheel_columns = list(zip(cols[0::2], cols[1::2]))
+        self.fit_rows = tuple([col[i] for col in cols[parity::2]] for parity in (0, 1) for i in range(3))
         self.x_m, self.y_m, self.theta_rad = map(float, pose)
         self._twist = (0.0, 0.0, 0.0)
         self._fit: tuple | None = None     # (wheel speeds, steering angles, twist) of the last step
@@ -86,7 +86,7 @@ class RobotBody:
         arithmetic as a step of :meth:`step_many`; the pose does not move.
         """
         vs, ds = tuple(map(float, speeds_mps)), tuple(map(float, steer_rad))
-        twist = _fit(self._wheel_columns, vs, ds)
+        twist = kinematic_twist(*self.fit_rows, vs, ds)
         self._fit = (vs, ds, twist)
         return np.array(twist)
 
@@ -100,11 +100,11 @@ class RobotBody:
     def step_many(self, dt_s: float, steps) -> tuple[float, float, float]:
         """:meth:`step` for consecutive steps: ``steps`` yields ``(speeds_mps, steer_rad)`` per
         step, each a sequence over the wheels."""
-        columns = self._wheel_columns
+        rows = self.fit_rows
         x, y, theta = self.x_m, self.y_m, self.theta_rad
         vs = ds = twist = None
         for vs, ds in steps:
-            twist = _fit(columns, vs, ds)
+            twist = kinematic_twist(*rows, vs, ds)
             x, y, theta = _se2_step(x, y, theta, *twist, dt_s)
         if twist is not None:
             self._twist, self._fit = twist, (tuple(vs), tuple(ds), twist)
@@ -122,19 +122,24 @@ class RobotBody:
         return self.x_m, self.y_m, self.theta_rad
 
 
-def _fit(columns, vs, ds) -> tuple[float, float, float]:
-    """The least-squares twist ``pinv @ [v1 cos δ1, v1 sin δ1, v2 cos δ2, ...]`` for the per-wheel
-    ``columns`` of ``pinv`` (:class:`RobotBody`), speeds ``vs`` and angles ``ds``: each row added
-    term by term in that order from 0.0 (explicitly: the builtin ``sum`` compensates from 3.12)."""
+@jitable
+def kinematic_twist(cx, cy, cw, sx, sy, sw, vs, ds) -> tuple[float, float, float]:
+    """The least-squares twist ``pinv @ [v1 cos δ1, v1 sin δ1, v2 cos δ2, ...]`` (m/s, m/s, rad/s)
+    for speeds ``vs`` (m/s) and angles ``ds`` (rad), each a sequence over the wheels, and the
+    per-wheel coefficients of ``pinv`` (:attr:`RobotBody.fit_rows`: ``cx[i]`` is the coefficient of
+    wheel ``i``'s ``v cos δ`` on ``vx``, ``sw[i]`` that of its ``v sin δ`` on ``ω``, ...): each row
+    added term by term in that order from 0.0 (explicitly: the builtin ``sum`` compensates from
+    3.12)."""
     vx = vy = om = 0.0
-    for v, d, ((cx, cy, cw), (sx, sy, sw)) in zip(vs, ds, columns):
+    for i in range(len(vs)):
+        v, d = vs[i], ds[i]
         c, s = v * cos(d), v * sin(d)
-        vx += cx * c
-        vy += cy * c
-        om += cw * c
-        vx += sx * s
-        vy += sy * s
-        om += sw * s
+        vx += cx[i] * c
+        vy += cy[i] * c
+        om += cw[i] * c
+        vx += sx[i] * s
+        vy += sy[i] * s
+        om += sw[i] * s
     return vx, vy, om
 
 

@@ -20,6 +20,7 @@ from swerve.driver.robot_config import DEFAULT_PATH, WheelConfig, load_robot_con
 
 from . import units as u
 from . import coupled
+from .coupled_arrays import CoupledArrays
 from .body import RobotBody
 from .contact import ContactBody
 from .params import PhysicsConfig
@@ -91,7 +92,7 @@ class RobotPhysics:
         self._wheel_frames = [(float(w.drive_direction), float(w.steer_direction), float(w.center_pulse), r, off)
                               for w, _, _, r, off in self._wheel_servos]
         self._drive_models = [d for _, d, _, _, _ in self._wheel_servos]
-        self._coupled_layout: tuple[np.ndarray, ...] | None = None    # built by the first run_coupled
+        self._coupled: CoupledArrays | None = None    # built by the first run_coupled
         self._steer_models = [s for _, _, s, _, _ in self._wheel_servos]
         self.bus_voltage_v = cfg.supply_voltage_v
 
@@ -190,22 +191,10 @@ class RobotPhysics:
             spare.run_coupled(dt_s, 1, {m: (IDLE_ITEMS, False) for m in spare.servos.values()})
 
     def coupled(self) -> bool:
-        """Whether :meth:`run_coupled` runs here: tyre contact, no position noise, and the
-        compiled :func:`.coupled.robot_ticks` (numba)."""
-        return (coupled.ROBOT_TICKS is not None and isinstance(self.body, ContactBody)
+        """Whether :meth:`run_coupled` runs here: no position noise, and the compiled
+        :func:`.coupled.robot_ticks` (numba)."""
+        return (coupled.ROBOT_TICKS is not None
                 and not any(s.sensors.position_noise_std_pulse for s in self.servos.values()))
-
-    def _wheel_layout(self, rows: Mapping[ServoModel, int]) -> tuple[np.ndarray, ...]:
-        """The arrays of :func:`.coupled.robot_ticks` that the robot's build fixes: each wheel's
-        drive and steering servo rows, its frame (drive and steering directions, centre pulse,
-        radius m, steering offset rad), and the contact body's wheel positions (m) and grip
-        limits (N)."""
-        frames = self._wheel_frames
-        body = self.body
-        return (np.array([rows[d] for _, d, _, _, _ in self._wheel_servos], np.int64),
-                np.array([rows[s] for _, _, s, _, _ in self._wheel_servos], np.int64),
-                *(np.array([f[k] for f in frames]) for k in range(5)),
-                np.array(body._x), np.array(body._y), np.array(body._limits))
 
     def run_coupled(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]]) -> int:
         """Up to ``n`` steps of every servo and the body (:func:`.coupled.robot_ticks`): the same
@@ -214,58 +203,16 @@ class RobotPhysics:
         Error bit (:attr:`ServoModel.pending_hardware_error`). ``runs[model]``: its raw input
         items and whether they are those of its last run (``same_inputs``). Needs :meth:`coupled`.
         Returns the steps run."""
-        models = list(self.servos.values())
-        rows = {m: k for k, m in enumerate(models)}
-        plans, plants, inputs, floats, ints, flags = [], [], [], [], [], []
-        for m in models:
-            plan, plant, inp = m.begin_run(dt_s, *runs[m])
-            state = m.run_state()
-            plans.append(plan)
-            plants.append(plant[3])
-            inputs.append(inp[2])
-            floats.append(state[:10] + state[12:15] + state[18:20] + state[21:23])
-            ints.append(state[10:12] + state[15:18] + (state[20], state[23]))
-            flags.append(m.run_flags(plan))
-        body = self.body
-        p = body.params
-        sup = self.cfg.supply
-        fs, ints_a = np.array(floats, float), np.array(ints, np.int64)
-        supply = np.array([m.supply_voltage_v for m in models], float)
-        load = np.array([m.motor.load_torque_nm for m in models], float)
-        half = 0.5 * self.cfg.tolerances.steer_backlash_rad
-        backlash = np.array(self._wheel_steer_rad if self._wheel_steer_rad is not None else [0.0] * len(self._wheel_servos))
-        pose = np.array([body.x_m, body.y_m, body.theta_rad, *body._twist, body.slip_energy_j])
-        stats = np.array([body.saturated_steps, body.wheel_steps], np.int64)
-        n_wheels = len(self._wheel_servos)
-        slip, fx, fy, flong = (np.empty(n_wheels) for _ in range(4))
-        bits, present, v_meas = np.zeros(len(models), np.int64), np.zeros(len(models), np.int64), np.zeros(len(models))
-        if self._coupled_layout is None:
-            self._coupled_layout = self._wheel_layout(rows)
-        drive_rows, steer_rows, drive_dir, steer_dir, center, radius, offset, bx, by, limits = self._coupled_layout
-        ran = coupled.ROBOT_TICKS(
-            n, dt_s, np.array(plants), np.array(inputs), np.array([plan.homing for plan in plans], np.int64),
-            np.array([m.motor.blocked for m in models], np.int64), fs, ints_a,
-            np.array([float(m.encoder_offset_pulse) for m in models]), supply, load,
-            np.array([f[0] for f in flags], np.int64), np.array([f[1] for f in flags], np.int64),
-            drive_rows, steer_rows, drive_dir, steer_dir, center, radius, offset, half, backlash,
-            self._wheel_steer_rad is not None, sup.enabled, float(self.cfg.supply_voltage_v),
-            float(sup.internal_resistance_ohm), sup.idle_current_a * len(models), float(p.lateral_stiffness_ratio),
-            float(p.slip_stiffness_n_s_per_m), body.mass_kg, body.yaw_inertia_kg_m2, bx, by, limits,
-            pose, stats, slip, fx, fy, flong, bits, present, v_meas)
-        fs_l, ints_l, supply_l, load_l = fs.tolist(), ints_a.tolist(), supply.tolist(), load.tolist()
-        for k, (m, plan) in enumerate(zip(models, plans)):
-            f, i = fs_l[k], ints_l[k]
-            state = (*f[:10], bool(i[0]), i[1], *f[10:13], i[2], bool(i[3]), bool(i[4]), *f[13:15], bool(i[5]),
-                     *f[15:17], i[6], int(present[k]), float(v_meas[k]))
-            m.finish_run(runs[m][0], plan, int(bits[k]), state)
-            m.supply_voltage_v = supply_l[k]
-            m.motor.load_torque_nm = load_l[k]
-        if sup.enabled:
-            self.bus_voltage_v = supply_l[0]
-        if half > 0.0:
-            self._wheel_steer_rad = backlash.tolist()
-        x, y, theta, vx, vy, w, energy = pose.tolist()
-        body.x_m, body.y_m, body.theta_rad, body._twist, body.slip_energy_j = x, y, theta, (vx, vy, w), energy
-        body.saturated_steps, body.wheel_steps = (int(v) for v in stats)
-        body._slip, body._fx, body._fy, body._flong = slip.tolist(), fx.tolist(), fy.tolist(), flong.tolist()
+        arrays = self._coupled
+        if arrays is None:
+            models = list(self.servos.values())
+            rows = {m: k for k, m in enumerate(models)}
+            sup = self.cfg.supply
+            arrays = self._coupled = CoupledArrays(
+                models, [(rows[d], rows[s]) for _, d, s, _, _ in self._wheel_servos], self._wheel_frames, self.body,
+                (0.5 * self.cfg.tolerances.steer_backlash_rad, float(self.cfg.supply_voltage_v),
+                 float(sup.internal_resistance_ohm), sup.idle_current_a * len(models)), sup.enabled)
+        ran, self._wheel_steer_rad = arrays.run(dt_s, n, runs, self._wheel_steer_rad)
+        if self.cfg.supply.enabled:
+            self.bus_voltage_v = arrays.models[0].supply_voltage_v
         return ran

@@ -18,6 +18,7 @@ class RobotWorld:
 
     def __init__(self, physics: RobotPhysics):
         self.physics = physics
+        self._coupled_dynamics: list[ServoDynamics] | None = None   # the dynamics run_coupled found eligible
 
     @property
     def pose(self) -> tuple[float, float, float]:
@@ -37,16 +38,17 @@ class RobotWorld:
 
     def run_coupled(self, servos: Sequence[VirtualServo], dt_s: float, n: int) -> int:
         """Up to ``n`` steps of the ``servos`` (their timers, Bus Watchdog and physics) and the
-        body in one compiled call (:meth:`RobotPhysics.run_coupled`), where the servos and the
-        body must step together (tyre contact) and the compiled kernel exists; the same result as
+        body in one compiled call (:meth:`RobotPhysics.run_coupled`), where the compiled kernel
+        exists and no servo draws sensor noise; the same result as
         ``n`` times each servo's :meth:`VirtualServo.advance` then :meth:`step`. Runs up to the
         next watchdog trip or physics-raised Hardware Error. Returns the steps run (0: this world
         cannot, step tick by tick)."""
-        physics = self.physics
-        dynamics = [s.dynamics for s in servos]
-        if n < 2 or not physics.coupled() or len(servos) != len(physics.servos) or not all(
-                isinstance(d, ServoDynamics) and d.batchable for d in dynamics):
+        if n < 2:
             return 0
+        dynamics = [s.dynamics for s in servos]
+        if dynamics != self._coupled_dynamics and not self._eligible(dynamics):
+            return 0
+        physics = self.physics
         most = n
         for s in servos:
             most = min(most, s.begin_steps(dt_s, most))
@@ -54,3 +56,14 @@ class RobotWorld:
         for s, d in zip(servos, dynamics):
             s.end_steps(dt_s, ran, d.take_hardware_error())
         return ran
+
+    def _eligible(self, dynamics: list) -> bool:
+        """Whether :meth:`run_coupled` can run the servos with these ``dynamics``: the physics
+        runs coupled (:meth:`RobotPhysics.coupled`) and they are its servos' :class:`ServoDynamics`,
+        none with sensor noise. Remembered for the same list of objects (a servo given other
+        dynamics is checked again)."""
+        physics = self.physics
+        ok = (physics.coupled() and len(dynamics) == len(physics.servos)
+              and all(isinstance(d, ServoDynamics) and d.batchable for d in dynamics))
+        self._coupled_dynamics = dynamics if ok else None
+        return ok

@@ -256,16 +256,19 @@ class ServoModel:
             speed_trace = [0.0] * n if record_speeds else None
             position_trace = [0.0] * n if record_positions else None
         switched, new_goal = self.run_flags(plan)
-        state = self.run_state()
+        f, i = self.kernel_state()
         out = kernel(n, dt_s, plant_coef, input_coef, plan.homing, record_speeds, speed_trace, record_positions,
-                     position_trace, self.rng if noisy else None, self.motor.blocked, *state[:17], switched, new_goal,
-                     *state[17:], float(self.encoder_offset_pulse), self.supply_voltage_v, self.motor.load_torque_nm)
+                     position_trace, self.rng if noisy else None, self.motor.blocked, *f[:10], i[0], i[1], f[10], f[11],
+                     f[12], i[2], i[3], switched, new_goal, i[4], f[13], f[14], i[5], f[15], f[16], i[6],
+                     float(self.encoder_offset_pulse), self.supply_voltage_v, self.motor.load_torque_nm)
         ran = out[0]
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
         if record_positions:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
-        self.finish_run(table, plan, out[1], out[2:])
+        floats = (*out[2:12], out[14], out[15], out[16], out[20], out[21], out[23], out[24])
+        ints = (out[12], out[13], out[17], out[18], out[19], out[22], out[25])
+        self.finish_run(table, plan, out[1], floats, ints, out[26], out[27])
         return ran
 
     def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
@@ -291,25 +294,34 @@ class ServoModel:
         switched = plan.key != self._prev_key
         return switched, switched or plan.goal_position != self._prev_goal_position
 
-    def run_state(self) -> tuple:
-        """The state :func:`servo_ticks` takes, in its order, without ``switched`` and ``new_goal``
-        (which go between the 17th and 18th entries)."""
+    def kernel_state(self) -> tuple[tuple, tuple]:
+        """The state :func:`servo_ticks` takes, as ``(floats, ints)`` in the columns of
+        :data:`.coupled.FLOATS` (current A, speed rad/s and angle rad of the motor, the two
+        Bessel filters, the profile's position, velocity and acceleration, the integral,
+        temperature °C, duty, held goal, goal pulse, friction torque N·m, overload timer s) and
+        :data:`.coupled.INTS` (profile ongoing and type, wrap pulse, started, holding, stuck,
+        reported protection bits)."""
         motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
         hold, protection = self._hold_position, self.protection
-        return (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-                prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-                self.temperature_c, self.duty, self._wrap_pulse, self._started, hold is not None,
-                0.0 if hold is None else hold, self._goal_pulse, motor.stuck, motor.friction_torque_nm,
-                0.0 if protection is None else protection.overload_timer_s, 0 if protection is None else protection.raised)
+        return ((motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position,
+                 prof.velocity, prof.acceleration, self.loop.integral, self.temperature_c, self.duty,
+                 0.0 if hold is None else hold, self._goal_pulse, motor.friction_torque_nm,
+                 0.0 if protection is None else protection.overload_timer_s),
+                (prof.ongoing, prof.profile_type, self._wrap_pulse, self._started, hold is not None, motor.stuck,
+                 0 if protection is None else protection.raised))
 
-    def finish_run(self, table: Mapping[str, int], plan: "_InputPlan", bits: int, state: tuple) -> None:
-        """After a run: store :func:`servo_ticks`'s returned ``state`` (its return value after
-        ``ran`` and ``bits``) and note the Hardware Error ``bits`` it raised."""
+    def finish_run(self, table: Mapping[str, int], plan: "_InputPlan", bits: int, floats, ints, present: int,
+                   v_meas: float) -> None:
+        """After a run of ticks under ``table`` and ``plan``: store the state :func:`servo_ticks`
+        left (``floats``, ``ints``: as :meth:`kernel_state` orders them), the last Present
+        Position (pulse) and measured velocity (velocity units), and note the Hardware Error
+        ``bits`` it raised."""
         motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
-        (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy,
-         prof.position, prof.velocity, prof.acceleration, prof.ongoing, prof.profile_type, self.loop.integral,
-         self.temperature_c, self.duty, self._wrap_pulse, self._started, holding, hold, self._goal_pulse,
-         motor.stuck, motor.friction_torque_nm, overload_s, raised, present, v_meas) = state
+        (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position, prof.velocity,
+         prof.acceleration, self.loop.integral, self.temperature_c, self.duty, hold, self._goal_pulse,
+         motor.friction_torque_nm, overload_s) = floats
+        ongoing, prof.profile_type, self._wrap_pulse, started, holding, stuck, raised = ints
+        prof.ongoing, self._started, motor.stuck = bool(ongoing), bool(started), bool(stuck)
         if self.protection is not None:
             self.protection.overload_timer_s, self.protection.raised = overload_s, raised
         if bits:

@@ -129,17 +129,27 @@ def _snapshot(emu) -> list:
     return out
 
 
-def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, int]:
+def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, tuple[int, int]]:
     """The same commands on two emulators: batched steps vs one :meth:`Emulator.step` per tick.
-    Returns both snapshot lists and the number of multi-tick ServoModel.run calls."""
-    runs = []
+    Returns both snapshot lists and the numbers of multi-tick runs: servo after servo
+    (:meth:`ServoModel.run`) and, with numba on a robot body, of the whole robot
+    (:func:`~swerve.emulator.physics.coupled.robot_ticks`)."""
+    servo_runs, robot_runs = [], []
     original = ServoModel.run
 
     def counting(self, dt_s, table, n=1, **kwargs):
-        runs.append(n)
+        servo_runs.append(n)
         return original(self, dt_s, table, n, **kwargs)
 
     monkeypatch.setattr(ServoModel, "run", counting)
+    kernel = coupled.ROBOT_TICKS
+    if kernel is not None:
+        def counting_kernel(n, *args):
+            robot_runs.append(n)
+            return kernel(n, *args)
+
+        counting_kernel.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
+        monkeypatch.setattr(coupled, "ROBOT_TICKS", counting_kernel)
     batched, stepped = _emulator(**build), _emulator(**build)
     steps = round(CYCLE_S * RATE_HZ)
     a, b = [], []
@@ -152,7 +162,7 @@ def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, int]:
                 for _ in range(steps):
                     emu.step(1.0 / RATE_HZ)
             out.append(_snapshot(emu))
-    return a, b, sum(1 for n in runs if n > 1)
+    return a, b, (sum(1 for n in servo_runs if n > 1), sum(1 for n in robot_runs if n > 1))
 
 
 def _by_advance(emu, k):
@@ -162,8 +172,9 @@ def _by_advance(emu, k):
 @pytest.mark.parametrize("profile", ["ideal", "realistic"])
 @pytest.mark.parametrize("body", [True, False], ids=["robot", "bank"])
 def test_batched_ticks_equal_single_ticks(monkeypatch, profile, body):
-    a, b, batched_runs = _runs(monkeypatch, _by_advance, profile=profile, body=body, kinematic=True)
-    assert batched_runs > 0                 # the batched path did run
+    a, b, (servo_runs, robot_runs) = _runs(monkeypatch, _by_advance, profile=profile, body=body, kinematic=True)
+    # the batched path did run: the robot in one compiled call with numba, else servo after servo
+    assert (robot_runs if body and jit.ENABLED else servo_runs) > 0
     assert a == b
 
 
@@ -185,17 +196,19 @@ def test_lockstep_clock_runs_batches_equal_to_single_ticks(monkeypatch):
         for t in (0.0003, 0.0041, 0.0107, 0.016):          # instants inside the cycle
             clock.advance_to(emu, k * CYCLE_S + t)
 
-    a, b, batched_runs = _runs(monkeypatch, by_clock, profile="ideal", body=True)
-    assert batched_runs > 0
+    a, b, runs = _runs(monkeypatch, by_clock, profile="ideal", body=True)
+    assert sum(runs) > 0
     assert a == b
 
 
 @pytest.mark.parametrize("profile", ["ideal", "realistic"])
 def test_unbatchable_worlds_step_tick_by_tick(monkeypatch, profile):
-    """Sensor noise (shared draws), tyre forces and supply sag keep the per-tick interleaving."""
+    """Sensor noise (shared draws), tyre forces and supply sag keep the per-tick interleaving:
+    no servo runs several ticks alone (the compiled robot steps them all tick by tick)."""
     noise = "position=0.5,current=0.002,seed=4" if profile == "ideal" else None
-    a, b, batched_runs = _runs(monkeypatch, _by_advance, profile=profile, body=True, noise=noise)
-    assert batched_runs == 0
+    a, b, (servo_runs, robot_runs) = _runs(monkeypatch, _by_advance, profile=profile, body=True, noise=noise)
+    assert servo_runs == 0
+    assert robot_runs == 0 if noise else robot_runs > 0 or not jit.ENABLED
     assert a == b
 
 
@@ -213,22 +226,25 @@ def test_lockstep_jump_equals_single_ticks():
     assert {r[0]: r for r in snap[3:]}[WATCHDOG_ID][4] == -1       # the watchdog tripped during the jump
 
 
-def _compiled_runs(monkeypatch, **build) -> tuple[list, list, int]:
+def _compiled_runs(monkeypatch, **build) -> tuple[list, list, tuple[int, int]]:
     """The same commands on two emulators, both batched (``emu.advance``): one with the compiled
-    tick kernel, one with the plain-Python function. Returns both snapshot lists and the number
-    of compiled calls."""
-    kernel = servo_model._COMPILED_TICKS
-    calls = []
+    kernels (servo ticks, the robot's ticks), one with the plain-Python function. Returns both
+    snapshot lists and the numbers of compiled calls of each kernel."""
+    kernels = servo_model._COMPILED_TICKS, coupled.ROBOT_TICKS
+    calls = [], []
 
-    def counting(*args):
-        calls.append(args[0])
-        return kernel(*args)
+    def counting(kernel, out):
+        def call(*args):
+            out.append(args[0])
+            return kernel(*args)
 
-    counting.signatures = kernel.signatures     # loaded already: ServoModel.prepare need not load it
+        call.signatures = kernel.signatures     # loaded already: prepare need not load it
+        return call
 
     snaps = []
-    for compiled_kernel in (counting, None):
-        monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernel)
+    for compiled_kernels in ([counting(k, c) for k, c in zip(kernels, calls)], (None, None)):
+        monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernels[0])
+        monkeypatch.setattr(coupled, "ROBOT_TICKS", compiled_kernels[1])
         emu, modes = _emulator(**build)
         out = []
         for k in range(70):
@@ -236,7 +252,7 @@ def _compiled_runs(monkeypatch, **build) -> tuple[list, list, int]:
             emu.advance(CYCLE_S)
             out.append(_snapshot(emu))
         snaps.append(out)
-    return snaps[0], snaps[1], len(calls)
+    return snaps[0], snaps[1], (len(calls[0]), len(calls[1]))
 
 
 @pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
@@ -246,10 +262,13 @@ def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
     """Every mode, the watchdog's hold, torque off and on, profiles, D and feed-forward gains:
     every state variable, published byte and the pose equal (``==``) both ways."""
     kernel = servo_model._COMPILED_TICKS
-    compiled, python, calls = _compiled_runs(monkeypatch, profile="ideal", body=body, placement=placement)
+    compiled, python, (servo_calls, robot_calls) = _compiled_runs(monkeypatch, profile="ideal", body=body,
+                                                                  placement=placement)
     assert len(kernel.signatures) == 1          # every run of every mode: one specialisation
-    # the compiled kernel ran every servo every cycle, but the bank's held shafts (Python: motor.step)
-    assert calls >= 70 * (8 if body else 8 - len(STALLED_IDS))
+    if body:                                    # the robot's kernel ran every cycle
+        assert robot_calls >= 70
+    else:   # the servo kernel ran every servo every cycle, but the held shafts (Python: motor.step)
+        assert servo_calls >= 70 * (8 - len(STALLED_IDS))
     assert compiled == python
 
 
@@ -282,10 +301,12 @@ STALLED_DRIVE_ID = 2    # a held drive shaft on the robot: its overload protecti
 
 
 @pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
+@pytest.mark.parametrize("kinematic", [False, True], ids=["tyres", "kinematic"])
 @pytest.mark.parametrize("stall", [False, True], ids=["free", "stalled"])
-def test_coupled_ticks_equal_single_ticks(monkeypatch, stall):
+def test_coupled_ticks_equal_single_ticks(monkeypatch, stall, kinematic):
     """The compiled coupled loop (:func:`swerve.emulator.physics.coupled.robot_ticks`: servos,
-    backlash, tyre forces and supply sag in one call) against one tick at a time: velocity and
+    backlash, tyre forces and supply sag, or the kinematic body, in one call) against one tick
+    at a time: velocity and
     position modes, profile changes, the watchdog's trip, torque off and on, D and feed-forward
     gains; with a held drive shaft also the overload protection (the run stops at the tick it
     trips). Every state variable, published byte and the pose equal (``==``)."""
@@ -307,7 +328,7 @@ def test_coupled_ticks_equal_single_ticks(monkeypatch, stall):
         return emu, modes
 
     monkeypatch.setitem(globals(), "_emulator", emulator)
-    a, b, _ = _runs(monkeypatch, _by_advance, profile="realistic", body=True)
+    a, b, _ = _runs(monkeypatch, _by_advance, profile="realistic", body=True, kinematic=kinematic)
     assert len(calls) >= 70 and max(calls) > 1       # the coupled loop ran every cycle
     assert a == b
     final = {row[0]: row for row in a[-1][3:]}

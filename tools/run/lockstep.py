@@ -10,9 +10,10 @@ control cycle: ``now()`` asks ``pose`` (time and true pose in one answer) and ``
 that answer while no byte has been written since; with the bus attached (:meth:`attach`),
 ``ask_after_next_write()`` sends that request the moment the read's instruction has gone out,
 so the emulator answers it in the same turn as the read; ``start_sleep(t)`` sends ``advance``
-and takes its answer, which the emulator gives before it steps the physics, so the caller
-works (e.g. writes its log) while the emulator runs the physics (the caller must not write to
-the pty before ``end_sleep``).
+and takes its answer, which the emulator gives before it steps the physics (the caller must
+not write to the pty before ``end_sleep``). ``defer(work)`` keeps the rest of a cycle (its log)
+until the next instruction has gone out: it then runs while the emulator steps the physics and
+serves that instruction, off the chain of turns between the two processes.
 """
 from __future__ import annotations
 
@@ -76,6 +77,7 @@ class LockstepLoopClock:
         self.emulator = self.info()     # the emulator has accepted us: bytes from now on count
         self._has_body = bool(self.emulator.get("body", 0))
         self._attached = self._armed = False
+        self._deferred: Callable[[], None] | None = None     # work to run after the next write
 
     def count_tx(self, tx_bytes: Callable[[], int]) -> None:
         """Count the bytes written to the pty with ``tx_bytes()`` from now on (the barrier)."""
@@ -227,10 +229,27 @@ class LockstepLoopClock:
         self._armed = self._has_body and self._attached
 
     def written(self) -> None:
-        """The bus's after-write callback: sends the request :meth:`ask_after_next_write` armed."""
+        """The bus's after-write callback: sends the request :meth:`ask_after_next_write` armed,
+        then runs the work :meth:`defer` kept (the emulator serves the instruction meanwhile)."""
         if self._armed:
             self._armed = False
             self._send(f"pose {self._delta()}")
+        self.run_deferred()
+
+    def defer(self, work: Callable[[], None]) -> None:
+        """Keep ``work`` until the next instruction has been written (:meth:`written`), with the
+        bus attached; run it now otherwise. Work kept before runs first."""
+        self.run_deferred()
+        if self._attached:
+            self._deferred = work
+        else:
+            work()
+
+    def run_deferred(self) -> None:
+        """Run the work :meth:`defer` kept, if any."""
+        work, self._deferred = self._deferred, None
+        if work is not None:
+            work()
 
     def attach(self, bus) -> None:
         """Count the bytes ``bus`` (a :class:`swerve.driver.bus.Bus`) writes to the pty, hear of

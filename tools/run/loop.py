@@ -129,7 +129,9 @@ class TrackingLoop:
         ``() -> (x, y, theta)`` ground truth (emulator only), logged beside the estimate.
     on_cycle : callable, optional
         Called each cycle with a dict whose keys are :class:`swerve.tools.logs.record.CycleRecord`
-        fields (SI; NaN where unknown), e.g. to write the log.
+        fields (SI; NaN where unknown), e.g. to write the log. Handed to the clock's ``defer``:
+        on the wall clock it runs before the loop sleeps; in lockstep once the next cycle's read
+        instruction is out, so a control request it sends (e.g. a fault) is served after that read.
     clock : Clock, optional
         Where time comes from (default :class:`~swerve.tools.run.ticker.WallLoopClock`).
     fault_policy : object, optional
@@ -259,14 +261,15 @@ class TrackingLoop:
         t_prev_meas = None
         meas = None
         k = 0
-        cpu_s: list[float] = []
-        cpu_overruns = 0
+        cpu_s: list[float] = []          # per cycle: thread CPU from the end of one log write to the next
+        busy_s: list[float] = []         # per cycle: clock time from its wake-up to its wait
+        cpu_end = [0.0]                  # thread CPU at the end of the last log write
         k_base = 0                       # slots run before the last recovery from a servo fault
         with collector_paused():         # a full GC pass would cost ~2 periods
             ticker.start()
             try:
                 t_max = self.max_time_factor * law.reference.tf_s
-                cpu0 = time.thread_time()
+                cpu_end[0] = time.thread_time()
                 while True:
                     t = (k_base + k) * tau
                     if t > t_max:
@@ -316,22 +319,26 @@ class TrackingLoop:
                         log_args = (k_base + k, t, period, drive, steer, v1, w1, w2, meas, pose,
                                     out.desired_state, truth, flags, self._stamp_ns())
 
-                    def finish_cycle(log_args=log_args, cpu0=cpu0):
+                    def finish_cycle(log_args=log_args):
                         # the log's record is built and written while a lockstep emulator runs
-                        # the physics
+                        # the physics and serves the next read (the clock's defer)
                         if log_args is not None:
                             self.on_cycle(self._cycle(*log_args))
-                        cpu_s.append(time.thread_time() - cpu0)
+                        now = time.thread_time()
+                        cpu_s.append(now - cpu_end[0])
+                        cpu_end[0] = now
 
                     k = ticker.wait(finish_cycle)
-                    cpu0 = time.thread_time()
-                    if self.count_host_cpu and ticker.last_busy_s + cpu_s[-1] > ticker.period_s:
-                        cpu_overruns += 1
+                    busy_s.append(ticker.last_busy_s)
             except LoopAbort as exc:
                 aborted = exc
                 log.error("%s", exc)
             finally:
-                self._stop_quietly()
+                try:
+                    self.clock.run_deferred()   # the last cycle's log, if no write has run it
+                finally:
+                    self._stop_quietly()
+        cpu_overruns = sum(busy + cpu > ticker.period_s for busy, cpu in zip(busy_s, cpu_s))
         return self._result(rows, ticker, aborted, cpu_s, cpu_overruns)
 
     def _recovered(self, exc: LoopAbort, d1: float, d2: float) -> bool:

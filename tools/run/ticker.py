@@ -46,6 +46,14 @@ class Clock(Protocol):
         """Have the clock learn the time right after the next bus write, while the reply is on its
         way (a lockstep clock); any other clock does nothing."""
 
+    def defer(self, work: Callable[[], None]) -> None:
+        """Run ``work`` (the rest of a cycle, e.g. writing its log) where it delays the loop least:
+        a clock whose other side works after each bus write (a lockstep emulator) keeps it
+        until the next write has gone out; any other clock runs it now."""
+
+    def run_deferred(self) -> None:
+        """Run the work :meth:`defer` kept, if any (before the loop ends)."""
+
 
 class ForegroundClock:
     """What a :class:`Clock` whose time runs on while its caller works provides besides ``now``
@@ -65,6 +73,13 @@ class ForegroundClock:
 
     def ask_after_next_write(self) -> None:
         """Nothing: the time is read when asked."""
+
+    def defer(self, work: Callable[[], None]) -> None:
+        """``work()`` now: the time it takes is the caller's."""
+        work()
+
+    def run_deferred(self) -> None:
+        """Nothing: :meth:`defer` keeps nothing."""
 
 
 class WallLoopClock(ForegroundClock):
@@ -140,16 +155,17 @@ class Ticker:
     def wait(self, meanwhile: Callable[[], None] | None = None) -> int:
         """Sleep until the next slot; return its index (slots missed by an overrun are skipped).
 
-        ``meanwhile``: the rest of the cycle's work (e.g. writing the log), run between the
-        clock's ``start_sleep`` and ``end_sleep``. On a clock that sleeps in the background (a
-        lockstep emulator, whose time host work does not take) it runs while the clock
-        advances; on a :class:`ForegroundClock` those do nothing and it is part of the cycle."""
+        ``meanwhile``: the rest of the cycle's work (e.g. writing the log), handed to the clock's
+        ``defer`` between its ``start_sleep`` and ``end_sleep``. A clock that sleeps in the
+        background (a lockstep emulator, whose time host work does not take) runs it while the
+        emulator steps the physics and serves the next cycle's read; on a
+        :class:`ForegroundClock` it runs at once and is part of the cycle."""
         if self._t0 is None:
             raise RuntimeError("Ticker.start() first")
         nxt = self._k + 1
         self.clock.start_sleep(self.deadline(nxt))     # a no-op advance if the work ran past it
         if meanwhile is not None:
-            meanwhile()
+            self.clock.defer(meanwhile)
         now = self.clock.end_sleep()                   # the clock's time when the sleep was asked
         self.last_busy_s = now - self._last_wake
         if now > self.deadline(nxt):  # the work ran past the next deadline: overrun

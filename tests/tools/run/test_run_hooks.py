@@ -59,7 +59,7 @@ def test_overload_mid_run_is_recovered_while_a_live_client_watches():
 
     def on_cycle(fields, clock):
         if not injected and clock.now() >= FAULT_AT_S:
-            clock.fault("hwerror", 3, "overload")      # served in bus order, before the next read
+            clock.fault("hwerror", 3, "overload")      # served in bus order: after the read the loop has sent
             injected.append(clock.now())
         if not client_done.is_set() and time.monotonic() < give_up:
             client_done.wait(0.01)          # let the viewer connect: robot time does not pass

@@ -1,0 +1,150 @@
+"""The arrays of the compiled robot kernel, kept from one run of ticks to the next.
+
+:func:`.coupled.robot_ticks` works on arrays (:mod:`.coupled` lays them out). Building them
+afresh for every run between two bus events cost several times the kernel itself, so
+:class:`CoupledArrays` allocates them once per robot: the wheels' and the body's constants are
+filled at construction, each servo's discretised plant and input coefficients only when the
+servo derived new ones (the same tuple object otherwise), and the state, which Python code may
+change between runs (a reboot, a Clear, a fault, a tick stepped from Python), is copied in from
+the models in one flat assignment per array and stored back into them after the call.
+"""
+from __future__ import annotations
+
+import struct
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from . import coupled
+from .body import RobotBody
+from .contact import ContactBody
+from .servo_model import ServoModel
+
+
+class CoupledArrays:
+    """The inputs and state of :func:`.coupled.robot_ticks` for one robot, reused across runs.
+
+    Parameters
+    ----------
+    models : sequence of ServoModel
+        The servos, in the order the supply sums their currents.
+    wheel_rows : sequence of (int, int)
+        Per wheel, the indices in ``models`` of its drive and steering servo.
+    wheel_frames : sequence of tuple
+        Per wheel: drive and steering directions (±1.0), steering centre (pulse), radius (m),
+        steering offset (rad).
+    body : RobotBody or ContactBody
+        The body the wheels move.
+    body_floats : tuple of float
+        Half the steering backlash (rad), supply voltage (V) and internal resistance (Ω), the
+        servos' total idle current (A) (the first four of :data:`.coupled.BODY_FLOATS`).
+    supply_on : bool
+        Whether the servos' currents sag the bus voltage.
+    """
+
+    def __init__(self, models: Sequence[ServoModel], wheel_rows: Sequence[tuple[int, int]],
+                 wheel_frames: Sequence[tuple], body: RobotBody | ContactBody, body_floats: tuple[float, ...],
+                 supply_on: bool):
+        count, wheels = len(models), len(wheel_rows)
+        self.models = list(models)
+        self.body = body
+        self.contact = isinstance(body, ContactBody)
+        self.fs = np.zeros((count, len(coupled.FLOATS)))
+        self.ints = np.zeros((count, len(coupled.INTS)), np.int64)
+        self.servo_i = np.zeros((count, len(coupled.SERVO_INTS)), np.int64)
+        self.servo_f = np.zeros((count, len(coupled.SERVO_FLOATS)))
+        self.out_i = np.zeros((count, 2), np.int64)
+        self.v_meas = np.zeros(count)
+        self.wheel_i = np.array(wheel_rows, np.int64).reshape(wheels, 2)
+        if self.contact:
+            p = body.params
+            place = (body._x, body._y, body._limits)
+            fit = ([0.0] * wheels,) * 6
+            body_consts = (float(p.lateral_stiffness_ratio), float(p.slip_stiffness_n_s_per_m), body.mass_kg,
+                           body.yaw_inertia_kg_m2)
+        else:
+            place = ([0.0] * wheels,) * 3
+            fit = body.fit_rows
+            body_consts = (0.0,) * 4
+        self.wheel_f = np.array([*zip(*wheel_frames), *place, *fit], float).reshape(len(coupled.WHEEL_FLOATS), wheels)
+        self.wheel_out = np.zeros((len(coupled.WHEEL_OUT), wheels))
+        self.backlash = np.zeros(wheels)
+        self.body_f = np.array((*body_floats, *body_consts), float)
+        self.flags = np.array((0, supply_on, self.contact), np.int64)
+        self.pose = np.zeros(7)
+        self.stats = np.zeros(2, np.int64)
+        self.plants: np.ndarray | None = None     # (servos, plant coefficients), at the first run
+        self.inputs: np.ndarray | None = None
+        self._plant_of: list = [None] * count     # the model's plant / input tuples the rows hold
+        self._input_of: list = [None] * count
+        # the per-run copies in: one struct.pack_into per array (native doubles / int64, C order),
+        # which converts a list of Python numbers in less than half the time NumPy's assignment takes
+        self._packers = tuple((struct.Struct(f"{a.size}{'d' if a.dtype == np.float64 else 'q'}").pack_into, a)
+                              for a in (self.fs, self.ints, self.servo_i, self.servo_f))
+
+    def run(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]],
+            backlash: list[float] | None) -> tuple[int, list[float] | None]:
+        """Up to ``n`` ticks of ``dt_s`` s of every servo and the body in one call of
+        :data:`.coupled.ROBOT_TICKS` (see :meth:`RobotPhysics.run_coupled`): the models' state in,
+        the kernel, the state back into the models and the body. ``runs[model]``: its raw input
+        items and whether they are those of its last run. ``backlash``: the wheel angles behind
+        the steering backlash (rad), ``None`` before the first step. Returns the ticks run and
+        the wheel angles behind the backlash after them (``backlash`` if there is none)."""
+        models = self.models
+        plans, plants, inputs, floats, ints, servo_i, servo_f = [], [], [], [], [], [], []
+        for m in models:
+            plan, plant, inp = m.begin_run(dt_s, *runs[m])
+            plants.append(plant)
+            inputs.append(inp)
+            plans.append(plan)
+            f, i = m.kernel_state()
+            floats += f
+            ints += i
+            servo_i += (plan.homing, m.motor.blocked, *m.run_flags(plan))
+            servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, m.motor.load_torque_nm)
+        self._load_coefficients(plants, inputs)
+        for (pack, array), values in zip(self._packers, (floats, ints, servo_i, servo_f)):
+            pack(array, 0, *values)
+        self.out_i[:, 0] = 0
+        half = self.body_f[0]
+        if backlash is not None:
+            self.backlash[:] = backlash
+        self.flags[0] = backlash is not None
+        body = self.body
+        if self.contact:
+            self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, body.slip_energy_j)
+            self.stats[:] = (body.saturated_steps, body.wheel_steps)
+        else:
+            self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, 0.0)
+        ran = coupled.ROBOT_TICKS(n, dt_s, self.plants, self.inputs, self.servo_i, self.servo_f, self.fs, self.ints,
+                                  self.out_i, self.v_meas, self.wheel_i, self.wheel_f, self.backlash, self.wheel_out,
+                                  self.body_f, self.flags, self.pose, self.stats)
+        fs_l, ints_l, out_l, vm_l, sf_l = (a.tolist() for a in (self.fs, self.ints, self.out_i, self.v_meas,
+                                                                 self.servo_f))
+        for k, m in enumerate(models):
+            bits, present = out_l[k]
+            m.finish_run(runs[m][0], plans[k], bits, fs_l[k], ints_l[k], present, vm_l[k])
+            m.supply_voltage_v, m.motor.load_torque_nm = sf_l[k][1], sf_l[k][2]
+        x, y, theta, vx, vy, w, energy = self.pose.tolist()
+        body.x_m, body.y_m, body.theta_rad, body._twist = x, y, theta, (vx, vy, w)
+        speeds, angles, slip, fx, fy, flong = self.wheel_out.tolist()
+        if self.contact:
+            body.slip_energy_j = energy
+            body.saturated_steps, body.wheel_steps = self.stats.tolist()
+            body._slip, body._fx, body._fy, body._flong = slip, fx, fy, flong
+        else:
+            body._fit = (tuple(speeds), tuple(angles), (vx, vy, w))
+        return ran, self.backlash.tolist() if half > 0.0 else backlash
+
+    def _load_coefficients(self, plants: list[tuple], inputs: list[tuple]) -> None:
+        """Each servo's plant and input coefficients (:meth:`ServoModel.begin_run`'s ``plant[3]``
+        and ``inputs[2]``) into their rows: all at the first run, then the rows whose tuple changed."""
+        if self.plants is None:
+            self.plants, self.inputs = np.array([p[3] for p in plants]), np.array([i[2] for i in inputs])
+        else:
+            for k, (plant, inp, old_plant, old_inp) in enumerate(zip(plants, inputs, self._plant_of, self._input_of)):
+                if plant is not old_plant:
+                    self.plants[k] = plant[3]
+                if inp is not old_inp:
+                    self.inputs[k] = inp[2]
+        self._plant_of, self._input_of = plants, inputs
