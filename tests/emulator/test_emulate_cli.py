@@ -23,6 +23,7 @@ def _start(*args: str) -> subprocess.Popen:
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
 
 
+@pytest.mark.slow
 def test_emulate_serves_sdk_and_exits_cleanly(tmp_path):
     link = tmp_path / "dxl"
     proc = _start("--config", "configs/robot.yaml", "--ids", "1-3", "--link", str(link))

@@ -79,6 +79,7 @@ async def _client(url: str, feed, want_topics: set[str], timeout_s: float = 20.0
         return channels, got
 
 
+@pytest.mark.slow
 def test_client_sees_the_run_topics_with_clean_contents_and_times():
     from rosbags.typesys import Stores, get_typestore
 
@@ -132,6 +133,7 @@ _finite = st.floats(-50.0, 50.0, allow_nan=False)
 _maybe = st.one_of(_finite, st.just(float("nan")))
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 50_000_000), st.lists(_maybe, min_size=4, max_size=4),
                           st.lists(_maybe, min_size=4, max_size=4), st.lists(_maybe, min_size=8, max_size=8),
@@ -188,6 +190,7 @@ def test_shipped_layout_names_topics_the_publisher_serves():
     assert {"/joint_states", "/reference", "/odom", live.LIVE_TOPIC} <= used
 
 
+@pytest.mark.slow
 def test_emulate_physics_streams_the_true_pose(tmp_path):
     import subprocess
     import sys
