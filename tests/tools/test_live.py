@@ -22,6 +22,7 @@ from swerve.tools.logs.bag import TOPICS
 from swerve.tools.logs.record import CYCLE_FIELDS, CycleRecord
 
 websockets = pytest.importorskip("websockets")
+websockets_exceptions = pytest.importorskip("websockets.exceptions")     # a submodule, not loaded by the package
 #: foxglove-sdk >= 0.2x speaks "foxglove.sdk.v1" (the successor of "foxglove.websocket.v1", same
 #: operations); the client offers both, as the Foxglove app does.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -154,7 +155,7 @@ def test_joints_and_twist_never_send_nan_and_arrays_are_whole_or_empty(cycles):
 
 def test_refused_client_is_logged_with_the_accepted_subprotocol(caplog):
     async def old_client(url):
-        with pytest.raises(websockets.exceptions.InvalidStatus, match="400"):
+        with pytest.raises(websockets_exceptions.InvalidStatus, match="400"):
             async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"]):
                 pass
 
