@@ -50,7 +50,8 @@ from swerve.core.errors import SwerveError
 
 log = logging.getLogger(__name__)
 
-#: Longest the bus thread waits for bytes a barrier announced before answering with an error, s.
+#: Longest the bus thread waits by default for bytes a barrier announced before answering with an
+#: error, s (:class:`ControlServer`'s ``barrier_timeout_s``).
 BARRIER_TIMEOUT_S = 10.0
 #: Longest request line, bytes (the longest valid one is under 100); a longer one drops the client.
 MAX_LINE_BYTES = 1024
@@ -111,9 +112,22 @@ class ControlServer:
 
     An existing file at ``path`` that is not a socket is refused (``FileExistsError``), never
     removed; a stale socket left by a previous emulator is replaced.
+
+    Parameters
+    ----------
+    path : str or os.PathLike, optional
+        Where the socket is bound; a fresh temporary directory's ``control.sock`` by default.
+    barrier_timeout_s : float, optional
+        Longest the bus thread waits for the pty bytes a request announced before answering
+        ``error``, s (finite, > 0; :data:`BARRIER_TIMEOUT_S` by default). The bus serves the pty
+        meanwhile but no other control request, so a client announcing bytes nobody writes holds
+        robot time this long.
     """
 
-    def __init__(self, path: str | os.PathLike | None = None):
+    def __init__(self, path: str | os.PathLike | None = None, barrier_timeout_s: float = BARRIER_TIMEOUT_S):
+        if not (math.isfinite(barrier_timeout_s) and barrier_timeout_s > 0):
+            raise ValueError(f"barrier timeout must be a finite number of seconds > 0, got {barrier_timeout_s!r}")
+        self.barrier_timeout_s = float(barrier_timeout_s)
         self._tmpdir = None
         if path is None:
             self._tmpdir = tempfile.mkdtemp(prefix="swerve-lockstep-")
@@ -232,10 +246,10 @@ class ControlServer:
             if not 0 <= tx <= MAX_TX_BYTES:
                 return f"error tx_bytes must be in [0, {MAX_TX_BYTES}], got {tx}"
             target = conn.rx_base + tx
-            if not bus.receive_until(target, BARRIER_TIMEOUT_S):
+            if not bus.receive_until(target, self.barrier_timeout_s):
                 conn.rx_base = bus.rx_bytes
                 return (f"error only {bus.rx_bytes - (target - tx)} of the {tx} announced bytes arrived "
-                        f"within {BARRIER_TIMEOUT_S:g} s")
+                        f"within {self.barrier_timeout_s:g} s")
             conn.rx_base = target
             if cmd == "advance":
                 asked, t_s = bus.robot_time_s(), float(args[0])

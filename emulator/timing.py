@@ -21,7 +21,7 @@ from typing import Protocol
 from swerve.driver.errors import ConfigError
 from swerve.emulator.clock import (DEFAULT_REPLY_LATENCY_S, FrozenClock, LockstepPhysicsClock, PhysicsClock,
                                    WallPhysicsClock)
-from swerve.emulator.lockstep_socket import ControlServer
+from swerve.emulator.lockstep_socket import BARRIER_TIMEOUT_S, ControlServer
 
 
 class Timing(Protocol):
@@ -59,15 +59,17 @@ class Lockstep:
     """Robot time advances only when a client asks, through the control channel (a Unix socket at
     ``control_path``, a temporary one by default; ``emu.control.path``); every exchange is charged
     at its wire time plus ``reply_latency_s`` per answering servo
-    (:class:`~swerve.emulator.clock.LockstepPhysicsClock`)."""
+    (:class:`~swerve.emulator.clock.LockstepPhysicsClock`). ``barrier_timeout_s`` bounds the wait for
+    the pty bytes a control request announces (:class:`~swerve.emulator.lockstep_socket.ControlServer`)."""
 
     control_path: str | os.PathLike | None = None
     reply_latency_s: float = DEFAULT_REPLY_LATENCY_S
+    barrier_timeout_s: float = BARRIER_TIMEOUT_S
 
     def build(self, rate_hz: float) -> tuple[PhysicsClock, ControlServer]:
         clock = LockstepPhysicsClock(rate_hz, self.reply_latency_s)
         try:
-            return clock, ControlServer(self.control_path)
+            return clock, ControlServer(self.control_path, self.barrier_timeout_s)
         except OSError as exc:
             raise ConfigError(f"cannot open the lockstep control socket: {exc}") from None
 

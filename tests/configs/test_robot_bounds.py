@@ -112,6 +112,7 @@ def _cases(values):
     return key.flatmap(lambda k: st.tuples(st.just(k), st.integers(0, 7), values(BOUNDS[k])))
 
 
+@pytest.mark.slow
 @settings(max_examples=400, deadline=None)
 @given(case=_cases(_outside))
 @example(case=("geometry.wheel_radius_m", 0, 1e-300))

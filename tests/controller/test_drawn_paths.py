@@ -123,6 +123,7 @@ segment = st.one_of(
               st.floats(0.2, 3.0).flatmap(lambda a: st.sampled_from([a, -a]))))
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(segs=st.lists(segment, min_size=1, max_size=6), speed=st.floats(0.02, 0.1),
        dt=st.floats(0.01, 0.25), noise=st.booleans(), seed=st.integers(0, 2 ** 16),
@@ -155,6 +156,7 @@ def test_line_and_arc_paths(tmp_path_factory, segs, speed, dt, noise, seed, head
         assert outcome == "tracked", outcome
 
 
+@pytest.mark.slow
 @SETTINGS
 @given(ax=st.floats(0.1, 0.6), ay=st.floats(0.1, 0.6), ratio=st.sampled_from([1, 2, 3, 1.5]),
        phase=st.floats(0.0, math.pi), period=st.floats(40.0, 120.0), extra=st.floats(0.0, 0.1),

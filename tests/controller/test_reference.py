@@ -242,6 +242,7 @@ print(json.dumps(out))
 """
 
 
+@pytest.mark.slow
 def test_same_bits_without_numpys_simd_loops(other_cpu, probe_prelude):
     """xd, ud and K of the circle and two CSV paths (lines and arcs; free-form) are the same
     whichever SIMD loops NumPy picks (here: those of a CPU without AVX-512 and AVX2)."""

@@ -219,6 +219,7 @@ def test_spread_errors_cost_and_gradient(switching_reference):
         assert G[i, r, c] == pytest.approx(fd, rel=1e-4, abs=1e-8)
 
 
+@pytest.mark.slow
 def test_default_paper_gains_track_the_curvilinear_path(robot):
     """The default paper synthesis (spread errors, frozen-time LQR start, CG to 1.001 J*) passes
     its own check and tracks the curvilinear path like Riccati; the former default (errors at

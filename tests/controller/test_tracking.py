@@ -43,6 +43,7 @@ CASES = [
 ]
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,x0,bound", CASES, ids=[f"{c[0]}-{i}" for i, c in enumerate(CASES)])
 def test_tracks_in_simulation(name, x0, bound, robot):
     _, limits = robot
@@ -110,6 +111,7 @@ def test_law_api(robot):
         TrackingLaw(other, gains, limits)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("name,x0", [("line", None), ("circle", [0.0, -0.1, 0.3, 0.0, 0.0]),
                                      ("figure8.csv", [0.0, -0.05, 0.5, 0.0, 0.0])])
 def test_law_equals_the_vectorised_chained_law(name, x0, robot, numpy_ref):

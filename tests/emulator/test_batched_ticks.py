@@ -272,6 +272,7 @@ def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
     assert compiled == python
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
 def test_the_emulator_loads_the_compiled_kernel_when_built():
     """Built, the emulator has the kernel loaded (a first tick would stall the bus for its load

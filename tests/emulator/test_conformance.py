@@ -17,7 +17,7 @@ from swerve.driver.control_table import HardwareError, Reg
 from swerve.driver.packets import ErrorNumber
 from swerve.emulator.factory import build_emulator
 
-from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient, check_reads_match, valid_value
+from .conftest import DRIVER_MARGIN_S, TABLE, TIMEOUT, SdkClient, answered, check_reads_match, valid_value
 
 IDS = list(range(1, 9))
 XH430_W210 = 1010
@@ -26,7 +26,7 @@ ALERT = 0x80
 
 def test_ping_every_id(client):
     for i in IDS:
-        assert client.ping(i) == (XH430_W210, 0)
+        assert answered(client.ping, i) == (XH430_W210, 0)
     assert client.ping(42) == TIMEOUT
 
 

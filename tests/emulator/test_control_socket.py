@@ -30,13 +30,19 @@ from swerve.emulator.timing import Lockstep
 REPLY_WORDS = {"at", "pose", "ok", "stats", "info", "error"}
 #: Wall-clock bound on one reply, s (the test fails rather than hangs; verdicts never depend on it).
 REPLY_WAIT_S = 30.0
+#: The emulator's wait for pty bytes a request announces, s. No test here writes the bytes a
+#: control request announces, so every such wait ends in its timeout and an ``error`` reply,
+#: whatever its length; a short one keeps a hostile ``now 7`` from holding the bus for the
+#: default 10 s.
+BARRIER_TIMEOUT_S = 0.02
 
 
 @pytest.fixture(scope="module")
 def lockstep_robot():
     """A lockstep robot emulator (8 servos and a body) and a driver on its pty."""
     robot = load_robot_config(shipped("robot.yaml"))
-    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
+    timing = Lockstep(barrier_timeout_s=BARRIER_TIMEOUT_S)
+    with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=timing, body=BodySettings()) as emu:
         # no lockstep clock gates this bus's replies, so its deadline is a wall-clock bound that
         # only turns a deaf bus into a failure (a loaded host must not)
         with Bus(emu.port, 1_000_000, default_model="xh430-w210", timeout_margin_s=REPLY_WAIT_S) as bus:
@@ -114,6 +120,7 @@ _action = st.one_of(
 @example(action=("bytes", b"\xe9\n", False))
 @example(action=("request", b"fault 0 vanish 1\n", True))
 @example(action=("request", b"advance 1e300 0\n", False))
+@example(action=("request", b"now 7\nfault 1_0 vanish 1\nnow 0\n", True))
 @example(action=("request", b"advance nan 0\nadvance inf 0\nnow -1\nnow 99999999999999999999\n", False))
 @example(action=("long line", b"a" * (10 * MAX_LINE_BYTES), True))
 @example(action=("stalled", b"info\n" * 20_000, True))
@@ -150,6 +157,26 @@ def test_extreme_requests_get_error_lines(lockstep_robot):
     assert [r.split(" ", 1)[0] for r in replies] == ["error"] * len(requests), replies
     assert "refused" in replies[0] and "not ASCII" in replies[-1]
     _assert_alive(emu, bus)
+
+
+def test_announced_bytes_that_never_arrive_get_an_error(lockstep_robot):
+    """A request announcing pty bytes nobody writes is answered after the barrier timeout (the
+    emulator's setting), and the connection serves the next request from where the bytes stand."""
+    emu, bus = lockstep_robot
+    assert emu.control.barrier_timeout_s == BARRIER_TIMEOUT_S
+    with _connect(emu.control.path) as c:
+        c.sendall(b"now 7\nnow 0\n")
+        replies = _lines(c, 2)
+    assert replies[0] == f"error only 0 of the 7 announced bytes arrived within {BARRIER_TIMEOUT_S:g} s", replies
+    assert replies[1].startswith("at "), replies
+    _assert_alive(emu, bus)
+
+
+@pytest.mark.parametrize("timeout_s", [0.0, -1.0, float("nan"), float("inf")])
+def test_barrier_timeout_must_be_positive_and_finite(tmp_path, timeout_s):
+    with pytest.raises(ValueError, match="barrier timeout must be a finite number of seconds > 0"):
+        ControlServer(tmp_path / "c.sock", barrier_timeout_s=timeout_s)
+    assert not (tmp_path / "c.sock").exists()
 
 
 def test_an_overlong_line_drops_only_that_client(lockstep_robot):

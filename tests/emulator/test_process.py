@@ -13,6 +13,7 @@ from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Lockstep, WallTime
 
 
+@pytest.mark.slow
 def test_child_emulator_serves_the_bus_and_shares_the_pose():
     with EmulatorProcess("configs/robot.yaml", timing=WallTime(1.0), body=BodySettings(start_pose=(0.5, -0.25, 0.1))) as emu:
         with Bus(emu.port, 1_000_000, timeout_margin_s=0.3) as bus:
@@ -85,6 +86,7 @@ except ChildProcessError:
 """
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(sys.platform != "linux", reason="PR_SET_CHILD_SUBREAPER is Linux only")
 def test_swerve_run_emulate_leaves_no_process_behind():
     out = subprocess.run([sys.executable, "-c", _SUBREAPER], capture_output=True, text=True, timeout=300)

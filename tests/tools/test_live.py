@@ -22,6 +22,7 @@ from swerve.tools.logs.bag import TOPICS
 from swerve.tools.logs.record import CYCLE_FIELDS, CycleRecord
 
 websockets = pytest.importorskip("websockets")
+websockets_exceptions = pytest.importorskip("websockets.exceptions")     # a submodule, not loaded by the package
 #: foxglove-sdk >= 0.2x speaks "foxglove.sdk.v1" (the successor of "foxglove.websocket.v1", same
 #: operations); the client offers both, as the Foxglove app does.
 SUBPROTOCOLS = ["foxglove.sdk.v1", "foxglove.websocket.v1"]
@@ -79,6 +80,7 @@ async def _client(url: str, feed, want_topics: set[str], timeout_s: float = 20.0
         return channels, got
 
 
+@pytest.mark.slow
 def test_client_sees_the_run_topics_with_clean_contents_and_times():
     from rosbags.typesys import Stores, get_typestore
 
@@ -132,6 +134,7 @@ _finite = st.floats(-50.0, 50.0, allow_nan=False)
 _maybe = st.one_of(_finite, st.just(float("nan")))
 
 
+@pytest.mark.slow
 @settings(max_examples=200, deadline=None)
 @given(st.lists(st.tuples(st.integers(0, 50_000_000), st.lists(_maybe, min_size=4, max_size=4),
                           st.lists(_maybe, min_size=4, max_size=4), st.lists(_maybe, min_size=8, max_size=8),
@@ -152,7 +155,7 @@ def test_joints_and_twist_never_send_nan_and_arrays_are_whole_or_empty(cycles):
 
 def test_refused_client_is_logged_with_the_accepted_subprotocol(caplog):
     async def old_client(url):
-        with pytest.raises(websockets.exceptions.InvalidStatus, match="400"):
+        with pytest.raises(websockets_exceptions.InvalidStatus, match="400"):
             async with websockets.connect(url, subprotocols=["foxglove.websocket.v1"]):
                 pass
 
@@ -188,6 +191,7 @@ def test_shipped_layout_names_topics_the_publisher_serves():
     assert {"/joint_states", "/reference", "/odom", live.LIVE_TOPIC} <= used
 
 
+@pytest.mark.slow
 def test_emulate_physics_streams_the_true_pose(tmp_path):
     import subprocess
     import sys

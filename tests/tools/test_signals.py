@@ -128,8 +128,9 @@ def _start_run(port: str, robot_file: Path, log: Path) -> subprocess.Popen:
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("sigs", [(signal.SIGTERM,), (signal.SIGHUP,), (signal.SIGTERM, signal.SIGINT)],
-                         ids=["SIGTERM", "SIGHUP", "SIGTERM-then-SIGINT"])
+@pytest.mark.parametrize("sigs", [(signal.SIGINT,), (signal.SIGTERM,), (signal.SIGHUP,),
+                                  (signal.SIGTERM, signal.SIGINT)],
+                         ids=["SIGINT", "SIGTERM", "SIGHUP", "SIGTERM-then-SIGINT"])
 def test_a_signal_stops_swerve_run_with_the_torque_off_and_the_log_closed(sigs, emulator, robot_file, tmp_path):
     port, _ = emulator
     log = tmp_path / "log"

@@ -143,6 +143,7 @@ print(json.dumps([n, out]))
 """
 
 
+@pytest.mark.slow
 def test_same_bits_under_different_blas_kernels(other_cpu):
     out = {core: json.loads(other_cpu({"OPENBLAS_CORETYPE": core}, "-c", _PROBE % (SKEWED,)))
            for core in ("Nehalem", "Haswell")}

@@ -2,6 +2,8 @@
 schedule, runs with it, and tracks about as well as the Riccati cell of the same robot."""
 from __future__ import annotations
 
+import pytest
+
 from swerve.configs import shipped
 from swerve.tools.campaign.scenario import run_scenario
 from swerve.tools.campaign.spec import load_campaign
@@ -16,6 +18,7 @@ gains: [riccati, paper]
 """
 
 
+@pytest.mark.slow
 def test_paper_gains_cell_runs_with_its_own_schedule(tmp_path):
     path = tmp_path / "paper.yaml"
     path.write_text(CAMPAIGN.format(traj=shipped("campaigns/trajectories/line-6s.yaml")))

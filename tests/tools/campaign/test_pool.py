@@ -28,6 +28,7 @@ def rows(data: bytes) -> list[dict]:
     return list(csv.DictReader(io.StringIO(data.decode())))
 
 
+@pytest.mark.slow
 def test_one_and_two_workers_give_the_same_table_and_a_refused_run_is_a_row(tiny_file, tiny_pool, tmp_path):
     out = tmp_path / "out"
     proc = run_campaign("run", str(tiny_file), "--out", str(out), "--workers", "2", "--no-plots")
@@ -51,6 +52,7 @@ def test_a_different_file_for_a_results_folder_is_refused(tiny_file, tmp_path):
     assert proc.stderr.count("\n") == 1 and "another campaign file" in proc.stderr
 
 
+@pytest.mark.slow
 def test_stop_signal_keeps_results_and_a_rerun_resumes(tiny_file, tiny_pool, tmp_path):
     out = tmp_path / "out"
     proc = subprocess.Popen(campaign_cmd("run", str(tiny_file), "--out", str(out), "--workers", "1", "--no-plots"),
@@ -71,6 +73,7 @@ def test_stop_signal_keeps_results_and_a_rerun_resumes(tiny_file, tiny_pool, tmp
     assert (out / "results.csv").read_bytes() == tiny_pool
 
 
+@pytest.mark.slow
 def test_replay_gives_the_same_row(tiny_file, tiny_pool, tmp_path):
     out = tmp_path / "out"
     out.mkdir()

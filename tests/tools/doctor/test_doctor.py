@@ -43,6 +43,7 @@ def _factory_servo(port: str, id_: int) -> None:
         assert bus.ping(1).model_number == 1010
 
 
+@pytest.mark.slow
 def test_missing_servo_is_found_at_factory_baud_and_moved(emu, cfg):
     _factory_servo(emu.port, 7)
     report = doctor.diagnose(cfg, emu.port, margin_s=MARGIN_S, cycles=5, scan_bauds=BAUDS)

@@ -7,9 +7,10 @@ and the run is the same on an idle or a loaded machine, so the error bounds are 
 bounds on the emulated robot's errors (servo lag, encoder quantisation, odometry), measured at
 a few mm. One tracking test stays on the wall clock (time-scaled, ``SWERVE_TEST_TIME_SCALE``,
 default 2, where a whole run met every deadline on this 2-core machine) with the wall-clock allowance of 2x the ideal simulation + 3 cm, and skips (saying so)
-when the host cannot run the emulator or the controller at that scale; the killed-controller
-and Ctrl-C tests stay there too, because what they test (a dead or interrupted controller
-process) pauses a lockstep robot instead. Under a time scale the run stretches the Bus Watchdog
+when the host cannot run the emulator or the controller at that scale. A controller killed
+mid-run is tested in lockstep (the test takes over robot time after the kill) and, as two
+processes of the command line, on the wall clock; Ctrl-C and the other stop signals are tested
+in ``tests/tools/test_signals.py``. Under a time scale the run stretches the Bus Watchdog
 and the failed-read limit to their wall-clock length (``swerve.tools.run.orchestrate.
 wall_clock_guards``); the wall-clock tests' copy of ``configs/robot.yaml`` also raises the
 watchdog from 0.1 s to 0.25 s, so one scheduling hiccup of a loaded CI machine is not taken for
@@ -18,6 +19,7 @@ a dead controller.
 import json
 import os
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -26,7 +28,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from swerve.driver.bus import Bus
+from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
+from swerve.tools.run.lockstep import LOCKSTEP_TIMEOUT_MARGIN_S, LockstepLoopClock
 from swerve.tools.run.orchestrate import RunRequest, run_tracking, wall_clock_guards
 
 #: Time scale of the wall-clock tests (see BENCHMARKS.md for the limit).
@@ -41,6 +46,10 @@ ODOMETRY_BOUND_M = 0.03
 LOCKSTEP_BOUNDS_M = {"line": (0.004, 0.0125, 0.0035), "circle": (0.0045, 0.0065, 0.005)}
 #: Lockstep: odometry vs true pose over a whole run, m (measured 1.7 mm line, 3.8 mm circle).
 LOCKSTEP_ODOMETRY_BOUND_M = 0.005
+#: Lockstep: slack on the bus's reply deadlines, wall s. The emulator is the bus's reply gate, so
+#: a reply late on the wall clock is still waited for and the run's outcome does not depend on
+#: this; it only sets how long a reply the emulator dropped on purpose keeps the loop waiting.
+LOCKSTEP_MARGIN_S = 0.001
 
 pytestmark = pytest.mark.slow
 
@@ -138,7 +147,7 @@ def test_tracks_the_line_on_the_wall_clock(tmp_path, config):
 
 @pytest.mark.emulated_robot(faults="drop=0.02,seed=3")
 def test_two_percent_dropped_replies_completes_with_drops_counted(emulated_robot):
-    res = lockstep_run(emulated_robot, "line", log=None, timeout_margin_s=0.05)
+    res = lockstep_run(emulated_robot, "line", log=None, timeout_margin_s=LOCKSTEP_MARGIN_S)
     s = res.summary.to_dict()
     assert res.aborted is None, s.get("abort_message")
     assert s["emulator_replies_dropped"] > 0 and s["failed_reads"] > 0
@@ -158,7 +167,7 @@ def test_vanishing_servo_stops_cleanly_naming_it(tmp_path, monkeypatch, emulated
         return real_read(self)
 
     monkeypatch.setattr(online.TrackingLoop, "_read", read)
-    res = lockstep_run(emulated_robot, "line", log=tmp_path / "log", timeout_margin_s=0.05)
+    res = lockstep_run(emulated_robot, "line", log=tmp_path / "log", timeout_margin_s=LOCKSTEP_MARGIN_S)
     assert res.aborted is not None and res.aborted.cause == "no reply"
     assert 7 in res.aborted.ids and "servo ID" in str(res.aborted) and "7" in str(res.aborted)
     from swerve.tools.logs.bag import read_log
@@ -197,7 +206,56 @@ def _max_wheel_speed(doc: dict | None) -> float:
     return max(abs(w["speed_mps"]) for w in doc["wheels"]) if doc else float("nan")
 
 
+#: A controller run in its own process against the ``emulated_robot`` fixture's emulator (the
+#: same ``run_tracking`` as ``swerve run``), so the test can SIGKILL it.
+_CONTROLLER = ("import sys\n"
+               "from swerve.tools.run.orchestrate import RunRequest, run_tracking\n"
+               "run_tracking(RunRequest(trajectory='line', port=sys.argv[1], control=sys.argv[2], lockstep=True,\n"
+               "                        time_scale=None, log=None))\n")
+
+
+def _robot_time_s(control_path: str) -> float:
+    """Robot time asked on a connection of its own (``robot.clock`` keeps the last time it saw,
+    since it assumes it is the only client moving time)."""
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as s:
+        s.settimeout(60)
+        s.connect(control_path)
+        s.sendall(b"now 0\n")
+        return float(s.makefile("rb").readline().split()[1])
+
+
+def test_killed_controller_lets_the_watchdog_stop_the_robot_in_lockstep(emulated_robot):
+    """A controller killed mid-run (SIGKILL: no clean-up at all) stops sending; in robot time,
+    the robot file's Bus Watchdog then stops the wheels. Robot time stands still from the kill
+    until the test advances it, so the bound is exact robot time on any host."""
+    control = emulated_robot.control_path
+    ctl = subprocess.Popen([sys.executable, "-c", _CONTROLLER, emulated_robot.port, control],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    try:
+        assert _wait_for(lambda: ctl.poll() is not None or _robot_time_s(control) > 3.0, 300), "never got going"
+        assert ctl.poll() is None, ctl.stderr.read()     # the line takes 40 s of robot time
+    finally:
+        ctl.kill()
+        ctl.wait(timeout=30)
+    watchdog = load_robot_config("configs/robot.yaml").bus_watchdog_s
+    with LockstepLoopClock(control) as clock, Bus(emulated_robot.port, 1_000_000, default_model="xh430-w210",
+                                                  timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+        clock.attach(bus)
+        killed_s, moved = clock.now(), np.hypot(*clock.pose()[:2])
+        assert moved > 0.05, moved                       # it was driving when killed
+        clock.sleep_until(killed_s + watchdog + 1.0)     # the Bus Watchdog, the servos' deceleration
+        before = np.array(clock.pose())
+        clock.sleep_until(clock.now() + 0.5)
+        drift = np.hypot(*(np.array(clock.pose()) - before)[:2])
+        assert drift < 1e-3, drift                       # driving on, it would cover ~5 cm
+        assert all(bus.read(i, Reg.BUS_WATCHDOG) == -1 for i in range(1, 9))    # tripped: reads -1
+
+
+@pytest.mark.wallclock
 def test_killed_controller_lets_the_watchdog_stop_the_wheels(tmp_path, config):
+    """The same with ``swerve emulate`` and ``swerve run`` as processes, on the wall clock: the run
+    only pauses a lockstep robot it does not own through ``--emulate``, so this one is time-scaled
+    and its robot-time bound rides on the status file's wall-clock period (``pytest -m wallclock``)."""
     emu, port, status = _start_emulator(tmp_path, config)
     try:
         ctl = subprocess.Popen([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "line", "--config", str(config),
@@ -219,33 +277,6 @@ def test_killed_controller_lets_the_watchdog_stop_the_wheels(tmp_path, config):
         # in robot time: the (stretched) Bus Watchdog, the servos' deceleration, one status period
         watchdog = wall_clock_guards(load_robot_config(config), SCALE).bus_watchdog_s
         assert stopped[0] - killed_sim_s < watchdog + 1.0, (stopped[0], killed_sim_s, watchdog)
-    finally:
-        emu.send_signal(signal.SIGTERM)
-        emu.wait(timeout=30)
-
-
-def test_ctrl_c_turns_torque_off_and_keeps_the_log(tmp_path, config):
-    from swerve.driver.bus import Bus
-    from swerve.driver.control_table import Reg
-    from swerve.tools.logs.bag import read_log
-
-    emu, port, status = _start_emulator(tmp_path, config)
-    log = tmp_path / "log"
-    try:
-        ctl = subprocess.Popen([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "circle", "--config", str(config),
-                                "--port", port, "--time-scale", str(SCALE), "--timeout-margin-ms", "50",
-                                "--log", str(log)],
-                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-        assert _wait_for(lambda: _max_wheel_speed(_status(status)) > 0.02, 120), "robot never moved"
-        time.sleep(1.0)                              # let the run log a few dozen cycles
-        ctl.send_signal(signal.SIGINT)
-        out, err = ctl.communicate(timeout=60)
-        assert ctl.returncode == 130, err
-        with Bus(port, 1_000_000, timeout_margin_s=0.3) as bus:
-            torque = bus.sync_read(list(range(1, 9)), Reg.TORQUE_ENABLE)
-        assert all(v[Reg.TORQUE_ENABLE] == 0 for v in torque.values())
-        run_log = read_log(log)
-        assert run_log.clean and len(run_log) > 10
     finally:
         emu.send_signal(signal.SIGTERM)
         emu.wait(timeout=30)
