@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import gc
 import mmap
-import signal
 import time
 from multiprocessing.connection import Connection
 
@@ -26,11 +25,12 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
     the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
     of the connection closes)."""
-    for s in (signal.SIGINT, signal.SIGHUP):     # the parent decides when we stop
-        signal.signal(s, signal.SIG_IGN)
     conn = Connection(conn_fd)
     shared = mmap.mmap(shared_fd, SHARED_STATE.size)
-    robot_config, emulator_config, kwargs = conn.recv()
+    try:
+        robot_config, emulator_config, kwargs = conn.recv()
+    except EOFError:                   # started ahead (process.prestarted) and not needed after all
+        return
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
         x, y, theta = emu.world.pose
