@@ -9,11 +9,13 @@ identity and :data:`ENABLED` is False.
 
 The compiled kernels are cached on disk (``cache=True``) in :data:`CACHE_DIR`, a folder named for
 the SHA-256 of every source file of this package (kernels, the helpers they call, and this file
-with the compile options); it is passed to numba as ``NUMBA_CACHE_DIR``, numba's documented
-setting, before numba is imported. numba itself keys each kernel on its own source file only
-(numba docs, "Notes on Caching": changes to functions called from other files are not seen),
-so an edit of a helper elsewhere in the package changes the folder and the kernels compile
-anew. The folder lies under ``NUMBA_CACHE_DIR`` when the user set it, else under
+with the compile options) and of the reference model's control table (the unit constants the
+kernels read as globals come from it); it is passed to numba as ``NUMBA_CACHE_DIR``, numba's
+documented setting, before numba is imported. numba itself keys each kernel on its own source
+file only, and keeps the values of the globals it read when it compiled (numba docs, "Notes on
+Caching", cache limitations: https://numba.readthedocs.io/en/stable/developer/caching.html),
+so an edit of a helper elsewhere in the package, or of that table, changes the folder and the
+kernels compile anew. The folder lies under ``NUMBA_CACHE_DIR`` when the user set it, else under
 ``$XDG_CACHE_HOME/swerve/numba`` (``~/.cache/swerve/numba``); with it not writable, the kernel runs
 as Python (with a warning) rather than compile at every start.
 """
@@ -25,14 +27,17 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
+from swerve.driver.control_table import MODELS_DIR, REFERENCE_MODEL
+
 #: The folder of this package: every kernel and helper lives here.
 PACKAGE_DIR = Path(__file__).resolve().parent
 
 
 def _sources_digest() -> str:
-    """SHA-256 (hex, 16 digits) of the package's ``.py`` files, by name and content."""
+    """SHA-256 (hex, 16 digits) of the package's ``.py`` files and the reference model's table
+    (:mod:`.units` derives the kernels' constants from it), by name and content."""
     digest = hashlib.sha256()
-    for path in sorted(PACKAGE_DIR.glob("*.py")):
+    for path in (*sorted(PACKAGE_DIR.glob("*.py")), MODELS_DIR / f"{REFERENCE_MODEL}.yaml"):
         digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
 
