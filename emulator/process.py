@@ -100,7 +100,10 @@ def prestarted():
     global _prestarted
     with _prestarted_lock:
         if _prestarted is None:
-            _prestarted = _spawn()
+            try:
+                _prestarted = _spawn()
+            except OSError:         # only a head start: launch() spawns again and reports the error
+                pass
     try:
         yield
     finally:
@@ -148,7 +151,11 @@ class EmulatorProcess:
         if self._proc is not None:
             return self
         self._proc, self._conn, self._shared = _take_prestarted() or _spawn()
-        self._conn.send((self._robot, self._emulator_config, self._kwargs))
+        try:
+            self._conn.send((self._robot, self._emulator_config, self._kwargs))
+        except OSError:             # a child started ahead died while it imported
+            self.close()
+            raise SwerveError("the emulator process died while starting") from None
         return self
 
     def start(self) -> "EmulatorProcess":

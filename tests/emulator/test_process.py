@@ -136,3 +136,17 @@ def test_swerve_run_emulate_leaves_no_process_behind(extra, status):
     out = subprocess.run([sys.executable, "-c", _SUBREAPER, *extra], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
     assert out.stdout.split() == [status, "none"]
+
+
+def test_a_prestarted_child_that_died_is_one_clear_error(monkeypatch):
+    import swerve.emulator.process as process
+    from swerve.driver.errors import SwerveError
+
+    monkeypatch.setattr(process, "_CHILD_PROGRAM", "import sys; sys.exit(3)")   # dies before reading its request
+    with prestarted():
+        process._prestarted[0].wait(timeout=60)
+        emu = EmulatorProcess("configs/robot.yaml", timing=Lockstep())
+        with pytest.raises(SwerveError, match="died while starting"):
+            emu.launch()
+            emu.start()
+    assert emu.pid is None                       # closed and reaped
