@@ -26,10 +26,9 @@ Each case runs ``swerve run --trajectory line --emulate --lockstep [--emulator-c
   write while the controller logs), so controller + emulator can exceed loop; wait − emulator
   is the hand-over time only where they do not overlap.
 
-The Riccati cache and numba's kernels (``$XDG_CACHE_HOME/swerve``; a checkout whose kernels live
-in its ``__pycache__`` keeps them there) are in a folder of the benchmark's own, filled by an
-untimed first run of each case; ``--cold-cache`` gives every run an empty one instead (then
-numba compiles its kernels in every run, seconds). The commands run with Python's bytecode
+The Riccati cache (``$XDG_CACHE_HOME/swerve``) is a folder of the benchmark's own, filled by an
+untimed first run of each case (which also leaves numba's kernels in the checkout's
+``__pycache__``); ``--cold-cache`` gives every run an empty one instead. The commands run with Python's bytecode
 cache as an installed package has it: ``PYTHONDONTWRITEBYTECODE`` is removed from their
 environment (without ``.pyc`` files every process compiles swerve's modules anew, ~0.1 s each).
 ``--python`` takes several interpreters (e.g. the venv of another checkout) and runs every case

@@ -15,9 +15,11 @@ documented setting, before numba is imported. numba itself keys each kernel on i
 file only, and keeps the values of the globals it read when it compiled (numba docs, "Notes on
 Caching", cache limitations: https://numba.readthedocs.io/en/stable/developer/caching.html),
 so an edit of a helper elsewhere in the package, or of that table, changes the folder and the
-kernels compile anew. The folder lies under ``NUMBA_CACHE_DIR`` when the user set it, else under
-``$XDG_CACHE_HOME/swerve/numba`` (``~/.cache/swerve/numba``); with it not writable, the kernel runs
-as Python (with a warning) rather than compile at every start.
+kernels compile anew. The folder lies under ``NUMBA_CACHE_DIR`` when the user set it, else in
+``__pycache__/numba`` next to this file when that is writable (a checkout: the kernels stay
+with the sources, as numba's own default keeps them), else under ``$XDG_CACHE_HOME/swerve/numba``
+(``~/.cache/swerve/numba``; an installed package in a read-only place); with none writable, the
+kernel runs as Python (with a warning) rather than compile at every start.
 """
 from __future__ import annotations
 
@@ -49,6 +51,9 @@ def _cache_dir(digest: str) -> Path:
     given = os.environ.get("NUMBA_CACHE_DIR")
     if given:
         return Path(given) if Path(given).name == name else Path(given) / name
+    in_tree = PACKAGE_DIR / "__pycache__"
+    if os.access(in_tree if in_tree.is_dir() else PACKAGE_DIR, os.W_OK):
+        return in_tree / "numba" / name
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "swerve" / "numba" / name
 

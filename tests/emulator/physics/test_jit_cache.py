@@ -10,8 +10,14 @@ def test_the_cache_folder_is_named_for_the_sources(monkeypatch, tmp_path):
     digest = jit._sources_digest()
     assert jit.CACHE_DIR.name == f"kernels-{digest}"
     monkeypatch.delenv("NUMBA_CACHE_DIR", raising=False)
-    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
-    assert jit._cache_dir(digest) == tmp_path / "swerve" / "numba" / f"kernels-{digest}"
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "xdg"))
+    package = tmp_path / "physics"
+    package.mkdir()
+    monkeypatch.setattr(jit, "PACKAGE_DIR", package)                     # a checkout: next to the sources
+    assert jit._cache_dir(digest) == package / "__pycache__" / "numba" / f"kernels-{digest}"
+    monkeypatch.setattr(jit.os, "access", lambda path, mode: False)     # installed read-only: the user's cache
+    assert jit._cache_dir(digest) == tmp_path / "xdg" / "swerve" / "numba" / f"kernels-{digest}"
+    monkeypatch.undo()
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine"))          # the user's folder holds ours
     assert jit._cache_dir(digest) == tmp_path / "mine" / f"kernels-{digest}"
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path / "mine" / f"kernels-{digest}"))   # inherited: kept
