@@ -27,7 +27,10 @@ Each case runs ``swerve run --trajectory line --emulate --lockstep [--emulator-c
   is the hand-over time only where they do not overlap.
 
 The Riccati cache (``$XDG_CACHE_HOME/swerve``) is a folder of the benchmark's own, filled by an
-untimed first run of each case; ``--cold-cache`` gives every run an empty one instead.
+untimed first run of each case (which also leaves numba's kernels in the checkout's
+``__pycache__``); ``--cold-cache`` gives every run an empty one instead. The commands run with Python's bytecode
+cache as an installed package has it: ``PYTHONDONTWRITEBYTECODE`` is removed from their
+environment (without ``.pyc`` files every process compiles swerve's modules anew, ~0.1 s each).
 ``--python`` takes several interpreters (e.g. the venv of another checkout) and runs every case
 with each, in turn within each repetition, so their ratio is measured in the same minutes of a
 shared machine. ``--demo`` adds ``swerve demo`` (three realistic paths; its wall time).
@@ -50,13 +53,20 @@ CASES = (("ideal", "ideal", {}), ("realistic", "realistic", {}),
          ("realistic-nojit", "realistic", {"SWERVE_NO_JIT": "1"}))
 
 
+def command_env(extra: dict[str, str]) -> dict[str, str]:
+    """The environment of a timed command: this one with ``extra``, bytecode caching on."""
+    env = {**os.environ, **extra}
+    env.pop("PYTHONDONTWRITEBYTECODE", None)
+    return env
+
+
 def run_line(python: str, profile: str, env: dict[str, str], workdir: Path) -> dict[str, float]:
     """One ``swerve run`` of the line in lockstep with a log; its timings (see module doc)."""
     log = Path(tempfile.mkdtemp(dir=workdir)) / "log"
     cmd = [python, "-m", "swerve.tools.cli", "run", "--trajectory", "line", "--emulate", "--lockstep",
            "--emulator-config", profile, "--log", str(log), "--json"]
     t0_unix, t0 = time.time(), time.perf_counter()
-    out = subprocess.run(cmd, env={**os.environ, **env}, capture_output=True, text=True, check=True, cwd=workdir)
+    out = subprocess.run(cmd, env=command_env(env), capture_output=True, text=True, check=True, cwd=workdir)
     whole = time.perf_counter() - t0
     s = json.loads(out.stdout)
     robot_s = s["real_time_factor"] * s["wall_time_s"]
@@ -77,7 +87,8 @@ def run_line(python: str, profile: str, env: dict[str, str], workdir: Path) -> d
 def run_demo(python: str, workdir: Path) -> dict[str, float]:
     """``swerve demo``'s wall time, s."""
     t0 = time.perf_counter()
-    subprocess.run([python, "-m", "swerve.tools.cli", "demo"], capture_output=True, check=True, cwd=workdir)
+    subprocess.run([python, "-m", "swerve.tools.cli", "demo"], env=command_env({}), capture_output=True, check=True,
+                   cwd=workdir)
     return {"whole_s": time.perf_counter() - t0}
 
 

@@ -12,6 +12,7 @@ from __future__ import annotations
 import dataclasses
 import functools
 import math
+import threading
 from dataclasses import dataclass, field
 from enum import IntEnum, StrEnum
 from pathlib import Path
@@ -368,25 +369,74 @@ def _check_overlaps(registers: dict[str, Register], path: Path) -> None:
             raise ConfigError(f"{path}: registers {n0} and {n1} overlap")
 
 
-@functools.cache
+#: The model whose table gives the X-series constants shared by every model file.
+REFERENCE_MODEL = "xh430-w210"
+
+
+class ModelLibrary:
+    """The model files of one folder (``<model>.yaml``, lower-case names), each parsed at its
+    first use and kept: a bus of one model parses one file.
+
+    Every table's baud list is checked against the ``reference`` model's as it is loaded
+    (:func:`check_baud_list`).
+    """
+
+    def __init__(self, folder: Path, reference: str = REFERENCE_MODEL):
+        self.folder = Path(folder)
+        self.reference = reference
+        self._tables: dict[str, ControlTable] = {}
+        self._names: tuple[str, ...] | None = None
+        self._lock = threading.RLock()       # the emulator's and the driver's threads share the tables
+
+    def names(self) -> tuple[str, ...]:
+        """The models of the folder, lower case (``"xh430-w210"``): the files' names, sorted."""
+        if self._names is None:
+            self._names = tuple(sorted(p.stem for p in self.folder.glob("*.yaml")))
+        return self._names
+
+    def load(self, key: str) -> ControlTable:
+        """The table of ``<key>.yaml`` (``key`` one of :meth:`names`), parsed the first time."""
+        with self._lock:
+            table = self._tables.get(key)
+            if table is None:
+                table = load_table(self.folder / f"{key}.yaml")
+                check_baud_list(table, table if key == self.reference else self.load(self.reference))
+                self._tables[key] = table
+            return table
+
+    def all(self) -> dict[str, ControlTable]:
+        """Every model's table, keyed by :meth:`names` (parses every file the first time)."""
+        return {key: self.load(key) for key in self.names()}
+
+    def table_for(self, model: str | int) -> ControlTable:
+        """The table of a model name (``"XH430-W210"``, any case) or model number (1010); a
+        number needs every file. Raises :class:`ConfigError` naming the known ones."""
+        if isinstance(model, int):
+            tables = self.all()
+            for t in tables.values():
+                if t.model_number == model:
+                    return t
+            raise ConfigError(f"unknown model number {model}; known: "
+                              + ", ".join(f"{t.model} ({t.model_number})" for t in tables.values()))
+        key = str(model).lower()
+        if key not in self.names():
+            raise ConfigError(f"unknown servo model {model!r}; known: {', '.join(self.names())}")
+        return self.load(key)
+
+
+#: The shipped models (``configs/models``).
+SHIPPED_MODELS = ModelLibrary(MODELS_DIR)
+
+
 def models() -> dict[str, ControlTable]:
-    """Every model in ``configs/models``, keyed by lower-case name (``"xh430-w210"``)."""
-    return {p.stem: load_table(p) for p in sorted(MODELS_DIR.glob("*.yaml"))}
+    """Every shipped model, keyed by lower-case name (``"xh430-w210"``); parses every file the
+    first time, where :func:`table_for` with a name parses that model's only."""
+    return SHIPPED_MODELS.all()
 
 
 def table_for(model: str | int) -> ControlTable:
-    """The control table for a model name (``"XH430-W210"``) or model number (1010)."""
-    tables = models()
-    if isinstance(model, int):
-        for t in tables.values():
-            if t.model_number == model:
-                return t
-        raise ConfigError(f"unknown model number {model}; known: "
-                          + ", ".join(f"{t.model} ({t.model_number})" for t in tables.values()))
-    key = str(model).lower()
-    if key not in tables:
-        raise ConfigError(f"unknown servo model {model!r}; known: {', '.join(sorted(tables))}")
-    return tables[key]
+    """The shipped control table for a model name (``"XH430-W210"``) or model number (1010)."""
+    return SHIPPED_MODELS.table_for(model)
 
 
 def model_name(model_number: int) -> str:
@@ -397,37 +447,35 @@ def model_name(model_number: int) -> str:
         return f"unknown ({model_number})"
 
 
-#: The model whose table gives the X-series constants shared by every model file.
-REFERENCE_MODEL = "xh430-w210"
+def _baud_list(table: ControlTable) -> tuple[int, ...]:
+    """Baud Rate (8) value -> bps of one model, from ``values_bps`` of its baud_rate item."""
+    return tuple(int(v) for v in table[Reg.BAUD_RATE].extra.get("values_bps", ()))
 
 
-def _baud_rates_bps() -> tuple[int, ...]:
-    """Baud Rate (8) value -> bps, from ``values_bps`` of the model files.
+def check_baud_list(table: ControlTable, reference: ControlTable) -> None:
+    """Raise :class:`ConfigError` unless ``table``'s baud list holds ``max + 1`` rates and begins
+    ``reference``'s.
 
     e-Manual, XH430-W210 "Baud Rate(8)": 0 = 9,600, 1 = 57,600 (factory default), 2 = 115,200,
     3 = 1M, 4 = 2M, 5 = 3M, 6 = 4M, 7 = 4.5M bps. The X series shares the numbering; a model
     may stop short of the top rate (XL330: up to 6 = 4M), so each model's list must begin the
     reference model's and hold ``max + 1`` rates.
     """
-    tables = models()
-    ref = tables[REFERENCE_MODEL][Reg.BAUD_RATE]
-    values = tuple(int(v) for v in ref.extra.get("values_bps", ()))
-    for t in tables.values():
-        reg = t[Reg.BAUD_RATE]
-        own = tuple(int(v) for v in reg.extra.get("values_bps", ()))
-        if len(own) != reg.max + 1:
-            raise ConfigError(f"{t.model}: baud_rate.values_bps must list {reg.max + 1} rates")
-        if own != values[:len(own)]:
-            raise ConfigError(f"{t.model}: baud_rate.values_bps does not begin {REFERENCE_MODEL}'s")
-    return values
+    own, reg = _baud_list(table), table[Reg.BAUD_RATE]
+    if len(own) != reg.max + 1:
+        raise ConfigError(f"{table.model}: baud_rate.values_bps must list {reg.max + 1} rates")
+    if own != _baud_list(reference)[:len(own)]:
+        raise ConfigError(f"{table.model}: baud_rate.values_bps does not begin {reference.model}'s")
 
 
+_REFERENCE = table_for(REFERENCE_MODEL)
 #: Highest servo ID (ID item 7, e-Manual: 0 ~ 252; 253-254 are reserved and broadcast).
-ID_MAX: int = models()[REFERENCE_MODEL][Reg.ID].max
-#: Baud Rate (8) item value -> bits per second (index = raw value).
-BAUD_RATES_BPS: tuple[int, ...] = _baud_rates_bps()
+ID_MAX: int = _REFERENCE[Reg.ID].max
+#: Baud Rate (8) item value -> bits per second (index = raw value), of the reference model; every
+#: model's list begins it (checked as the model's file is loaded).
+BAUD_RATES_BPS: tuple[int, ...] = _baud_list(_REFERENCE)
 #: The factory-default rate (Baud Rate default, 57,600 bps).
-DEFAULT_BAUD_BPS: int = BAUD_RATES_BPS[models()[REFERENCE_MODEL][Reg.BAUD_RATE].default]
+DEFAULT_BAUD_BPS: int = BAUD_RATES_BPS[_REFERENCE[Reg.BAUD_RATE].default]
 #: Order in which a scan tries the rates: the factory default first, then the others fastest
 #: first (a try at a fast rate costs the least time).
 SCAN_BAUDS_BPS: tuple[int, ...] = (DEFAULT_BAUD_BPS,) + tuple(

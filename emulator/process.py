@@ -21,6 +21,7 @@ bytes on the pty).
 """
 from __future__ import annotations
 
+import contextlib
 import mmap
 import os
 import socket
@@ -28,6 +29,7 @@ import struct
 import subprocess
 import sys
 import tempfile
+import threading
 from multiprocessing.connection import Connection
 
 from swerve.configs import locate_robot_file, shipped
@@ -44,11 +46,74 @@ SHARED_STATE = struct.Struct("4d")
 #: imports ``scipy.linalg``, ~0.4 s), which only numba's ``np.dot``/``np.linalg`` need, and the
 #: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise). The
 #: cyclic garbage collector is off until the emulator is built (:func:`child.child_main`
-#: then collects once, freezes what start-up made and turns it on): start-up allocates much and
-#: frees little, and the collections it would trigger cost ~0.2 s of CPU.
-_CHILD_PROGRAM = ("import gc, sys; gc.disable(); sys.modules['scipy'] = None; "
+#: then freezes what start-up made and turns it on): start-up allocates much and frees little,
+#: and the collections it would trigger cost ~0.2 s of CPU. SIGINT and SIGHUP are
+#: ignored from the first line: the parent decides when the child stops, also while it imports.
+_CHILD_PROGRAM = ("import gc, signal, sys; gc.disable(); sys.modules['scipy'] = None; "
+                  "[signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGHUP)]; "
                   "from swerve.emulator.child import child_main; "
                   "child_main(int(sys.argv[1]), int(sys.argv[2]))")
+
+
+def _spawn() -> tuple[subprocess.Popen, Connection, mmap.mmap]:
+    """A new child interpreter running :data:`_CHILD_PROGRAM`: ``(process, connection, shared
+    block)``. It imports the emulator, then waits for its start request on the connection."""
+    with tempfile.TemporaryFile() as block:
+        block.write(bytes(SHARED_STATE.size))
+        block.flush()
+        shared = mmap.mmap(block.fileno(), SHARED_STATE.size)
+        parent, child = socket.socketpair()
+        try:
+            proc = subprocess.Popen([sys.executable, "-c", _CHILD_PROGRAM, str(child.fileno()), str(block.fileno())],
+                                    pass_fds=(child.fileno(), block.fileno()), stdin=subprocess.DEVNULL)
+        except BaseException:
+            parent.close()
+            shared.close()
+            raise
+        finally:
+            child.close()
+    return proc, Connection(parent.detach()), shared
+
+
+#: The child :func:`prestarted` started and no :class:`EmulatorProcess` took yet.
+_prestarted: tuple[subprocess.Popen, Connection, mmap.mmap] | None = None
+_prestarted_lock = threading.Lock()
+
+
+def _take_prestarted() -> tuple[subprocess.Popen, Connection, mmap.mmap] | None:
+    """The :func:`prestarted` child, once (None if there is none or it was taken)."""
+    global _prestarted
+    with _prestarted_lock:
+        taken, _prestarted = _prestarted, None
+    return taken
+
+
+@contextlib.contextmanager
+def prestarted():
+    """Start an emulator child now, for the first :meth:`EmulatorProcess.launch` inside the block.
+
+    A fresh interpreter (never a fork) takes ~0.5 s to import the emulator and its physics; a
+    command that will emulate starts it before its own imports and set-up, which then run on
+    the other CPU. The child waits for its start request, so the emulator is built from the
+    request exactly as without this. A child no launch took is stopped when the block ends.
+    """
+    global _prestarted
+    with _prestarted_lock:
+        if _prestarted is None:
+            try:
+                _prestarted = _spawn()
+            except OSError:         # only a head start: launch() spawns again and reports the error
+                pass
+    try:
+        yield
+    finally:
+        spare = _take_prestarted()
+        if spare is not None:
+            proc, conn, shared = spare
+            conn.close()
+            proc.terminate()         # it has started nothing yet: no pty, no thread
+            proc.wait()
+            shared.close()
 
 
 class EmulatorProcess:
@@ -81,23 +146,16 @@ class EmulatorProcess:
         self.final_stats: dict | None = None
 
     def launch(self) -> "EmulatorProcess":
-        """Start the child process without waiting for it to serve (idempotent)."""
+        """Start the child process without waiting for it to serve (idempotent); a child
+        :func:`prestarted` for this process is taken instead of starting one."""
         if self._proc is not None:
             return self
-        with tempfile.TemporaryFile() as block:
-            block.write(bytes(SHARED_STATE.size))
-            block.flush()
-            self._shared = mmap.mmap(block.fileno(), SHARED_STATE.size)
-            parent, child = socket.socketpair()
-            try:
-                self._proc = subprocess.Popen(
-                    [sys.executable, "-c", _CHILD_PROGRAM,
-                     str(child.fileno()), str(block.fileno())],
-                    pass_fds=(child.fileno(), block.fileno()), stdin=subprocess.DEVNULL)
-            finally:
-                child.close()
-        self._conn = Connection(parent.detach())
-        self._conn.send((self._robot, self._emulator_config, self._kwargs))
+        self._proc, self._conn, self._shared = _take_prestarted() or _spawn()
+        try:
+            self._conn.send((self._robot, self._emulator_config, self._kwargs))
+        except OSError:             # a child started ahead died while it imported
+            self.close()
+            raise SwerveError("the emulator process died while starting") from None
         return self
 
     def start(self) -> "EmulatorProcess":

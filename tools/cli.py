@@ -37,6 +37,7 @@ from pathlib import Path
 
 from swerve.core.errors import SwerveError
 from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
+from swerve.emulator.process import prestarted
 from swerve.tools.argtypes import int_range
 from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
 
@@ -88,6 +89,16 @@ def add_adapter_option(parser: argparse.ArgumentParser) -> None:
                         type=int_range(ADAPTER_LATENCY_MIN_MS, ADAPTER_LATENCY_MAX_MS),
                         help="the emulated U2D2's USB latency timer, whole ms in 1..255 (16 as shipped, 1 "
                              "once set; default: link.adapter_latency_ms of the robot file)")
+
+
+#: Commands whose given option means an emulator child will be started (``run --emulate``).
+EMULATING_OPTION: dict[str, str] = {"run": "--emulate"}
+
+
+def starts_emulator(argv: list[str]) -> bool:
+    """Whether the command line ``argv`` asks for an emulator child (see :data:`EMULATING_OPTION`)."""
+    option = EMULATING_OPTION.get(chosen_command(argv) or "")
+    return option is not None and option in argv
 
 
 def command_module(name: str):
@@ -222,6 +233,13 @@ def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
     arrive after the command's boundary are ignored rather than restored to Python's defaults.
     """
     argv = list(sys.argv[1:] if argv is None else argv)
+    # an emulator's child interpreter imports on the other CPU while this one imports the command
+    with prestarted() if starts_emulator(argv) else contextlib.nullcontext():
+        return _run_command(argv, process_exit)
+
+
+def _run_command(argv: list[str], process_exit: bool) -> int:
+    """:func:`main` once the emulator child, if any, was started."""
     args = build_parser((chosen_command(argv),)).parse_args(argv)
     verbose = bool(args._verbose or getattr(args, "verbose", False))
     prefix = f"swerve {args.command}"

@@ -45,7 +45,20 @@ def test_xl330_and_xl430_differ_from_the_xh_table():
     assert Reg.GOAL_CURRENT not in xl430 and xl430[Reg.OPERATING_MODE].allowed == (1, 3, 4, 16)
 
 
-def test_baud_lists_must_begin_the_reference_list(tmp_path, monkeypatch):
+def _library_with(tmp_path, files: dict[str, str]) -> "ct.ModelLibrary":
+    """A :class:`ModelLibrary` of the shipped reference model plus ``files`` (name -> YAML text)."""
+    from swerve.driver import control_table as ct
+
+    folder = tmp_path / "models"
+    folder.mkdir()
+    ref = f"{ct.REFERENCE_MODEL}.yaml"
+    (folder / ref).write_bytes(ct.MODELS_DIR.joinpath(ref).read_bytes())
+    for name, text in files.items():
+        (folder / name).write_text(text)
+    return ct.ModelLibrary(folder)
+
+
+def test_baud_lists_must_begin_the_reference_list(tmp_path):
     import yaml
 
     from swerve.driver import control_table as ct
@@ -53,12 +66,38 @@ def test_baud_lists_must_begin_the_reference_list(tmp_path, monkeypatch):
     doc = yaml.safe_load(ct.MODELS_DIR.joinpath("xl330-m288.yaml").read_text())
     baud = next(r for r in doc["registers"] if r["name"] == "baud_rate")
     baud["values_bps"] = [9600, 57600, 115200, 1000000, 2000000, 3000000, 4500000]
-    bad = tmp_path / "xl330-bad.yaml"
-    bad.write_text(yaml.safe_dump(doc))
-    tables = {**ct.models(), "xl330-bad": load_table(bad)}
-    monkeypatch.setattr(ct, "models", lambda: tables)
+    library = _library_with(tmp_path, {"xl330-bad.yaml": yaml.safe_dump(doc)})
+    assert library.table_for(ct.REFERENCE_MODEL).model_number == 1010    # the good file loads alone
+    with pytest.raises(ConfigError, match="XL330-M288: baud_rate.values_bps does not begin XH430-W210's"):
+        library.table_for("xl330-bad")                                     # the bad one fails when used
     with pytest.raises(ConfigError, match="does not begin"):
-        ct._baud_rates_bps()
+        library.all()
+    with pytest.raises(ConfigError, match="does not begin"):
+        library.table_for(1200)                                            # a number needs every file
+
+
+def test_a_model_file_is_parsed_at_its_first_use_only(tmp_path):
+    library = _library_with(tmp_path, {"xl330-broken.yaml": "registers: 3"})
+    assert library.names() == ("xh430-w210", "xl330-broken")
+    t = library.table_for("XH430-W210")                                     # the broken file is not read
+    assert library.table_for("xh430-w210") is t
+    with pytest.raises(ConfigError, match=r"xl330-broken\.yaml:1: registers: expected a list, got 3"):
+        library.table_for("xl330-broken")
+    with pytest.raises(ConfigError, match="unknown servo model 'xl330-m288'; known: xh430-w210, xl330-broken"):
+        library.table_for("xl330-m288")
+    with pytest.raises(ConfigError, match="unknown servo model"):
+        library.table_for("../models/xh430-w210")                             # names, never paths
+
+
+def test_lazy_tables_are_the_tables_of_a_full_load():
+    from swerve.driver import control_table as ct
+
+    fresh = ct.ModelLibrary(ct.MODELS_DIR)
+    one = fresh.table_for("xm430-w350")
+    every = {p.stem: load_table(p) for p in sorted(ct.MODELS_DIR.glob("*.yaml"))}
+    assert fresh.all() == every == models()
+    assert fresh.all()["xm430-w350"] is one
+    assert [fresh.table_for(t.model_number).model for t in every.values()] == [t.model for t in every.values()]
 
 
 def test_si_conversion_round_trip_and_signs():

@@ -8,7 +8,7 @@ import pytest
 
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError, DxlTimeoutError
-from swerve.emulator.process import EmulatorProcess
+from swerve.emulator.process import EmulatorProcess, prestarted
 from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.timing import Lockstep, WallTime
 
@@ -70,6 +70,48 @@ def test_closed_emulator_process_is_waited_for():
         os.waitpid(pid, os.WNOHANG)
 
 
+def test_a_prestarted_child_is_taken_by_the_first_launch_and_serves_its_request():
+    with prestarted():
+        first = EmulatorProcess("configs/robot.yaml", timing=Lockstep(),
+                                body=BodySettings(start_pose=(0.5, -0.25, 0.1)))
+        first.launch()
+        second = EmulatorProcess("configs/robot.yaml", timing=Lockstep())
+        second.launch()
+        try:
+            first.start()
+            second.start()
+            assert first.pid != second.pid
+            with Bus(first.port, 1_000_000, timeout_margin_s=0.3) as bus:
+                assert [p.id for p in bus.scan(range(1, 9))] == list(range(1, 9))
+        finally:
+            first.close()
+            second.close()
+    assert first.final_stats["bus"]["packets_received"] > 0     # the request it was sent built it
+    assert first.final_stats["pose"] == pytest.approx([0.5, -0.25, 0.1])
+
+
+def test_a_prestarted_child_no_launch_took_is_stopped_and_reaped():
+    import swerve.emulator.process as process
+
+    with prestarted():
+        spare = process._prestarted
+        pid = spare[0].pid
+    assert process._prestarted is None
+    assert spare[0].returncode is not None
+    with pytest.raises(ChildProcessError):      # reaped: not even a zombie is left
+        os.waitpid(pid, os.WNOHANG)
+
+
+def test_a_prestarted_child_told_nothing_exits_quietly():
+    """Its parent gone before sending a request (EOF), the child ends without output or error."""
+    import swerve.emulator.process as process
+
+    proc, conn, shared = process._spawn()
+    conn.close()
+    assert proc.wait(timeout=60) == 0
+    shared.close()
+
+
 #: Runs ``swerve run`` as a child subreaper (Linux ``PR_SET_CHILD_SUBREAPER``): any process the
 #: command leaves behind, running or defunct, is re-parented to this script instead of init.
 _SUBREAPER = """
@@ -77,7 +119,7 @@ import ctypes, os, subprocess, sys
 if ctypes.CDLL(None, use_errno=True).prctl(36, 1, 0, 0, 0) != 0:
     sys.exit(3)
 rc = subprocess.run([sys.executable, "-m", "swerve.tools.cli", "run", "--trajectory", "line",
-                     "--emulate", "--lockstep", "--no-log", "--json"], capture_output=True).returncode
+                     "--emulate", "--lockstep", "--no-log", "--json", *sys.argv[1:]], capture_output=True).returncode
 try:
     os.waitpid(-1, os.WNOHANG)
     print(rc, "left-behind")
@@ -88,7 +130,25 @@ except ChildProcessError:
 
 @pytest.mark.slow
 @pytest.mark.skipif(sys.platform != "linux", reason="PR_SET_CHILD_SUBREAPER is Linux only")
-def test_swerve_run_emulate_leaves_no_process_behind():
-    out = subprocess.run([sys.executable, "-c", _SUBREAPER], capture_output=True, text=True, timeout=300)
+@pytest.mark.parametrize("extra,status", [((), "0"), (("--bogus-option",), "2"), (("--trajectory", "no-such-path"), "2")],
+                         ids=["completed", "bad-option", "bad-trajectory"])
+def test_swerve_run_emulate_leaves_no_process_behind(extra, status):
+    """Neither a run nor a command that fails before it takes the emulator child started ahead
+    (``run --emulate`` starts it before parsing its options) leaves a process behind."""
+    out = subprocess.run([sys.executable, "-c", _SUBREAPER, *extra], capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stderr
-    assert out.stdout.split() == ["0", "none"]
+    assert out.stdout.split() == [status, "none"]
+
+
+def test_a_prestarted_child_that_died_is_one_clear_error(monkeypatch):
+    import swerve.emulator.process as process
+    from swerve.driver.errors import SwerveError
+
+    monkeypatch.setattr(process, "_CHILD_PROGRAM", "import sys; sys.exit(3)")   # dies before reading its request
+    with prestarted():
+        process._prestarted[0].wait(timeout=60)
+        emu = EmulatorProcess("configs/robot.yaml", timing=Lockstep())
+        with pytest.raises(SwerveError, match="died while starting"):
+            emu.launch()
+            emu.start()
+    assert emu.pid is None                       # closed and reaped

@@ -122,3 +122,16 @@ def test_the_chosen_command_is_the_first_word_that_is_no_option():
     assert cli.chosen_command(["-v", "run", "--trajectory", "line"]) == "run"
     assert cli.chosen_command(["--help"]) is None
     assert cli.chosen_command(["export-csv", "LOG"]) == "export-csv"
+
+
+def test_the_emulating_options_are_options_of_their_commands():
+    for name, option in cli.EMULATING_OPTION.items():
+        assert option in _options(name)
+
+
+def test_only_a_command_line_that_emulates_starts_an_emulator_child_ahead():
+    assert cli.starts_emulator(["run", "--trajectory", "line", "--emulate", "--lockstep"])
+    assert cli.starts_emulator(["-v", "run", "--emulate"])
+    assert not cli.starts_emulator(["run", "--trajectory", "line", "--port", "/dev/ttyUSB0"])
+    assert not cli.starts_emulator(["sim", "--emulate"])         # not an option of sim: no child
+    assert not cli.starts_emulator([])
