@@ -76,12 +76,10 @@ class RunRequest:
     emulator_config: str | Path | None = None   # emulator physics: "ideal", "realistic" or a file
     adapter_latency_ms: int | None = None   # with emulate: the USB adapter's latency timer; None: the robot file's
     emulated_robot: str | Path | None = None    # with emulate: the robot file the emulator is built from
-                                                # (the truth); None: ``config``
+                                                # (the truth); None: ``config`` (a calibrated file runs a true robot)
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
-    emulated_robot: str | Path | None = None    # with emulate: the emulator's robot file (the truth);
-                                                # None: ``config`` (a calibrated file runs a true robot)
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
