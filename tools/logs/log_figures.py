@@ -3,6 +3,11 @@
 Reference, simulation, odometry estimate and (emulator) true pose are overlaid wherever they
 exist; a curve made only of NaN is left out. Wheel order: front_left, rear_left, rear_right,
 front_right, so the front axle (delta1) is wheels 1 and 4, the rear axle (delta2) wheels 2 and 3.
+
+A run has a sample per cycle (8750 for a 140 s path at 62.5 Hz), more than a figure has pixel
+columns: each curve is drawn through at most :data:`PLOT_POINTS` of its samples, the lowest and
+highest of each run of consecutive samples (see :func:`decimate`), so its envelope, spikes and gaps
+look as with every sample. The log keeps every sample; only the drawing is thinned.
 """
 from __future__ import annotations
 
@@ -19,6 +24,15 @@ from swerve.core.atomic import save_figure  # noqa: E402
 from swerve.tools.logs.record import CycleFlag  # noqa: E402
 
 FRONT, REAR = [0, 3], [1, 2]
+#: Most samples a curve is drawn through (two per bucket of consecutive samples, one bucket per
+#: pixel column of the widest figure at :data:`DPI`).
+PLOT_POINTS = 1800
+#: Resolution of the PNG files, dots per inch.
+DPI = 110
+#: Figure margins as fractions of the figure (fixed, so no layout pass measures the text).
+MARGINS = dict(left=0.11, right=0.97, bottom=0.08, top=0.93, hspace=0.12)
+#: zlib level of the PNG files: 1 compresses a plot's flat colours about as well as 6, in a third of the time.
+PNG_COMPRESS_LEVEL = 1
 #: curve name -> (label, style)
 STYLE = {
     "ref": ("reference", dict(color="k", ls="--", lw=1.4, zorder=4)),
@@ -30,11 +44,35 @@ STYLE = {
 }
 
 
+def decimate(y: np.ndarray, points: int = PLOT_POINTS) -> np.ndarray:
+    """Indices (ascending) of the samples of ``y`` (n,) to draw a curve through: all of them when
+    ``n <= points``, else in each of ``points // 2`` buckets of consecutive samples the lowest
+    and the highest, and the first NaN (so a gap stays a gap)."""
+    n = len(y)
+    if n <= points:
+        return np.arange(n)
+    size = -(-n // (points // 2))                   # samples per bucket
+    buckets = -(-n // size)
+    padded = np.full(buckets * size, np.nan)
+    padded[:n] = y
+    grid = padded.reshape(buckets, size)
+    nan = np.isnan(grid)
+    base = np.arange(buckets) * size
+    lo = np.where(nan, np.inf, grid).argmin(axis=1)
+    hi = np.where(nan, -np.inf, grid).argmax(axis=1)
+    picks = [base + lo, base + hi]
+    has_nan = nan.any(axis=1)
+    picks.append((base + nan.argmax(axis=1))[has_nan])
+    idx = np.unique(np.concatenate(picks))
+    return idx[idx < n]
+
+
 def _line(ax, t, y, key, label=None, **extra):
     if y is None or not np.isfinite(y).any():
         return
     lab, style = STYLE[key]
-    ax.plot(t, y, label=label or lab, **{**style, **extra})
+    keep = decimate(y)
+    ax.plot(t[keep], y[keep], label=label or lab, **{**style, **extra})
 
 
 def _poses(log, sim) -> dict[str, tuple[np.ndarray, np.ndarray]]:
@@ -57,8 +95,8 @@ def _finish(fig, axes, title, path) -> Path:
         if ax.get_legend_handles_labels()[0]:
             ax.legend(fontsize=8, loc="best")
     fig.suptitle(title)
-    fig.tight_layout()
-    save_figure(fig, path, dpi=110)
+    fig.subplots_adjust(**MARGINS)
+    save_figure(fig, path, dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
     plt.close(fig)
     return path
 
