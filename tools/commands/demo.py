@@ -12,9 +12,11 @@ rows per trajectory and what calibration recovered go to ``out/demo/``.
 
 The runs and the calibration are independent lockstep runs, so they go to a pool of worker
 processes (``--workers``, default one per CPU; one on the wall clock, where runs would compete
-for the CPU in real time): the calibrated runs start once the calibration has written its
-file. Each task's messages are printed in the order a one-by-one demo prints them, so the
-output, the files and every number are the same for any number of workers.
+for the CPU in real time): the calibration starts first, the calibrated runs once it has
+written its file, and among the runs ready to start the longest (in robot time) goes first, so
+no worker is left with a long run while the others are idle. Each task's messages are printed
+in the order a one-by-one demo prints them, so the output, the files and every number are the
+same for any number of workers.
 """
 from __future__ import annotations
 
@@ -94,11 +96,10 @@ def run(args: argparse.Namespace) -> int:
     if not names:
         raise ConfigError(f"--trajectories {args.trajectories!r} names no trajectory "
                           f"(e.g. {','.join(TRAJECTORIES)})")
-    for name in names:          # every trajectory is valid before any output
-        load_trajectory(name, geom, limits)
+    robot_s = {name: load_trajectory(name, geom, limits).tf_s for name in names}   # valid before any output
     check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
     workers = args.workers or (len(os.sched_getaffinity(0)) if lockstep else 1)
-    plan = DemoPlan(out, choice, tasks(names, calibrate=not args.no_calibrate), str(args.emulator_config),
+    plan = DemoPlan(out, choice, tasks(robot_s, calibrate=not args.no_calibrate), str(args.emulator_config),
                     lockstep, scale, pace)
     created = _missing_folder(out)
     try:
@@ -154,20 +155,28 @@ class Calibration:
 @dataclass(frozen=True)
 class Task:
     """One job of the demo: the ``calibration``, or a ``run`` of trajectory ``name`` with the
-    robot file ``robot`` (``"as is"``, or ``"calibrated"``: the file the calibration wrote)."""
+    robot file ``robot`` (``"as is"``, or ``"calibrated"``: the file the calibration wrote),
+    ``robot_s`` seconds of robot time long (what a run costs grows with it)."""
 
     kind: str
     name: str = ""
     robot: str = ""
+    robot_s: float = 0.0
 
 
-def tasks(names: list[str], *, calibrate: bool) -> tuple[Task, ...]:
-    """The demo's tasks in the order their messages are printed: each trajectory with the robot
-    file as it is, then the calibration and each trajectory with the calibrated file."""
-    first = [Task("run", n, "as is") for n in names]
+def tasks(robot_s: dict[str, float], *, calibrate: bool) -> tuple[Task, ...]:
+    """The demo's tasks in the order their messages are printed: each trajectory of ``robot_s``
+    (name -> its robot time, s) with the robot file as it is, then the calibration and each
+    trajectory with the calibrated file."""
+    first = [Task("run", n, "as is", s) for n, s in robot_s.items()]
     if not calibrate:
         return tuple(first)
-    return (*first, Task("calibration"), *(Task("run", n, "calibrated") for n in names))
+    return (*first, Task("calibration"), *(Task("run", n, "calibrated", s) for n, s in robot_s.items()))
+
+
+def longest_first(tasks: tuple[Task, ...], indices) -> list[int]:
+    """``indices`` of ``tasks``, the longest run (robot time) first; ties keep their order."""
+    return sorted(indices, key=lambda i: -tasks[i].robot_s)
 
 
 @dataclass(frozen=True)
@@ -238,12 +247,14 @@ def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibra
     time, and close it; print each task's messages in the order of ``tasks``. Returns each
     task's value, in that order.
 
-    The calibration is submitted first: the calibrated runs wait for it. The error of a task is
-    raised as soon as it arrives, after its messages; on any exception (a stop signal too) the
-    engine is closed (every worker has exited) when this returns.
+    The calibration is submitted first: the calibrated runs wait for it. Of the runs ready to
+    start, the longest goes first (:func:`longest_first`). The error of a task is raised as soon
+    as it arrives, after its messages; on any exception (a stop signal too) the engine is closed
+    (every worker has exited) when this returns.
     """
     order = range(len(tasks))
-    todo = deque([i for i in order if tasks[i].kind == "calibration"] + [i for i in order if tasks[i].robot == "as is"])
+    todo = deque([i for i in order if tasks[i].kind == "calibration"]
+                 + longest_first(tasks, [i for i in order if tasks[i].robot == "as is"]))
     held = [i for i in order if tasks[i].robot == "calibrated"]
     done: dict[int, TaskDone] = {}
     shown = 0
@@ -260,7 +271,9 @@ def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibra
             done[finished.index] = result
             bar.update(1)
             if task.kind == "calibration":
-                todo.extend(held)
+                ready = longest_first(tasks, [*todo, *held])
+                todo.clear()
+                todo.extend(ready)
             while shown in done:
                 _show(done[shown].lines)
                 shown += 1

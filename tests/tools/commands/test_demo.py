@@ -16,7 +16,7 @@ from swerve.core.errors import ConfigError, SwerveError
 from swerve.tools.campaign.engines import Done
 from swerve.tools.commands.demo import Calibration, Task, TaskDone, WorkerTraceback, run_tasks, tasks
 
-NAMES = ["line", "circle"]
+NAMES = {"line": 40.0, "circle": 56.0}     # name -> robot time, s
 CALIBRATION = Calibration({}, {}, Path("robot-calibrated.yaml"))
 
 
@@ -57,9 +57,32 @@ def _results(plan: tuple[Task, ...]) -> dict[int, TaskDone]:
 
 def test_tasks_are_the_runs_as_is_then_the_calibration_then_the_calibrated_runs():
     assert tasks(NAMES, calibrate=True) == (
-        Task("run", "line", "as is"), Task("run", "circle", "as is"), Task("calibration"),
-        Task("run", "line", "calibrated"), Task("run", "circle", "calibrated"))
-    assert tasks(NAMES, calibrate=False) == (Task("run", "line", "as is"), Task("run", "circle", "as is"))
+        Task("run", "line", "as is", 40.0), Task("run", "circle", "as is", 56.0), Task("calibration"),
+        Task("run", "line", "calibrated", 40.0), Task("run", "circle", "calibrated", 56.0))
+    assert tasks(NAMES, calibrate=False) == (Task("run", "line", "as is", 40.0), Task("run", "circle", "as is", 56.0))
+
+
+def test_the_calibration_starts_first_then_the_longest_run_ready():
+    """One slot: the calibration, then of the runs ready (all, once it has finished) the longest
+    first, as is before calibrated on a tie; the messages still come in task order."""
+    plan = tasks({"line": 40.0, "curvilinear": 140.0, "circle": 56.0}, calibrate=True)
+    engine = ScriptedEngine(1, _results(plan))
+    values = run_tasks(plan, engine)
+    assert [plan[i] for i in engine.submitted] == [
+        Task("calibration"), Task("run", "curvilinear", "as is", 140.0),
+        Task("run", "curvilinear", "calibrated", 140.0), Task("run", "circle", "as is", 56.0),
+        Task("run", "circle", "calibrated", 56.0), Task("run", "line", "as is", 40.0),
+        Task("run", "line", "calibrated", 40.0)]
+    assert values == ["row 0", "row 1", "row 2", CALIBRATION, "row 4", "row 5", "row 6"]
+
+
+def test_the_longest_run_goes_first_before_the_calibration_ends():
+    """Two slots, the calibration finishing last of the first two: the longest run as is is the
+    other one started."""
+    plan = tasks({"line": 40.0, "curvilinear": 140.0}, calibrate=True)
+    engine = ScriptedEngine(2, _results(plan))
+    run_tasks(plan, engine)
+    assert engine.submitted[:2] == [2, 1]
 
 
 @pytest.mark.parametrize("slots", [1, 2, 5])
