@@ -37,6 +37,7 @@ from tqdm import tqdm
 from swerve.configs import ConfigChoice
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import save_gains
+from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
 from swerve.controller.simulate import metrics, simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
@@ -301,7 +302,8 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callab
     tag = f"[{name}, robot file {robot}]"
     say(f"{tag} synthesising gains (Riccati) ...")
     traj = load_trajectory(name, geom, limits)
-    ref, gains = synthesize(traj, "riccati", geom, limits)
+    # as `swerve run` does: a Riccati solution of an input already seen comes from the user's cache, bit for bit
+    ref, gains = synthesize(traj, "riccati", geom, limits, lqr=RiccatiCache(user_cache_dir()).solve)
     stem = Path(name).stem
     run_name = stem if robot == "as is" else f"{stem}-{robot}"
     gains_file = save_gains(out / "gains" / f"{run_name}.npz", gains)
