@@ -13,8 +13,9 @@ from pathlib import Path
 import pytest
 
 from swerve.core.errors import ConfigError, SwerveError
-from swerve.tools.campaign.engines import Done
-from swerve.tools.commands.demo import Calibration, Task, TaskDone, WorkerTraceback, run_tasks, tasks
+from swerve.tools.campaign.pool import Done
+from swerve.tools.commands.demo import WorkerTraceback, run_tasks
+from swerve.tools.demo.plan import Calibration, Task, TaskDone, tasks
 
 NAMES = {"line": 40.0, "circle": 56.0}     # name -> robot time, s
 CALIBRATION = Calibration({}, {}, Path("robot-calibrated.yaml"))
