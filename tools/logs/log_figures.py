@@ -8,6 +8,10 @@ A run has a sample per cycle (8750 for a 140 s path at 62.5 Hz), more than a fig
 columns: each curve is drawn through at most :data:`PLOT_POINTS` of its samples, the lowest and
 highest of each run of consecutive samples (see :func:`decimate`), so its envelope, spikes and gaps
 look as with every sample. The log keeps every sample; only the drawing is thinned.
+
+Each kind of figure is made once per process and emptied for the next run (:func:`_figure`):
+its axes keep their tick marks and labels, which matplotlib otherwise builds anew for every
+figure, the larger part of drawing one.
 """
 from __future__ import annotations
 
@@ -89,6 +93,27 @@ def _poses(log, sim) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     return out
 
 
+#: figure name -> (figure, axes) of the figures made so far in this process, kept for the next run.
+_OPEN: dict[str, tuple] = {}
+
+
+def _figure(name: str, rows: int, figsize: tuple[float, float]):
+    """``(figure, axes)`` of kind ``name`` with no curve, legend or text: the one made before
+    in this process, emptied, else a new one (``rows`` axes sharing x, ``figsize`` in inches)."""
+    if name not in _OPEN:
+        _OPEN[name] = plt.subplots(rows, 1, figsize=figsize, sharex=True)
+    fig, axes = _OPEN[name]
+    for ax in np.ravel(axes):
+        for artist in (*ax.lines, *ax.collections, *ax.patches, *ax.texts):
+            artist.remove()
+        if ax.get_legend() is not None:
+            ax.get_legend().remove()
+        ax.set_prop_cycle(None)         # the colours start again from the first
+        ax.relim()
+        ax.autoscale()
+    return fig, axes
+
+
 def _finish(fig, axes, title, path) -> Path:
     for ax in np.ravel(axes):
         ax.grid(True, alpha=0.3)
@@ -97,7 +122,6 @@ def _finish(fig, axes, title, path) -> Path:
     fig.suptitle(title)
     fig.subplots_adjust(**MARGINS)
     save_figure(fig, path, dpi=DPI, pil_kwargs={"compress_level": PNG_COMPRESS_LEVEL})
-    plt.close(fig)
     return path
 
 
@@ -107,7 +131,7 @@ def _name(log) -> str:
 
 def plot_path(log, sim, out: Path) -> Path:
     """x-y path, equal axes."""
-    fig, ax = plt.subplots(figsize=(6.5, 6))
+    fig, ax = _figure("path", 1, (6.5, 6))
     for key, (_, p) in _poses(log, sim).items():
         _line(ax, p[:, 0], p[:, 1], key)
     ax.set_xlabel("x [m]")
@@ -118,7 +142,7 @@ def plot_path(log, sim, out: Path) -> Path:
 
 def plot_pose(log, sim, out: Path) -> Path:
     """x, y and theta vs time (paper Figs 11, 13, 15)."""
-    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    fig, axes = _figure("pose", 3, (8, 8))
     poses = _poses(log, sim)
     for i, (ax, lab) in enumerate(zip(axes, ("x [m]", "y [m]", "θ [rad]"))):
         for key, (t, p) in poses.items():
@@ -131,7 +155,7 @@ def plot_pose(log, sim, out: Path) -> Path:
 def plot_velocities(log, sim, out: Path) -> Path:
     """v1 and wheel speeds, steering rates omega1/omega2 (paper Figs 12, 14, 16)."""
     t = log.t_s
-    fig, axes = plt.subplots(3, 1, figsize=(8, 8), sharex=True)
+    fig, axes = _figure("velocities", 3, (8, 8))
     _line(axes[0], t, log.cmd_v1_mps, "cmd", label="v1 commanded")
     r = log.metadata.get("wheel_radius_m")
     if r is not None and np.isfinite(log.meas_drive_radps).any():
@@ -155,7 +179,7 @@ def plot_velocities(log, sim, out: Path) -> Path:
 def plot_steering(log, sim, out: Path) -> Path:
     """Steering angles delta1 (front) and delta2 (rear): reference, commanded, measured."""
     t = log.t_s
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure("steering", 2, (8, 6))
     for ax, idx, k, lab in ((axes[0], FRONT, 0, "δ1 (front)"), (axes[1], REAR, 1, "δ2 (rear)")):
         _line(ax, t, log.ref_delta[:, k], "ref")
         _line(ax, t, log.cmd_steer_rad[:, idx[0]], "cmd")
@@ -170,7 +194,7 @@ def plot_steering(log, sim, out: Path) -> Path:
 def plot_error(log, sim, out: Path) -> Path:
     """Position and heading error of estimate and true pose against the reference."""
     t, ref = log.t_s, log.ref_pose
-    fig, axes = plt.subplots(2, 1, figsize=(8, 6), sharex=True)
+    fig, axes = _figure("error", 2, (8, 6))
     for key, p in (("est", log.est_pose), ("true", log.true_pose)):
         _line(axes[0], t, np.hypot(*(p[:, :2] - ref[:, :2]).T) * 1e3, key)
         _line(axes[1], t, np.angle(np.exp(1j * (p[:, 2] - ref[:, 2]))), key)
@@ -183,7 +207,7 @@ def plot_error(log, sim, out: Path) -> Path:
 def plot_timing(log, sim, out: Path) -> Path:
     """Measured loop period and flagged cycles."""
     t = log.t_s
-    fig, axes = plt.subplots(2, 1, figsize=(8, 5), sharex=True)
+    fig, axes = _figure("timing", 2, (8, 5))
     _line(axes[0], t, log.period_s * 1e3, "meas", label="measured period")
     tau = log.metadata.get("period_s")
     if tau is not None:
