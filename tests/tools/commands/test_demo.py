@@ -22,7 +22,7 @@ CALIBRATION = Calibration({}, {}, Path("robot-calibrated.yaml"))
 
 
 class ScriptedEngine:
-    """An :class:`~swerve.tools.campaign.engines.Engine` in this process: the task submitted last
+    """An :class:`~swerve.tools.campaign.pool.Engine` in this process: the task submitted last
     finishes first, with the result ``results[index]``; it records what was submitted when."""
 
     name = "scripted"
