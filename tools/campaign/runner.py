@@ -11,7 +11,7 @@ import time
 from collections import deque
 from dataclasses import dataclass
 
-from .engines import Engine, run_queue
+from .pool import Engine, run_queue
 from .scenario import Outcome, base_row, scenario, text
 from .store import Store
 

@@ -12,51 +12,39 @@ rows per trajectory and what calibration recovered go to ``out/demo/``.
 
 The runs and the calibration are independent lockstep runs, so they go to a pool of worker
 processes (``--workers``, default one per CPU; one on the wall clock, where runs would compete
-for the CPU in real time): the calibrated runs start once the calibration has written its
-file. Each task's messages are printed in the order a one-by-one demo prints them, so the
-output, the files and every number are the same for any number of workers.
+for the CPU in real time): the calibration starts first, the calibrated runs once it has
+written its file, and among the runs ready to start the longest (in robot time) goes first, so
+no worker is left with a long run while the others are idle. Each task's messages are printed
+in the order a one-by-one demo prints them, so the output, the files and every number are the
+same for any number of workers.
 """
 from __future__ import annotations
 
 import argparse
+import multiprocessing as mp
 import os
-import pickle
 import shutil
 import sys
 import time
-import traceback
 from collections import deque
-from collections.abc import Callable
-from dataclasses import dataclass
+from contextlib import nullcontext
 from pathlib import Path
 
 from tqdm import tqdm
 
-from swerve.configs import ConfigChoice
-from swerve.controller.gain_schedule import synthesize
-from swerve.controller.gains_io import save_gains
-from swerve.controller.simulate import metrics, simulate
-from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 from swerve.core.atomic import check_writable, write_text
 from swerve.core.errors import ConfigError, SwerveError
 from swerve.emulator.physics.profiles import EMULATOR_CONFIG_HELP
 from swerve.tools.argtypes import finite_float, int_range
-from swerve.tools.calibrate import update_robot_text
-from swerve.tools.calibrate_emulated import calibrate_emulated
-from swerve.tools.campaign.engines import Engine, PoolEngine, run_queue
+from swerve.tools.campaign.pool import Engine, ModuleJob, PoolEngine, run_queue
 from swerve.tools.cli import add_config_option
-from swerve.tools.logs.bag import read_log
-from swerve.tools.logs.log_figures import plot_run
+from swerve.tools.demo.plan import Calibration, DemoPlan, DemoRow, Task, TaskDone, longest_first, tasks
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
-from swerve.tools.run.orchestrate import RunRequest, run_tracking
-
 
 TRAJECTORIES = ("line", "circle", "curvilinear")
-KEYS = ("rms_position_error_m", "max_position_error_m", "final_position_error_m", "max_abs_v1_mps",
-        "max_abs_steer_rate_radps")
-#: Where the demo writes the calibrated robot file, in its output folder.
-CALIBRATED_FILE = "robot-calibrated.yaml"
+#: The module whose ``run_job`` runs a task in a pool worker (imported there only).
+TASK_MODULE = "swerve.tools.demo.runs"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -94,17 +82,20 @@ def run(args: argparse.Namespace) -> int:
     if not names:
         raise ConfigError(f"--trajectories {args.trajectories!r} names no trajectory "
                           f"(e.g. {','.join(TRAJECTORIES)})")
-    for name in names:          # every trajectory is valid before any output
-        load_trajectory(name, geom, limits)
+    robot_s = {name: load_trajectory(name, geom, limits).tf_s for name in names}   # valid before any output
     check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
     workers = args.workers or (len(os.sched_getaffinity(0)) if lockstep else 1)
-    plan = DemoPlan(out, choice, tasks(names, calibrate=not args.no_calibrate), str(args.emulator_config),
-                    lockstep, scale, pace)
+    # Lockstep runs hand each cycle over between two processes; two runs at once on two CPUs
+    # wait on each other's hand-overs, so one emulated run goes at a time and the other workers
+    # synthesise, simulate, read logs and draw figures beside it.
+    gate = mp.get_context("spawn").Lock() if lockstep and workers > 1 else nullcontext()
+    plan = DemoPlan(out, choice, tasks(robot_s, calibrate=not args.no_calibrate), str(args.emulator_config),
+                    lockstep, scale, pace, gate)
     created = _missing_folder(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
         t_start = time.monotonic()
-        values = run_tasks(plan.tasks, PoolEngine(plan, min(workers, len(plan.tasks))))
+        values = run_tasks(plan.tasks, PoolEngine(ModuleJob(TASK_MODULE, plan), min(workers, len(plan.tasks))))
         rows = [v for v in values if isinstance(v, DemoRow)]
         calibration = next((v for v in values if isinstance(v, Calibration)), None)
         summary = _write_summary(out, rows, pace, time.monotonic() - t_start, choice,
@@ -127,110 +118,8 @@ def _missing_folder(path: Path) -> Path | None:
     return missing
 
 
-@dataclass(frozen=True)
-class DemoRow:
-    """One run of the demo: trajectory ``name``, the robot file's state (``"as is"`` or
-    ``"calibrated"``), the simulated metrics, the run's summary dict, its figures, gains and log."""
-
-    name: str
-    robot: str
-    sim: dict
-    summary: dict
-    figures: list
-    gains_file: Path
-    log_dir: Path
-
-
-@dataclass(frozen=True)
-class Calibration:
-    """What the demo's calibration found (``values`` of :func:`swerve.tools.calibrate.run_steps`),
-    the robot file's values before it, and the calibrated file written."""
-
-    values: dict
-    before: dict
-    path: Path
-
-
-@dataclass(frozen=True)
-class Task:
-    """One job of the demo: the ``calibration``, or a ``run`` of trajectory ``name`` with the
-    robot file ``robot`` (``"as is"``, or ``"calibrated"``: the file the calibration wrote)."""
-
-    kind: str
-    name: str = ""
-    robot: str = ""
-
-
-def tasks(names: list[str], *, calibrate: bool) -> tuple[Task, ...]:
-    """The demo's tasks in the order their messages are printed: each trajectory with the robot
-    file as it is, then the calibration and each trajectory with the calibrated file."""
-    first = [Task("run", n, "as is") for n in names]
-    if not calibrate:
-        return tuple(first)
-    return (*first, Task("calibration"), *(Task("run", n, "calibrated") for n in names))
-
-
-@dataclass(frozen=True)
-class TaskDone:
-    """What a task left: the ``lines`` it printed, and its ``value`` (a :class:`DemoRow` or the
-    :class:`Calibration`) or the ``error`` it raised (with the worker's ``trace``)."""
-
-    lines: tuple[str, ...]
-    value: DemoRow | Calibration | None = None
-    error: Exception | None = None
-    trace: str = ""
-
-
 class WorkerTraceback(Exception):
     """The traceback of an error raised in a worker process, as text (the cause of the re-raised error)."""
-
-
-@dataclass(frozen=True)
-class DemoPlan:
-    """Everything a worker process needs to run the demo's task ``index`` (picklable):
-    ``plan(index)`` runs ``tasks[index]`` and returns its :class:`TaskDone`, never raising an
-    :class:`Exception` (a stop signal still ends it through its clean-up)."""
-
-    out: Path
-    choice: ConfigChoice
-    tasks: tuple[Task, ...]
-    emulator_config: str
-    lockstep: bool
-    scale: float | None
-    pace: str
-
-    def __call__(self, index: int) -> TaskDone:
-        lines: list[str] = []
-        task = self.tasks[index]
-        try:
-            if task.kind == "calibration":
-                value = _calibrate(self.out, self.choice.path, self.emulator_config, lines.append)
-            else:
-                value = self.run(task, lines.append)
-            return TaskDone(tuple(lines), value)
-        except Exception as exc:  # noqa: BLE001 - carried to the main process, which raises it
-            return TaskDone(tuple(lines), error=_picklable(exc), trace=traceback.format_exc())
-
-    def run(self, task: Task, say: Callable[[str], None]) -> DemoRow:
-        """The run ``task``, with the robot file as it is or the calibrated one (on the robot as it is)."""
-        if task.robot == "as is":
-            choice, emulated = self.choice, None
-        else:
-            choice, emulated = self.out / CALIBRATED_FILE, self.choice.path
-        _, cfg = locate_and_load(choice)
-        geom, limits = geometry_and_limits(cfg)     # the calibrated file's gains are synthesised for it
-        return _run_one(self.out, task.name, geom, limits, choice, task.robot, say, lockstep=self.lockstep,
-                        scale=self.scale, pace=self.pace, emulator_config=self.emulator_config,
-                        emulated_robot=emulated)
-
-
-def _picklable(exc: Exception) -> Exception:
-    """``exc`` if it crosses a process boundary intact, else a :class:`RuntimeError` naming it."""
-    try:
-        pickle.loads(pickle.dumps(exc))
-        return exc
-    except Exception:  # noqa: BLE001 - any failure to pickle or rebuild
-        return RuntimeError(f"{type(exc).__name__}: {exc}")
 
 
 def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibration]:
@@ -238,12 +127,14 @@ def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibra
     time, and close it; print each task's messages in the order of ``tasks``. Returns each
     task's value, in that order.
 
-    The calibration is submitted first: the calibrated runs wait for it. The error of a task is
-    raised as soon as it arrives, after its messages; on any exception (a stop signal too) the
-    engine is closed (every worker has exited) when this returns.
+    The calibration is submitted first: the calibrated runs wait for it. Of the runs ready to
+    start, the longest goes first (:func:`longest_first`). The error of a task is raised as soon
+    as it arrives, after its messages; on any exception (a stop signal too) the engine is closed
+    (every worker has exited) when this returns.
     """
     order = range(len(tasks))
-    todo = deque([i for i in order if tasks[i].kind == "calibration"] + [i for i in order if tasks[i].robot == "as is"])
+    todo = deque([i for i in order if tasks[i].kind == "calibration"]
+                 + longest_first(tasks, [i for i in order if tasks[i].robot == "as is"]))
     held = [i for i in order if tasks[i].robot == "calibrated"]
     done: dict[int, TaskDone] = {}
     shown = 0
@@ -260,7 +151,9 @@ def run_tasks(tasks: tuple[Task, ...], engine: Engine) -> list[DemoRow | Calibra
             done[finished.index] = result
             bar.update(1)
             if task.kind == "calibration":
-                todo.extend(held)
+                ready = longest_first(tasks, [*todo, *held])
+                todo.clear()
+                todo.extend(ready)
             while shown in done:
                 _show(done[shown].lines)
                 shown += 1
@@ -279,53 +172,6 @@ def _show(lines: tuple[str, ...]) -> None:
 
 def _what(task: Task) -> str:
     return "calibration" if task.kind == "calibration" else f"run of {task.name} (robot file {task.robot})"
-
-
-def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callable[[str], None], *,
-             lockstep: bool, scale, pace: str, emulator_config: str, emulated_robot=None) -> DemoRow:
-    """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator;
-    ``say`` prints a message."""
-    tag = f"[{name}, robot file {robot}]"
-    say(f"{tag} synthesising gains (Riccati) ...")
-    traj = load_trajectory(name, geom, limits)
-    ref, gains = synthesize(traj, "riccati", geom, limits)
-    stem = Path(name).stem
-    run_name = stem if robot == "as is" else f"{stem}-{robot}"
-    gains_file = save_gains(out / "gains" / f"{run_name}.npz", gains)
-    save_gains(out / "gains" / f"{run_name}.dat", gains)
-    sim = metrics(simulate(TrackingLaw(ref, gains, limits), traj.start_state(geom)), traj.Q, traj.R, traj.tau_s)
-    say(f"{tag} simulated: final error {sim['final_position_error_m'] * 1e3:.1f} mm; running on the emulator "
-        f"{pace} ({traj.tf_s:.0f} s of robot time) ...")
-    log_dir = out / "logs" / run_name
-    if log_dir.exists():
-        shutil.rmtree(log_dir)
-    res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=config, emulate=True,
-                                  lockstep=lockstep, time_scale=scale, log=log_dir,
-                                  emulator_config=emulator_config, emulated_robot=emulated_robot))
-    figs = plot_run(read_log(log_dir), out / "plots" / run_name)
-    s = res.summary.to_dict()
-    state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"
-    say(f"{tag} {state}; rms error {s.get('rms_position_error_m', float('nan')) * 1e3:.1f} mm, final "
-        f"{s.get('final_position_error_m', float('nan')) * 1e3:.1f} mm, overruns {s.get('overruns')}, "
-        f"real-time factor {s.get('real_time_factor', float('nan')):.1f}")
-    return DemoRow(name, robot, sim, s, figs, gains_file, log_dir)
-
-
-def _calibrate(out: Path, robot_path: Path, emulator_config: str, say: Callable[[str], None]) -> Calibration:
-    """Calibrate the emulated robot (built from ``robot_path`` and ``emulator_config``) in lockstep,
-    as ``swerve calibrate --emulate --yes --lockstep`` does; write ``out/robot-calibrated.yaml``."""
-    _, cfg = locate_and_load(robot_path)
-    say("[calibration] steering zero, direction signs and wheel radius on the emulated robot ...")
-    values = calibrate_emulated(cfg, robot_path, emulator_config=emulator_config, lockstep=True,
-                                log=lambda msg: say(f"[calibration] {msg}"))
-    keys = {k: v for k, v in values.items() if k != "radius_facts"}
-    path = out / CALIBRATED_FILE
-    write_text(path, update_robot_text(Path(robot_path).read_text(), where=str(path), **keys))
-    before = dict(center_pulse=[w.center_pulse for w in cfg.wheels],
-                  drive_direction=[w.drive_direction for w in cfg.wheels],
-                  steer_direction=[w.steer_direction for w in cfg.wheels], wheel_radius_m=cfg.wheel_radius_m)
-    say(f"[calibration] wrote {path}")
-    return Calibration(values, before, path)
 
 
 def _fmt(v, scale=1e3, digits=1) -> str:

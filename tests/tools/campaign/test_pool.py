@@ -15,7 +15,7 @@ from functools import partial
 import pytest
 
 from swerve.core.errors import ConfigError
-from swerve.tools.campaign.engines import Done, PoolEngine
+from swerve.tools.campaign.pool import Done, PoolEngine
 from swerve.tools.campaign.runner import MAX_LOSSES, run_missing
 from swerve.tools.campaign.scenario import Outcome, base_row, run_scenario, scenario, text
 from swerve.tools.campaign.spec import load_campaign

@@ -13,15 +13,16 @@ from pathlib import Path
 import pytest
 
 from swerve.core.errors import ConfigError, SwerveError
-from swerve.tools.campaign.engines import Done
-from swerve.tools.commands.demo import Calibration, Task, TaskDone, WorkerTraceback, run_tasks, tasks
+from swerve.tools.campaign.pool import Done
+from swerve.tools.commands.demo import WorkerTraceback, run_tasks
+from swerve.tools.demo.plan import Calibration, Task, TaskDone, tasks
 
-NAMES = ["line", "circle"]
+NAMES = {"line": 40.0, "circle": 56.0}     # name -> robot time, s
 CALIBRATION = Calibration({}, {}, Path("robot-calibrated.yaml"))
 
 
 class ScriptedEngine:
-    """An :class:`~swerve.tools.campaign.engines.Engine` in this process: the task submitted last
+    """An :class:`~swerve.tools.campaign.pool.Engine` in this process: the task submitted last
     finishes first, with the result ``results[index]``; it records what was submitted when."""
 
     name = "scripted"
@@ -57,9 +58,32 @@ def _results(plan: tuple[Task, ...]) -> dict[int, TaskDone]:
 
 def test_tasks_are_the_runs_as_is_then_the_calibration_then_the_calibrated_runs():
     assert tasks(NAMES, calibrate=True) == (
-        Task("run", "line", "as is"), Task("run", "circle", "as is"), Task("calibration"),
-        Task("run", "line", "calibrated"), Task("run", "circle", "calibrated"))
-    assert tasks(NAMES, calibrate=False) == (Task("run", "line", "as is"), Task("run", "circle", "as is"))
+        Task("run", "line", "as is", 40.0), Task("run", "circle", "as is", 56.0), Task("calibration"),
+        Task("run", "line", "calibrated", 40.0), Task("run", "circle", "calibrated", 56.0))
+    assert tasks(NAMES, calibrate=False) == (Task("run", "line", "as is", 40.0), Task("run", "circle", "as is", 56.0))
+
+
+def test_the_calibration_starts_first_then_the_longest_run_ready():
+    """One slot: the calibration, then of the runs ready (all, once it has finished) the longest
+    first, as is before calibrated on a tie; the messages still come in task order."""
+    plan = tasks({"line": 40.0, "curvilinear": 140.0, "circle": 56.0}, calibrate=True)
+    engine = ScriptedEngine(1, _results(plan))
+    values = run_tasks(plan, engine)
+    assert [plan[i] for i in engine.submitted] == [
+        Task("calibration"), Task("run", "curvilinear", "as is", 140.0),
+        Task("run", "curvilinear", "calibrated", 140.0), Task("run", "circle", "as is", 56.0),
+        Task("run", "circle", "calibrated", 56.0), Task("run", "line", "as is", 40.0),
+        Task("run", "line", "calibrated", 40.0)]
+    assert values == ["row 0", "row 1", "row 2", CALIBRATION, "row 4", "row 5", "row 6"]
+
+
+def test_the_longest_run_goes_first_before_the_calibration_ends():
+    """Two slots, the calibration finishing last of the first two: the longest run as is is the
+    other one started."""
+    plan = tasks({"line": 40.0, "curvilinear": 140.0}, calibrate=True)
+    engine = ScriptedEngine(2, _results(plan))
+    run_tasks(plan, engine)
+    assert engine.submitted[:2] == [2, 1]
 
 
 @pytest.mark.parametrize("slots", [1, 2, 5])
@@ -150,3 +174,43 @@ def test_ctrl_c_during_the_runs_leaves_no_folder_and_no_process(tmp_path):
     while [p for p in started if _alive(p)] and time.monotonic() < deadline:
         time.sleep(0.1)
     assert started and not [p for p in started if _alive(p)]
+
+
+class RecordingGate:
+    """A ``loop_gate`` that records whether it is held."""
+
+    def __init__(self):
+        self.held = False
+        self.entered = 0
+
+    def __enter__(self):
+        assert not self.held
+        self.held, self.entered = True, self.entered + 1
+
+    def __exit__(self, *exc):
+        self.held = False
+
+
+def test_the_emulated_run_and_the_calibration_hold_the_loop_gate_and_release_it_on_error(tmp_path, monkeypatch):
+    """A run holds the gate around its emulator only (the gains are synthesised before it), the
+    calibration around itself; an error inside leaves it released and comes back as the task's error."""
+    from swerve.tools.demo import runs
+    from swerve.tools.demo.plan import DemoPlan
+    from swerve.tools.run.geometry import locate_and_load
+
+    gate = RecordingGate()
+    seen = []
+
+    def emulator(*args, **kw):
+        seen.append(gate.held)
+        raise SwerveError("emulator refused")
+
+    monkeypatch.setattr(runs, "run_tracking", emulator)
+    monkeypatch.setattr(runs, "_calibrate", emulator)
+    choice, _ = locate_and_load(None)
+    plan = DemoPlan(tmp_path, choice, tasks({"line": 40.0}, calibrate=True), "realistic", True, None, "x", gate)
+    for index in (0, 1):
+        done = runs.run_job(plan, index)
+        assert isinstance(done.error, SwerveError) and "emulator refused" in str(done.error)
+    assert seen == [True, True] and gate.entered == 2 and not gate.held
+    assert (tmp_path / "gains" / "line.npz").is_file()          # synthesised before the gate

@@ -9,7 +9,8 @@ import pytest
 from swerve.configs import shipped
 from swerve.driver.robot_config import load_robot_config
 from swerve.tools.cli import main
-from swerve.tools.commands.demo import Calibration, DemoRow, calibration_table
+from swerve.tools.commands.demo import calibration_table
+from swerve.tools.demo.plan import Calibration, DemoRow
 
 
 def _row(name: str, robot: str, rms_m: float) -> DemoRow:
