@@ -30,7 +30,7 @@ CONTROL_TIMEOUT_S = 30.0
 #: Bus timeout slack against a lockstep emulator, wall s: its replies are never late in robot
 #: time, and a reply not in by then is waited for if the emulator says it sent it (the clock is
 #: the bus's reply gate), so this only sets how soon a lost reply is confirmed lost.
-LOCKSTEP_TIMEOUT_MARGIN_S = 0.02
+LOCKSTEP_TIMEOUT_MARGIN_S = 0.005
 
 
 class LockstepError(SwerveError):
