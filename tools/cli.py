@@ -1,7 +1,9 @@
 """The ``swerve`` command: one sub-module per subcommand in :mod:`tools.commands`.
 
 Each module ``tools/commands/<name>.py`` (``export-csv``: ``export_csv.py``) defines
-``add_arguments(parser)`` and ``run(args) -> int``, with its imports at its top. The names and
+``add_arguments(parser)`` and ``run(args) -> int``, with its imports at its top; a command whose
+work imports much keeps ``run`` in a module of its own (:data:`WORK_MODULES`), imported only
+once its command line has parsed. The names and
 one-line helps of the commands are data here (:data:`COMMANDS`), so ``swerve --help`` lists every
 command without importing one, and ``swerve CMD`` imports the module of CMD only.
 
@@ -94,6 +96,11 @@ def add_adapter_option(parser: argparse.ArgumentParser) -> None:
 #: Commands whose given option means an emulator child will be started (``run --emulate``).
 EMULATING_OPTION: dict[str, str] = {"run": "--emulate"}
 
+#: Commands whose work is a module apart from their options: its ``run(args)`` is imported once
+#: the command line has parsed, so a bad option is refused before the work's imports (the
+#: others' ``run`` is in their command module).
+WORK_MODULES: dict[str, str] = {"tune": "swerve.tools.tune.command"}
+
 
 def starts_emulator(argv: list[str]) -> bool:
     """Whether the command line ``argv`` asks for an emulator child (see :data:`EMULATING_OPTION`)."""
@@ -104,6 +111,12 @@ def starts_emulator(argv: list[str]) -> bool:
 def command_module(name: str):
     """The module of the subcommand ``name`` (a key of :data:`COMMANDS`)."""
     return importlib.import_module(f"swerve.tools.commands.{name.replace('-', '_')}")
+
+
+def work_module(name: str):
+    """The module holding ``run(args)`` of the subcommand ``name`` (:data:`WORK_MODULES`, else
+    its command module)."""
+    return importlib.import_module(WORK_MODULES[name]) if name in WORK_MODULES else command_module(name)
 
 
 def chosen_command(argv: list[str]) -> str | None:
@@ -126,7 +139,7 @@ class OneLineParser(argparse.ArgumentParser):
 
 def build_parser(commands=tuple(COMMANDS)) -> argparse.ArgumentParser:
     """The top-level parser: every subcommand is listed; those in ``commands`` (default: all)
-    get their options and their ``run`` (importing their modules)."""
+    get their options (importing their command modules)."""
     parser = OneLineParser(
         prog="swerve",
         description="Four-wheel steered robot: Dynamixel driver, servo emulator, LQ tracking.")
@@ -136,9 +149,7 @@ def build_parser(commands=tuple(COMMANDS)) -> argparse.ArgumentParser:
     for name, text in COMMANDS.items():
         p = sub.add_parser(name, help=text, description=text)
         if name in commands:
-            mod = command_module(name)
-            mod.add_arguments(p)
-            p.set_defaults(_run=mod.run)
+            command_module(name).add_arguments(p)
     return parser
 
 
@@ -245,7 +256,7 @@ def _run_command(argv: list[str], process_exit: bool) -> int:
     prefix = f"swerve {args.command}"
     with signals_as_interrupt(process_exit), _quiet_boundary(verbose, prefix):
         try:
-            return int(args._run(args) or 0)
+            return int(work_module(args.command).run(args) or 0)
         except SwerveError as exc:
             hold_stop_signals()
             print(f"{prefix}: error: {_one_line(exc)}", file=sys.stderr)

@@ -135,3 +135,21 @@ def test_only_a_command_line_that_emulates_starts_an_emulator_child_ahead():
     assert not cli.starts_emulator(["run", "--trajectory", "line", "--port", "/dev/ttyUSB0"])
     assert not cli.starts_emulator(["sim", "--emulate"])         # not an option of sim: no child
     assert not cli.starts_emulator([])
+
+
+def test_a_bad_tune_option_is_refused_before_the_work_is_imported():
+    code = ("from swerve.tools import cli\n"
+            "try:\n    cli.main(['tune', '--emulate', '--seed', '-3'])\n"
+            "except SystemExit as exc:\n    assert exc.code == 2, exc.code\n"
+            "else:\n    raise AssertionError('no exit')")
+    loaded = _modules_after(code)
+    assert "swerve.tools.commands.tune" in loaded
+    assert "swerve.tools.tune.command" not in loaded
+    assert not {m.split(".")[0] for m in loaded} & {"scipy", "numba", "matplotlib"}
+
+
+def test_every_work_module_has_the_run_of_its_command():
+    for name, module in cli.WORK_MODULES.items():
+        assert name in cli.COMMANDS
+        assert callable(cli.work_module(name).run), module
+        assert not hasattr(cli.command_module(name), "run"), name

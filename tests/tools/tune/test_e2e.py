@@ -16,7 +16,7 @@ from swerve.driver.control_table import Reg
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.physics.params import load_config
 from swerve.tools import cli
-from swerve.tools.commands.tune import TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
+from swerve.tools.tune.command import TUNE_LOCKSTEP_TIMEOUT_MARGIN_S
 from swerve.tools.run.lockstep import LockstepLoopClock
 from swerve.tools.tune.gain_search import DesignError, Spec
 from swerve.emulator.timing import Lockstep
