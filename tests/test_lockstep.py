@@ -27,6 +27,11 @@ ROOT = Path(__file__).resolve().parents[1]
 BYTE_S = 10 / 1_000_000          # one byte at 1 Mbps, 8N1
 
 
+#: Reply slack of the tests that count the clock's requests: long enough that the bus never asks
+#: its reply gate (a request of its own, sent when a reply is later than the slack) on a loaded host.
+COUNTING_MARGIN_S = 2.0
+
+
 @pytest.fixture
 def bus_in_lockstep():
     """A register-only 3-servo bus in lockstep, its driver, and a clock on its control channel."""
@@ -122,7 +127,7 @@ def test_now_brings_the_true_pose_with_it():
     robot = load_robot_config(shipped("robot.yaml"))
     with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
-                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+                                                           timeout_margin_s=COUNTING_MARGIN_S) as bus:
             clock.attach(bus)           # its reply gate: a loaded host delays, never loses, a reply
             clock.sleep_until(0.1)
             bus.ping(1)
@@ -140,7 +145,7 @@ def test_the_time_after_a_read_can_be_asked_while_its_reply_is_on_the_way():
     robot = load_robot_config(shipped("robot.yaml"))
     with build_emulator(robot, load_config(shipped("emulator.yaml")), timing=Lockstep(), body=BodySettings()) as emu:
         with LockstepLoopClock(emu.control.path) as clock, Bus(emu.port, 1_000_000, default_model="xh430-w210",
-                                                           timeout_margin_s=LOCKSTEP_TIMEOUT_MARGIN_S) as bus:
+                                                           timeout_margin_s=COUNTING_MARGIN_S) as bus:
             clock.attach(bus)
             clock.sleep_until(0.1)
             n = clock.requests
@@ -246,7 +251,7 @@ def test_emulated_robot_moves_in_robot_time_only(emulated_robot):
 
 def test_a_bus_opened_by_the_fixture_lets_the_clock_ask_with_the_read(emulated_robot):
     """A loop on the fixture's clock asks for the time after a read as the request goes out."""
-    with emulated_robot.open_bus() as bus:
+    with emulated_robot.open_bus(timeout_margin_s=COUNTING_MARGIN_S) as bus:
         clock = emulated_robot.clock
         clock.ask_after_next_write()
         n = clock.requests
