@@ -18,6 +18,7 @@ from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.factory import build_emulator
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.process import SHARED_STATE
+from swerve.emulator.server import freeze_startup_heap
 
 
 def child_main(conn_fd: int, shared_fd: int) -> None:
@@ -43,11 +44,8 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    # The collector was off since the first line (see process._CHILD_PROGRAM). What start-up made
-    # is frozen as it is, so later collections walk only objects made since; a collection first
-    # would walk ~170 000 objects (numba loaded) for ~80 ms of CPU to free ~1 000 of them.
-    gc.freeze()
-    gc.enable()
+    freeze_startup_heap()
+    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     try:
         conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     except OSError:                    # the parent gave up while we started

@@ -2,7 +2,9 @@
 import math
 
 import pytest
+import yaml
 
+from swerve.driver import control_table as ct
 from swerve.driver.control_table import Reg, load_table, models, table_for
 from swerve.driver.errors import ConfigError, OutOfRangeError, RegisterError
 
@@ -45,10 +47,8 @@ def test_xl330_and_xl430_differ_from_the_xh_table():
     assert Reg.GOAL_CURRENT not in xl430 and xl430[Reg.OPERATING_MODE].allowed == (1, 3, 4, 16)
 
 
-def _library_with(tmp_path, files: dict[str, str]) -> "ct.ModelLibrary":
+def _library_with(tmp_path, files: dict[str, str]) -> ct.ModelLibrary:
     """A :class:`ModelLibrary` of the shipped reference model plus ``files`` (name -> YAML text)."""
-    from swerve.driver import control_table as ct
-
     folder = tmp_path / "models"
     folder.mkdir()
     ref = f"{ct.REFERENCE_MODEL}.yaml"
@@ -59,10 +59,6 @@ def _library_with(tmp_path, files: dict[str, str]) -> "ct.ModelLibrary":
 
 
 def test_baud_lists_must_begin_the_reference_list(tmp_path):
-    import yaml
-
-    from swerve.driver import control_table as ct
-
     doc = yaml.safe_load(ct.MODELS_DIR.joinpath("xl330-m288.yaml").read_text())
     baud = next(r for r in doc["registers"] if r["name"] == "baud_rate")
     baud["values_bps"] = [9600, 57600, 115200, 1000000, 2000000, 3000000, 4500000]
@@ -90,8 +86,6 @@ def test_a_model_file_is_parsed_at_its_first_use_only(tmp_path):
 
 
 def test_lazy_tables_are_the_tables_of_a_full_load():
-    from swerve.driver import control_table as ct
-
     fresh = ct.ModelLibrary(ct.MODELS_DIR)
     one = fresh.table_for("xm430-w350")
     every = {p.stem: load_table(p) for p in sorted(ct.MODELS_DIR.glob("*.yaml"))}

@@ -1,4 +1,5 @@
 """The emulated robot in a child process: port, shared true pose, fault commands, final stats."""
+import gc
 import os
 import subprocess
 import sys
@@ -7,9 +8,11 @@ import time
 import pytest
 
 from swerve.driver.bus import Bus
-from swerve.driver.errors import ConfigError, DxlTimeoutError
+from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
+from swerve.emulator import process
 from swerve.emulator.process import EmulatorProcess, prestarted
 from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.server import freeze_startup_heap
 from swerve.emulator.timing import Lockstep, WallTime
 
 
@@ -51,10 +54,6 @@ def test_bad_physics_config_is_reported_from_the_child(tmp_path):
 
 
 def test_emulator_process_freezes_its_start_up_heap():
-    import gc
-
-    from swerve.emulator.server import freeze_startup_heap
-
     try:
         freeze_startup_heap()
         assert gc.get_freeze_count() > 0
@@ -91,8 +90,6 @@ def test_a_prestarted_child_is_taken_by_the_first_launch_and_serves_its_request(
 
 
 def test_a_prestarted_child_no_launch_took_is_stopped_and_reaped():
-    import swerve.emulator.process as process
-
     with prestarted():
         spare = process._prestarted
         pid = spare[0].pid
@@ -104,8 +101,6 @@ def test_a_prestarted_child_no_launch_took_is_stopped_and_reaped():
 
 def test_a_prestarted_child_told_nothing_exits_quietly():
     """Its parent gone before sending a request (EOF), the child ends without output or error."""
-    import swerve.emulator.process as process
-
     proc, conn, shared = process._spawn()
     conn.close()
     assert proc.wait(timeout=60) == 0
@@ -141,9 +136,6 @@ def test_swerve_run_emulate_leaves_no_process_behind(extra, status):
 
 
 def test_a_prestarted_child_that_died_is_one_clear_error(monkeypatch):
-    import swerve.emulator.process as process
-    from swerve.driver.errors import SwerveError
-
     monkeypatch.setattr(process, "_CHILD_PROGRAM", "import sys; sys.exit(3)")   # dies before reading its request
     with prestarted():
         process._prestarted[0].wait(timeout=60)

@@ -15,7 +15,9 @@ import pytest
 from swerve.core.errors import ConfigError, SwerveError
 from swerve.tools.campaign.pool import Done
 from swerve.tools.commands.demo import WorkerTraceback, run_tasks
-from swerve.tools.demo.plan import Calibration, Task, TaskDone, tasks
+from swerve.tools.demo import runs
+from swerve.tools.demo.plan import Calibration, DemoPlan, Task, TaskDone, tasks
+from swerve.tools.run.geometry import locate_and_load
 
 NAMES = {"line": 40.0, "circle": 56.0}     # name -> robot time, s
 CALIBRATION = Calibration({}, {}, Path("robot-calibrated.yaml"))
@@ -194,9 +196,6 @@ class RecordingGate:
 def test_the_emulated_run_and_the_calibration_hold_the_loop_gate_and_release_it_on_error(tmp_path, monkeypatch):
     """A run holds the gate around its emulator only (the gains are synthesised before it), the
     calibration around itself; an error inside leaves it released and comes back as the task's error."""
-    from swerve.tools.demo import runs
-    from swerve.tools.demo.plan import DemoPlan
-    from swerve.tools.run.geometry import locate_and_load
 
     gate = RecordingGate()
     seen = []
