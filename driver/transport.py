@@ -46,8 +46,6 @@ from typing import Callable
 
 import serial
 
-# Baud rates the X series supports, in scan order (factory default first).
-from swerve.driver.control_table import SCAN_BAUDS_BPS as STANDARD_BAUDS
 from swerve.driver.errors import PortInUseError, TransportError
 from swerve.driver.parser import PacketParser
 

@@ -6,9 +6,8 @@ import argparse
 from swerve.core.errors import ConfigError
 from swerve.core.options import parse_id_range
 from swerve.driver.bus import Bus
-from swerve.driver.control_table import ID_MAX
+from swerve.driver.control_table import ID_MAX, SCAN_BAUDS_BPS
 from swerve.driver.errors import DxlError
-from swerve.driver.transport import STANDARD_BAUDS
 from swerve.tools.argtypes import baud_rate, finite_float
 
 
@@ -33,7 +32,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    bauds = STANDARD_BAUDS if args.all_bauds else (args.baud,)
+    bauds = SCAN_BAUDS_BPS if args.all_bauds else (args.baud,)
     total = 0
     for baud in bauds:
         with Bus(args.port, baud, timeout_margin_s=args.timeout_margin_ms * 1e-3) as bus:

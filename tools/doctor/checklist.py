@@ -5,8 +5,8 @@ from __future__ import annotations
 from typing import Iterable
 
 from swerve.driver.bus import Bus
+from swerve.driver.control_table import SCAN_BAUDS_BPS
 from swerve.driver.robot_config import RobotConfig
-from swerve.driver.transport import STANDARD_BAUDS
 from swerve.tools.doctor.cycle import timed_cycle
 from swerve.tools.doctor.health import check_health
 from swerve.tools.doctor.latency import LatencyTimer, SysfsLatencyTimer, check_latency
@@ -17,7 +17,7 @@ from swerve.tools.doctor.settings import check_settings
 
 
 def diagnose(cfg: RobotConfig, port: str, *, fix: bool = False, margin_s: float = 0.002,
-             cycles: int = 200, scan_bauds: Iterable[int] = STANDARD_BAUDS,
+             cycles: int = 200, scan_bauds: Iterable[int] = SCAN_BAUDS_BPS,
              latency: LatencyTimer | None = None) -> DoctorReport:
     """Run every check on ``port`` against ``cfg``; with ``fix`` repair what can be repaired.
 

@@ -8,10 +8,9 @@ from dataclasses import dataclass
 from typing import Iterable
 
 from swerve.driver.bus import Bus, PingResult
-from swerve.driver.control_table import Reg, baud_index
+from swerve.driver.control_table import SCAN_BAUDS_BPS, Reg, baud_index
 from swerve.driver.errors import CorruptPacketError, DxlError, DxlTimeoutError
 from swerve.driver.robot_config import RobotConfig
-from swerve.driver.transport import STANDARD_BAUDS
 from swerve.tools.doctor.report import FAIL, PASS, Check, DoctorReport, ids_text
 
 
@@ -39,7 +38,7 @@ def ping_ids(port: str, baud: int, ids: Iterable[int], margin_s: float) -> dict[
     return out
 
 
-def locate_all(port: str, bauds: Iterable[int] = STANDARD_BAUDS, ids: Iterable[int] = range(0, 253),
+def locate_all(port: str, bauds: Iterable[int] = SCAN_BAUDS_BPS, ids: Iterable[int] = range(0, 253),
                margin_s: float = 0.002) -> list[Location]:
     """Every servo on the bus at every baud in ``bauds``, by one Broadcast Ping per baud.
 
@@ -103,7 +102,7 @@ def move_servo(port: str, src: Location, target_id: int, target_baud: int, margi
 
 
 def check_presence(cfg: RobotConfig, port: str, *, fix: bool, margin_s: float,
-                   report: DoctorReport, scan_bauds: Iterable[int] = STANDARD_BAUDS) -> dict[int, PingResult]:
+                   report: DoctorReport, scan_bauds: Iterable[int] = SCAN_BAUDS_BPS) -> dict[int, PingResult]:
     """Every ID of the robot file at the file's baud; else scan and say where each servo is."""
     want = list(cfg.drive_ids + cfg.steer_ids)
     baud = cfg.link.baud
