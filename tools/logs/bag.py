@@ -20,6 +20,7 @@ import numpy as np
 from swerve.core.atomic import OutputError
 from swerve.driver.errors import ConfigError
 
+from .mcap_chunk import ChunkWriter
 from .messages import CycleMessages, CycleSerializer
 from .record import CYCLE_FIELDS, LAYOUT_VERSION, CycleRecord, unpack
 
@@ -94,7 +95,7 @@ class RunLogWriter:
         # not in the first control cycle
         self._cdr = CycleSerializer(CycleMessages(self._ts, joint_names(wheels)))
         self._bag = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
-        self._conn: dict = {}
+        self._conn: dict[str, int] = {}       # topic -> channel ID
         self._open = False
 
     # -- context manager -------------------------------------------------------------------
@@ -119,44 +120,45 @@ class RunLogWriter:
 
     def _open_bag(self) -> None:
         self._bag.open()
-        self._storage = self._bag.storage
+        for topic, msgtype in TOPICS.items():
+            self._conn[topic] = self._bag.add_connection(topic, msgtype, typestore=self._ts).id
         # rosbags keeps the current MCAP chunk in memory until it reaches 1 MiB; closing it early
-        # is what makes the file crash-readable. Fail loudly if a rosbags release renames these.
-        if not (hasattr(self._storage, "close_chunk") and hasattr(self._storage, "bio")):
+        # is what makes the file crash-readable. Schemas and channels reach the disk before the
+        # first cycle; the messages then go through the chunk writer.
+        storage = self._bag.storage
+        if not (hasattr(storage, "close_chunk") and hasattr(storage, "bio")):
             self._bag.abort()
             raise RuntimeError("this rosbags version has no McapWriter.close_chunk(); "
                                "crash-safe logging needs rosbags 0.10-0.11")
-        for topic, msgtype in TOPICS.items():
-            self._conn[topic] = self._bag.add_connection(topic, msgtype, typestore=self._ts)
+        if storage.chunk.bio.tell():
+            storage.close_chunk()
+        try:
+            self._chunks = ChunkWriter(self._bag)
+        except RuntimeError:
+            self._bag.abort()
+            raise
+        self._chunks.flush()
         self._open = True
-        self._flush()  # schemas and channels reach the disk before the first cycle
         self._bag.set_custom_data("swerve_metadata", self._metadata_json)
 
     def close(self) -> None:
         """Finish the MCAP (summary, index) and write ``metadata.yaml``. Idempotent."""
         if self._open:
-            if not self.cycles_written:
-                self._put_metadata(time.time_ns())
             self._open = False
             try:
+                if not self.cycles_written:
+                    self._put_metadata(time.time_ns())
+                self._chunks.flush()
                 self._bag.close()
             except OSError as exc:
                 raise self._output_error(exc) from None
 
     def _put_metadata(self, stamp_ns: int) -> None:
         # stamped like the first cycle, so the bag's time range is the run's (not 1970-now)
-        self._put("/swerve/metadata", stamp_ns,
-                  self._ts.types["std_msgs/msg/String"](data=self._metadata_json))
+        msg = self._ts.types["std_msgs/msg/String"](data=self._metadata_json)
+        self._chunks.add(self._conn["/swerve/metadata"], stamp_ns, self._ts.serialize_cdr(msg, msg.__msgtype__))
 
     # -- writing ---------------------------------------------------------------------------
-    def _put(self, topic: str, stamp_ns: int, msg) -> None:
-        self._bag.write(self._conn[topic], stamp_ns, self._ts.serialize_cdr(msg, msg.__msgtype__))
-
-    def _flush(self) -> None:
-        if self._storage.chunk.bio.tell():
-            self._storage.close_chunk()
-        self._storage.bio.flush()
-
     def write(self, rec: CycleRecord) -> None:
         """Log one cycle on every topic; flush every ``flush_every`` cycles."""
         if not self._open:
@@ -165,12 +167,12 @@ class RunLogWriter:
         try:
             if not self.cycles_written:
                 self._put_metadata(ns)
-            write, conn = self._bag.write, self._conn
+            add, conn = self._chunks.add, self._conn
             for topic, data in self._cdr.serialize(rec):
-                write(conn[topic], ns, data)
+                add(conn[topic], ns, data)
             self.cycles_written += 1
             if self.cycles_written % self.flush_every == 0:
-                self._flush()
+                self._chunks.flush()
         except OSError as exc:
             raise self._output_error(exc) from None
 
