@@ -36,7 +36,7 @@ from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, Dxl
                            RegisterError, ServoError)
 from swerve.driver.packets import (BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket,
                                    fast_status_bytes)
-from swerve.driver.span_codec import span_decoder, span_values
+from swerve.driver.span_codec import STRUCT_CODES, span_decoder, span_values
 from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
 #: Bytes of a status packet without parameters (header 4, ID, LEN 2, 0x55, ERR, CRC 2).
@@ -631,24 +631,20 @@ class Bus:
     def bulk_write(self, items: Mapping[int, Mapping[RegLike, int]]) -> None:
         """Bulk Write ``{id: {reg: raw, ...}}`` (each ID's registers must be contiguous), no reply."""
         key = ("bulk write",) + tuple((i, tuple(regs)) for i, regs in items.items())
-        layout = self._plans.get(key)
-        if layout is None:
-            layout = self._bulk_write_layout(key[1:])
+        plan = self._plans.get(key)
+        if plan is None:
+            plan = self.bulk_write_plan(key[1:])
             if len(self._plans) >= _REQUEST_CACHE_SIZE:
                 self._plans.clear()
-            self._plans[key] = layout
-        entries = []
-        for i, start, regs in layout:
-            values = items[i]
-            entries.append((i, start, b"".join([r.encode(r.check_raw(int(values[name]))) for name, r in regs])))
-        self._with_retries(self._simple, pk.bulk_write(entries))
+            self._plans[key] = plan
+        self.bulk_write_values(plan, [items[i][name] for i, name in plan.names])
 
-    def _bulk_write_layout(self, names: Sequence[tuple[int, tuple[RegLike, ...]]]) -> tuple:
-        """Per ID of ``names`` (``(id, (reg, ...))``): ``(id, start address, ((reg, Register), ...))``
-        with the registers in address order; raises for a read-only or non-contiguous one."""
-        layout = []
-        for i, regs in names:
-            found = sorted(((name, self._writable(i, name)) for name in regs), key=lambda nr: nr[1].address)
+    def bulk_write_plan(self, items: Sequence[tuple[int, Sequence[RegLike]]]) -> "BulkWritePlan":
+        """The :class:`BulkWritePlan` of a Bulk Write of ``items``, ``(id, (reg, ...))`` per servo;
+        raises for a read-only or non-contiguous register, or an ID that is invalid or listed twice."""
+        entries, names, regs = [], [], []
+        for i, group in items:
+            found = sorted(((name, self._writable(i, name)) for name in group), key=lambda nr: nr[1].address)
             if not found:
                 raise ValueError(f"bulk write for ID {i} names no register")
             start = end = found[0][1].address
@@ -657,5 +653,69 @@ class Bus:
                     raise ValueError(f"bulk write for ID {i}: {r.name} is not contiguous with the "
                                      f"registers before it")
                 end += r.size
-            layout.append((i, start, tuple(found)))
-        return tuple(layout)
+            entries.append((i, start, end - start, len(found)))
+            names += [(i, name) for name, _ in found]
+            regs += [r for _, r in found]
+        pk.bulk_write([(i, start, bytes(n)) for i, start, n, _ in entries])     # checks the IDs
+        return BulkWritePlan.build(entries, tuple(names), tuple(regs))
+
+    def bulk_write_values(self, plan: "BulkWritePlan", values: Sequence[int]) -> None:
+        """Send the Bulk Write of ``plan`` with raw ``values``, one per register in the plan's order
+        (:attr:`BulkWritePlan.names`); each is range-checked first (OutOfRangeError, nothing sent)."""
+        self._with_retries(self._simple, pk.InstructionPacket(BROADCAST_ID, Instruction.BULK_WRITE,
+                                                              plan.params(values)))
+
+
+@dataclass(frozen=True)
+class BulkWritePlan:
+    """A Bulk Write of the same registers each time (the control loop's goals), worked out once.
+
+    ``names``: ``(id, reg)`` of each value, in the order :meth:`params` takes them (per servo, in
+    address order); ``regs``: their :class:`Register`. The parameters (per servo ID, start address,
+    length, then its items, little-endian, two's complement where signed) are packed by one
+    ``struct`` format, each value's raw range checked against a precomputed bound first: what
+    :meth:`Register.check_raw` and :meth:`Register.encode` do item by item (a value outside the
+    bound goes to them, which raise OutOfRangeError).
+    """
+
+    names: tuple[tuple[int, RegLike], ...]
+    regs: tuple[Register, ...]
+    _pack: Callable[..., bytes]
+    _args: tuple[int, ...]                   # the pack's arguments, 0 where a value goes
+    _slots: tuple[int, ...]                  # where each value goes in them
+    _bounds: tuple[tuple[int, int], ...]     # each value's raw range; (1, 0) to check by register
+
+    @classmethod
+    def build(cls, entries: Sequence[tuple[int, int, int, int]], names: tuple, regs: tuple[Register, ...]
+              ) -> "BulkWritePlan":
+        """The plan of ``entries`` (``(id, start, length, count)`` per servo) holding ``regs`` in
+        turn, ``count`` of them per servo."""
+        fmt, args, slots = ["<"], [], []
+        own = iter(regs)
+        for i, start, n, count in entries:
+            fmt.append("BHH")
+            args += [i, start, n]
+            for _, r in zip(range(count), own):
+                fmt.append(STRUCT_CODES[r.size, r.signed])
+                slots.append(len(args))
+                args.append(0)
+        bounds = []
+        for r in regs:
+            lo, hi = r.raw_bounds()
+            bits = 8 * r.size
+            lo, hi = (max(lo, -(1 << (bits - 1))), min(hi, (1 << (bits - 1)) - 1)) if r.signed else \
+                (max(lo, 0), min(hi, (1 << bits) - 1))
+            bounds.append((1, 0) if r.allowed is not None else (lo, hi))
+        return cls(names, regs, struct.Struct("".join(fmt)).pack, tuple(args), tuple(slots), tuple(bounds))
+
+    def params(self, values: Sequence[int]) -> bytes:
+        """The Bulk Write's parameters for raw ``values`` (one per register, in :attr:`names` order)."""
+        if len(values) != len(self.regs):
+            raise ValueError(f"bulk write plan takes {len(self.regs)} values, got {len(values)}")
+        args = list(self._args)
+        for at, v, (lo, hi), r in zip(self._slots, values, self._bounds, self.regs):
+            v = int(v)
+            if not lo <= v <= hi:
+                r.encode(r.check_raw(v))
+            args[at] = v
+        return self._pack(*args)

@@ -18,7 +18,6 @@ before anything is sent.
 from __future__ import annotations
 
 import logging
-import math
 import time
 from dataclasses import dataclass
 from typing import Sequence
@@ -77,6 +76,12 @@ class WheelSet:
             bus.set_model(i, self.table)
         self._vel = self.table[Reg.GOAL_VELOCITY]
         self._pos = self.table[Reg.GOAL_POSITION]
+        self._vmax = config.drive_max_radps * (1 + _LIMIT_TOL)
+        self._dmax = config.steer_angle_max_rad * (1 + _LIMIT_TOL)
+        # the goals' raw ranges where no other rule applies (else (1, 0): the register decides)
+        self._goal_bounds = tuple((1, 0) if r.allowed is not None else r.raw_bounds()
+                                  for r in (self._vel, self._pos))
+        self._goal_plan = None       # the Bulk Write of the goals, planned at the first one
         # plain strings, as _GOAL_VELOCITY
         self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)
         # per wheel, the SI factor of each present value with the direction sign in it (the
@@ -143,34 +148,41 @@ class WheelSet:
         Raises :class:`OutOfRangeError` naming the wheel for a value beyond the configured
         limits or the register range, or NaN; nothing is clamped.
         """
+        return dict(zip(self.ids, self._goal_values(drive_radps, steer_rad)))
+
+    def _goal_values(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> list[int]:
+        """:meth:`goal_raw` as a list in the order of :attr:`ids` (drive IDs, then steering IDs)."""
         cfg = self.config
         if len(drive_radps) != 4 or len(steer_rad) != 4:
             raise ValueError(f"expected 4 wheel speeds and 4 steering angles, got "
                              f"{len(drive_radps)} and {len(steer_rad)}")
-        vmax = cfg.drive_max_radps * (1 + _LIMIT_TOL)
-        dmax = cfg.steer_angle_max_rad * (1 + _LIMIT_TOL)
-        out: dict[int, int] = {}
+        vmax, dmax = self._vmax, self._dmax
+        vel, pos = self._vel, self._pos
+        (vlo, vhi), (plo, phi) = self._goal_bounds
+        drive, steer = [], []
         for w, v, d in zip(cfg.wheels, drive_radps, steer_rad):
             v, d = float(v), float(d)
-            if not (math.isfinite(v) and abs(v) <= vmax):
+            if not -vmax <= v <= vmax:          # also NaN
                 raise OutOfRangeError(f"{w.name} wheel speed", v, -cfg.drive_max_radps,
                                       cfg.drive_max_radps, "rad/s")
-            if not (math.isfinite(d) and abs(d) <= dmax):
+            if not -dmax <= d <= dmax:
                 raise OutOfRangeError(f"{w.name} steering angle", d, -cfg.steer_angle_max_rad,
                                       cfg.steer_angle_max_rad, "rad")
-            out[w.drive_id] = self._vel.from_si(w.drive_direction * v)
-            pos = w.center_pulse + round(w.steer_direction * d / self._pos.scale)
-            out[w.steer_id] = self._pos.check_raw(pos)
-        return out
+            # Register.from_si and check_raw, with their bounds checked here first
+            raw = round(w.drive_direction * v / vel.scale)
+            drive.append(raw if vlo <= raw <= vhi else vel.from_si(w.drive_direction * v))
+            raw = w.center_pulse + round(w.steer_direction * d / pos.scale)
+            steer.append(raw if plo <= raw <= phi else pos.check_raw(raw))
+        return drive + steer
 
     def write_goals(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> None:
         """Send all eight goals in ONE Bulk Write: Goal Velocity to the drive servos,
         Goal Position to the steering servos (wheel speeds rad/s, steering angles rad)."""
-        raw = self.goal_raw(drive_radps, steer_rad)
-        vel, pos = _GOAL_VELOCITY, _GOAL_POSITION
-        items = {i: {vel: raw[i]} for i in self.drive_ids}
-        items.update({i: {pos: raw[i]} for i in self.steer_ids})
-        self.bus.bulk_write(items)
+        values = self._goal_values(drive_radps, steer_rad)
+        if self._goal_plan is None:
+            self._goal_plan = self.bus.bulk_write_plan(
+                [(i, (_GOAL_VELOCITY,)) for i in self.drive_ids] + [(i, (_GOAL_POSITION,)) for i in self.steer_ids])
+        self.bus.bulk_write_values(self._goal_plan, values)
 
     def read_state(self) -> WheelState:
         """Present current, velocity and position of all eight servos from ONE Sync Read
