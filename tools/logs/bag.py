@@ -43,9 +43,11 @@ TOPICS = {
 
 
 def _typestore():
-    from rosbags.typesys import Stores, get_typestore
+    """The log's type store (:func:`swerve.tools.logs.typestore.log_typestore`), imported when
+    first needed: commands that never touch a log do not load rosbags."""
+    from .typestore import log_typestore
 
-    return get_typestore(Stores.ROS2_JAZZY)
+    return log_typestore()
 
 
 def joint_names(wheels: Sequence[str] = DEFAULT_WHEELS) -> list[str]:
