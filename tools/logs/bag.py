@@ -1,14 +1,15 @@
 """Run logs as ROS 2 bags (MCAP storage): :class:`RunLogWriter`, :func:`read_log`, :func:`repair_log`.
 
-Writing goes through ``rosbags.rosbag2.Writer``; reading streams the MCAP with the ``mcap``
-package, which tolerates a file whose summary and footer were never written (a crash or
-SIGKILL). Topics, types and the crash-recovery rules are described in ``tools/logs/README.md``.
+Writing goes through ``rosbags.rosbag2.Writer`` (header, schemas, channels, summary and
+``metadata.yaml``), the cycles' messages through :class:`~swerve.tools.logs.mcap_chunk.ChunkWriter`
+(the same bytes, packed with ``struct``); reading walks the MCAP record by record
+(:func:`swerve.tools.logs.mcap_scan.scan`, with the ``mcap`` package), which tolerates a file
+whose summary and footer were never written (a crash or SIGKILL). Topics, types and the
+crash-recovery rules are described in ``tools/logs/README.md``.
 """
 from __future__ import annotations
 
-import io
 import json
-import struct
 import sys
 import time
 from dataclasses import dataclass, field
@@ -241,124 +242,8 @@ def _mcap_file(path: Path) -> Path:
     return found[0]
 
 
-#: MCAP opcodes (the spec's record types 0x01-0x10); anything else at a record start is damage.
-_OPCODES = range(0x01, 0x11)
-_MAGIC = b"\x89MCAP0\r\n"
-
-
 class LogDamaged(ConfigError):
     """A run log has unreadable stretches; the message names the first one's byte offset."""
-
-
-@dataclass(frozen=True)
-class Damage:
-    """A stretch of a log that could not be read: it starts at byte ``offset`` of the ``.mcap``
-    file and reading went on at byte ``resumed`` (``None``: nothing readable followed)."""
-
-    offset: int
-    reason: str
-    resumed: int | None
-
-    def __str__(self) -> str:
-        tail = "nothing readable after it" if self.resumed is None else f"reading resumed at byte {self.resumed}"
-        return f"damaged at byte {self.offset} ({self.reason}; {tail})"
-
-
-def _record_at(data: bytes, pos: int):
-    """``(records, end)`` of the top-level MCAP record at ``pos``: a chunk yields its inner records.
-
-    Raises ``EOFError`` if the record runs past the end of the file, ``ValueError`` (with the
-    reason) if it is not a well-formed record.
-    """
-    from mcap.exceptions import McapError
-
-    if pos + 9 > len(data):
-        raise EOFError("record header cut short")
-    opcode = data[pos]
-    if opcode not in _OPCODES:
-        raise ValueError(f"no MCAP record starts there (opcode 0x{opcode:02x})")
-    (length,) = struct.unpack_from("<Q", data, pos + 1)
-    end = pos + 9 + length
-    if end > len(data):
-        raise EOFError(f"a record of {length} bytes runs past the end of the file")
-    if opcode == 0x02:
-        return ["footer"], end
-    from mcap.data_stream import ReadDataStream
-    from mcap.records import Channel, Chunk, Message, Schema
-    from mcap.stream_reader import breakup_chunk
-
-    kinds = {0x03: Schema, 0x04: Channel, 0x06: Chunk}
-    try:
-        stream = ReadDataStream(io.BytesIO(data[pos + 9:end]))
-        if opcode == 0x05:
-            return [Message.read(stream, length)], end
-        if opcode not in kinds:
-            return [], end                   # header, indexes, statistics...: not needed here
-        rec = kinds[opcode].read(stream)
-        if stream.count != length:
-            raise ValueError("its fields do not fill its length")
-        if opcode == 0x06:
-            return breakup_chunk(rec, validate_crc=True), end
-        return [rec], end
-    except (McapError, EOFError, struct.error, ValueError, UnicodeDecodeError, KeyError) as exc:
-        raise ValueError(f"malformed record (opcode 0x{opcode:02x}: {type(exc).__name__})") from None
-
-
-def _resync(data: bytes, pos: int) -> int | None:
-    """Start of the first well-formed chunk after ``pos``, or ``None``."""
-    cand = data.find(b"\x06", pos + 1)
-    while cand != -1:
-        try:
-            _record_at(data, cand)
-            return cand
-        except (EOFError, ValueError):
-            cand = data.find(b"\x06", cand + 1)
-    return None
-
-
-def _scan(mcap_path: Path):
-    """Walk every top-level record; return ``(channels, schemas, messages, footer_seen, damage)``.
-
-    A record cut off by the end of the file is the unwritten tail of a log that was never
-    closed (a crash): reading stops there without damage. Any other unreadable record is
-    damage: its byte offset is noted and reading resumes at the next well-formed chunk.
-    """
-    from mcap.records import Channel, Message, Schema
-
-    try:
-        data = mcap_path.read_bytes()
-    except OSError as exc:
-        raise ConfigError(f"cannot read run log {mcap_path}: {exc.strerror}") from None
-    if not data.startswith(_MAGIC):
-        raise ConfigError(f"not a swerve run log: {mcap_path} is not an MCAP file (no MCAP magic)")
-    channels, schemas, messages, footer, damage = {}, {}, [], False, []
-    pos = len(_MAGIC)
-    while pos < len(data) and not footer:
-        try:
-            recs, pos_next = _record_at(data, pos)
-        except (EOFError, ValueError) as exc:
-            nxt = _resync(data, pos)
-            if isinstance(exc, EOFError) and nxt is None:
-                break                            # the cut tail of an unclosed log
-            damage.append(Damage(pos, str(exc), nxt))
-            if nxt is None:
-                break
-            pos = nxt
-            continue
-        for rec in recs:
-            if isinstance(rec, Message):
-                messages.append((pos, rec))
-            elif isinstance(rec, Channel):
-                channels[rec.id] = rec
-            elif isinstance(rec, Schema):
-                schemas[rec.id] = rec
-            elif rec == "footer":
-                footer = True
-        pos = pos_next
-    if not channels:
-        where = f" ({damage[0]})" if damage else ""
-        raise ConfigError(f"not a swerve run log: {mcap_path} holds no readable channel{where}")
-    return channels, schemas, messages, footer, damage
 
 
 def read_log(path: str | Path) -> RunLog:
@@ -368,9 +253,11 @@ def read_log(path: str | Path) -> RunLog:
     stops at the first incomplete record. Raises :class:`ConfigError` for a missing path, a
     file that is not a swerve run log, or a log without a single complete cycle.
     """
+    from .mcap_scan import Damage, scan
+
     path = Path(path)
     mcap_path = _mcap_file(path)
-    channels, _, messages, footer, damage = _scan(mcap_path)
+    channels, _, messages, footer, damage = scan(mcap_path)
     by_topic = {c.topic: c.id for c in channels.values()}
     if "/swerve/cycle" not in by_topic or "/swerve/metadata" not in by_topic:
         raise ConfigError(f"not a swerve run log: {path} has no /swerve/cycle or /swerve/metadata topic")
@@ -418,9 +305,11 @@ def repair_log(path: str | Path, out: str | Path | None = None) -> Path:
     """
     from rosbags.rosbag2 import StoragePlugin, Writer
 
+    from .mcap_scan import scan
+
     path = Path(path)
     mcap_path = _mcap_file(path)
-    channels, schemas, messages, _, _ = _scan(mcap_path)
+    channels, schemas, messages, _, _ = scan(mcap_path)
     out = Path(out) if out is not None else path.with_name(path.name.removesuffix(".mcap") + "-repaired")
     ts = _typestore()
     with Writer(out, version=9, storage_plugin=StoragePlugin.MCAP) as bag:
