@@ -20,9 +20,14 @@ from typing import Sequence
 
 import numpy as np
 
-from .record import CYCLE_SIZE, CycleRecord, flatten
+from .record import CYCLE_SIZE, FLAT_SLICES, CycleRecord, flatten
 
 _NAN4 = [float("nan")] * 4
+#: Where the numbers of the cycle's messages are in the flat record.
+_MEAS_STEER, _MEAS_DRIVE, _MEAS_CURRENT, _CMD_STEER, _CMD_DRIVE, _EST_POSE = (FLAT_SLICES[name] for name in (
+    "meas_steer_rad", "meas_drive_radps", "meas_current_a", "cmd_steer_rad", "cmd_drive_radps", "est_pose"))
+_POSE_TOPICS = (("/reference", FLAT_SLICES["ref_pose"]), ("/true_pose", FLAT_SLICES["true_pose"]),
+                ("/sim_pose", FLAT_SLICES["sim_pose"]))
 
 
 def _pose_numbers(x: float, y: float, th: float) -> list[float]:
@@ -68,14 +73,13 @@ class CycleMessages:
         """``(topic, numbers)`` for one cycle, ``/swerve/cycle`` first: the float64 fields each
         topic's message carries, in field order (what :meth:`build` takes); a pose topic whose
         pose is not finite (unknown) is left out."""
-        out = [("/swerve/cycle", flatten(rec)),
-               ("/joint_states", [*_NAN4, *rec.meas_steer_rad.tolist(), *rec.meas_drive_radps.tolist(),
-                                  *_NAN4, *rec.meas_current_a.tolist()]),
-               ("/trajectory", [*_NAN4, *rec.cmd_steer_rad.tolist(), *rec.cmd_drive_radps.tolist(), *_NAN4]),
-               ("/odom", _pose_numbers(*rec.est_pose.tolist()))]
-        for topic, pose in (("/reference", rec.ref_pose), ("/true_pose", rec.true_pose),
-                            ("/sim_pose", rec.sim_pose)):
-            x, y, th = pose.tolist()
+        flat = flatten(rec)
+        out = [("/swerve/cycle", flat),
+               ("/joint_states", [*_NAN4, *flat[_MEAS_STEER], *flat[_MEAS_DRIVE], *_NAN4, *flat[_MEAS_CURRENT]]),
+               ("/trajectory", [*_NAN4, *flat[_CMD_STEER], *flat[_CMD_DRIVE], *_NAN4]),
+               ("/odom", _pose_numbers(*flat[_EST_POSE]))]
+        for topic, at in _POSE_TOPICS:
+            x, y, th = flat[at]
             if isfinite(x) and isfinite(y) and isfinite(th):
                 out.append((topic, _pose_numbers(x, y, th)))
         return out

@@ -8,6 +8,7 @@ can be turned back into records without loss; ``stamp_ns`` travels as the messag
 from __future__ import annotations
 
 import enum
+import itertools
 from dataclasses import dataclass, field, fields
 
 import numpy as np
@@ -55,13 +56,12 @@ class CycleRecord:
     flags: int = 0                           #: :class:`CycleFlag` bits
 
     def __post_init__(self) -> None:
-        for name, size in CYCLE_FIELDS:
-            if size == 1:
-                continue
-            arr = np.asarray(getattr(self, name), dtype=np.float64)
-            if arr.shape != (size,):
-                raise ValueError(f"CycleRecord.{name} must have shape ({size},), got {arr.shape}")
-            object.__setattr__(self, name, arr)
+        values = self.__dict__
+        for name, shape in _ARRAY_SHAPES:
+            arr = np.asarray(values[name], dtype=np.float64)
+            if arr.shape != shape:
+                raise ValueError(f"CycleRecord.{name} must have shape {shape}, got {arr.shape}")
+            values[name] = arr
 
 
 def _layout() -> tuple[tuple[str, int], ...]:
@@ -78,6 +78,11 @@ def _layout() -> tuple[tuple[str, int], ...]:
 CYCLE_FIELDS: tuple[tuple[str, int], ...] = _layout()
 #: Length of the flat array.
 CYCLE_SIZE = sum(size for _, size in CYCLE_FIELDS)
+#: ``(name, shape)`` of the array fields.
+_ARRAY_SHAPES = tuple((name, (size,)) for name, size in CYCLE_FIELDS if size > 1)
+#: ``name -> slice`` of each field in the flat array.
+FLAT_SLICES = {name: slice(start, start + size) for (name, size), start in
+               zip(CYCLE_FIELDS, itertools.accumulate((size for _, size in CYCLE_FIELDS), initial=0))}
 #: Integer-valued fields (exact in float64 below 2**53).
 INT_FIELDS = ("cycle", "flags")
 
@@ -94,8 +99,9 @@ UNITS = {
 def flatten(record: CycleRecord) -> list[float]:
     """``record`` (without ``stamp_ns``) as ``CYCLE_SIZE`` floats in the order of :data:`CYCLE_FIELDS`."""
     out: list[float] = []
+    values = record.__dict__
     for name, size in CYCLE_FIELDS:
-        value = getattr(record, name)
+        value = values[name]
         if size == 1:
             out.append(float(value))
         else:
