@@ -50,12 +50,29 @@ def message_definitions(path: str | Path = TYPES_FILE) -> dict[str, tuple[list, 
             root.fail(f"{name!r} is not a message type name (pkg/msg/Name)", name)
         sec = root.section(name)
         out[name] = ([], [(f, _field_type(sec.string(f), sec)) for f in sec.keys()])
-    for name, (_, fields) in out.items():
-        for f, desc in fields:
-            inner = desc[1][0] if desc[0] in (Nodetype.ARRAY, Nodetype.SEQUENCE) else desc
-            if inner[0] == Nodetype.NAME and inner[1] not in out:
-                root.section(name).fail(f"field {f} names {inner[1]}, which the file does not define", f)
+    nested = {name: [(f, _nested_name(desc)) for f, desc in fields if _nested_name(desc)]
+              for name, (_, fields) in out.items()}
+    for name, fields in nested.items():
+        for f, inner in fields:
+            if inner not in out:
+                root.section(name).fail(f"field {f} names {inner}, which the file does not define", f)
+    for name in nested:
+        _check_acyclic(name, nested, (), root)
     return out
+
+
+def _nested_name(desc: tuple) -> str | None:
+    """The message type a field description names (itself or as its elements), else None."""
+    inner = desc[1][0] if desc[0] in (Nodetype.ARRAY, Nodetype.SEQUENCE) else desc
+    return inner[1] if inner[0] == Nodetype.NAME else None
+
+
+def _check_acyclic(name: str, nested: dict, path: tuple, root) -> None:
+    """Refuse a type that contains itself (its size would be infinite)."""
+    if name in path:
+        root.section(path[0]).fail(f"contains itself: {' -> '.join(path + (name,))}")
+    for _, inner in nested[name]:
+        _check_acyclic(inner, nested, path + (name,), root)
 
 
 @functools.cache
