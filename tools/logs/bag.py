@@ -132,7 +132,7 @@ class RunLogWriter:
         if not (hasattr(storage, "close_chunk") and hasattr(storage, "bio")):
             self._bag.abort()
             raise RuntimeError("this rosbags version has no McapWriter.close_chunk(); "
-                               "crash-safe logging needs rosbags 0.10-0.11")
+                               "crash-safe logging needs rosbags 0.11")
         if storage.chunk.bio.tell():
             storage.close_chunk()
         try:

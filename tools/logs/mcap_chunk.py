@@ -6,7 +6,7 @@ made the chunk a cycle closes (crash safety) the largest part of the log's cost.
 keeps the pending messages as ``(channel, time, CDR bytes)`` and, on :meth:`~ChunkWriter.flush`,
 packs the chunk in a few ``struct`` calls and one file write. The records are those of the MCAP
 specification (https://mcap.dev/spec, "Records": Message 0x05, Chunk 0x06, Message Index 0x07,
-Chunk Index 0x08), with the choices rosbags 0.10-0.11 makes in ``McapWriter.write`` and
+Chunk Index 0x08), with the choices rosbags 0.11 makes in ``McapWriter.write`` and
 ``close_chunk``: sequence 0, publish time = log time, no compression, uncompressed CRC 0, one Message
 Index record per channel in the order of the channel's first message in the chunk, and a chunk
 closed once its records pass 1 MiB.
@@ -54,7 +54,7 @@ class ChunkWriter:
     Raises
     ------
     RuntimeError
-        If the bag's storage is not the rosbags 0.10-0.11 ``McapWriter`` this was made for.
+        If the bag's storage is not the rosbags 0.11 ``McapWriter`` this was made for.
     """
 
     def __init__(self, bag):
