@@ -64,7 +64,7 @@ class ChunkWriter:
         if (not all(hasattr(storage, n) for n in needed) or storage.compression != ""
                 or not all(hasattr(bag, n) for n in ("counts", "min_timestamp", "max_timestamp"))):
             raise RuntimeError("the bag's storage is not rosbags' uncompressed McapWriter of rosbags "
-                               "0.10-0.11; the run log's chunk writer needs it")
+                               "0.11; the run log's chunk writer needs it")
         if storage.chunk.bio.tell():
             raise RuntimeError("the bag's own pending chunk must be closed before the chunk writer takes over")
         self._bag, self._storage = bag, storage
