@@ -380,16 +380,9 @@ class VirtualServo:
 
     def _advance_quiet_timers(self, dt_s: float, steps: int) -> None:
         """The timers of ``steps`` steps known not to trip the watchdog (:meth:`_quiet_steps`)."""
-        if steps <= 0:
-            return
-        tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
-        wrap = float(self._tick_wrap_ms)
-        for _ in range(steps):
-            tick_ms += d_ms             # (t + d) % wrap, which is t + d below the wrap
-            if tick_ms >= wrap:
-                tick_ms %= wrap
-            since += dt_s
-        self._tick_ms, self._since_traffic_s = tick_ms, since
+        if steps > 0:
+            self._tick_ms, self._since_traffic_s = quiet_timers(self._tick_ms, self._since_traffic_s, dt_s, steps,
+                                                                float(self._tick_wrap_ms))
 
     def _advance_timers(self, dt_s: float) -> None:
         """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""
@@ -445,6 +438,32 @@ class VirtualServo:
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))
+
+
+#: The last :func:`quiet_timers` call, ``(arguments, result)`` (one tuple: set atomically).
+_last_quiet_timers: list[tuple] = [((), ())]
+
+
+def quiet_timers(tick_ms: float, since_s: float, dt_s: float, steps: int, wrap_ms: float) -> tuple[float, float]:
+    """Realtime Tick (ms, wrapping at ``wrap_ms``) and the time since the last instruction (s)
+    after ``steps`` steps of ``dt_s`` s, with the float sums the steps make one by one.
+
+    The servos of a bus usually share both timers (they hear the same instructions), so the
+    last call's result is kept and returned for the same arguments (the same floats give the
+    same sums)."""
+    args = (tick_ms, since_s, dt_s, steps, wrap_ms)
+    last, result = _last_quiet_timers[0]
+    if args == last:
+        return result
+    d_ms = dt_s * 1e3
+    for _ in range(steps):
+        tick_ms += d_ms                 # (t + d) % wrap, which is t + d below the wrap
+        if tick_ms >= wrap_ms:
+            tick_ms %= wrap_ms
+        since_s += dt_s
+    result = (tick_ms, since_s)
+    _last_quiet_timers[0] = (args, result)
+    return result
 
 
 def _byte_item(table: ControlTable, name: str) -> int:

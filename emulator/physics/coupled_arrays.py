@@ -81,6 +81,7 @@ class CoupledArrays:
         # which converts a list of Python numbers in less than half the time NumPy's assignment takes
         self._packers = tuple((struct.Struct(f"{a.size}{'d' if a.dtype == np.float64 else 'q'}").pack_into, a)
                               for a in (self.fs, self.ints, self.servo_i, self.servo_f))
+        self._pack_input_row = None     # one servo's input coefficients into its row of ``inputs``
 
     def run(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]],
             backlash: list[float] | None) -> tuple[int, list[float] | None]:
@@ -138,13 +139,16 @@ class CoupledArrays:
 
     def _load_coefficients(self, plants: list[tuple], inputs: list[tuple]) -> None:
         """Each servo's plant and input coefficients (:meth:`ServoModel.begin_run`'s ``plant[3]``
-        and ``inputs[2]``) into their rows: all at the first run, then the rows whose tuple changed."""
+        and ``inputs[1]``) into their rows: all at the first run, then the rows whose tuple changed."""
         if self.plants is None:
-            self.plants, self.inputs = np.array([p[3] for p in plants]), np.array([i[2] for i in inputs])
+            self.plants, self.inputs = np.array([p[3] for p in plants]), np.array([i[1] for i in inputs])
+            row = self.inputs.shape[1]
+            self._pack_input_row = (struct.Struct(f"{row}d").pack_into, 8 * row)
         else:
+            pack, row_bytes = self._pack_input_row
             for k, (plant, inp, old_plant, old_inp) in enumerate(zip(plants, inputs, self._plant_of, self._input_of)):
                 if plant is not old_plant:
                     self.plants[k] = plant[3]
                 if inp is not old_inp:
-                    self.inputs[k] = inp[2]
+                    pack(self.inputs, k * row_bytes, *inp[1])
         self._plant_of, self._input_of = plants, inputs

@@ -77,6 +77,7 @@ class ServoModel:
         self.temperature_c = thermal.ambient_c
         self._plant: tuple | None = None            # run()'s constants per step and inertia (_derive_plant)
         self._inputs: tuple | None = None           # run()'s constants per input items (_derive_inputs)
+        self._input_array: tuple | None = None      # (_inputs, the same as a float64 array) for the kernel
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -247,7 +248,7 @@ class ServoModel:
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
         if _COMPILED_TICKS is not None and not noisy:
-            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
+            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], self._input_row(inputs)
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
             speed_trace, position_trace = self._traces
@@ -274,7 +275,7 @@ class ServoModel:
     def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
         """Before a run of ticks under ``table`` (:meth:`run`): ``(plan, plant, inputs)``, what the
         firmware derives from the items and the discretised plant, each kept while unchanged
-        (``plant`` / ``inputs``: ``[2]`` floats, ``[3]`` / ``[2]`` float64 array or None)."""
+        (``plant``: ``[2]`` floats, ``[3]`` float64 array or None; ``inputs``: ``[1]`` floats)."""
         plan = self._plan
         if not same_inputs or plan is None or table is not self._plan_table:
             plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
@@ -330,9 +331,16 @@ class ServoModel:
         self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
         self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
 
+    def _input_row(self, inputs: tuple) -> np.ndarray:
+        """``inputs[1]`` (:meth:`_derive_inputs`) as a float64 array, made once per ``inputs``."""
+        cached = self._input_array
+        if cached is None or cached[0] is not inputs:
+            cached = self._input_array = (inputs, np.array(inputs[1]))
+        return cached[1]
+
     def _derive_inputs(self, plan: "_InputPlan") -> tuple:
         """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
-        limits, gains, goals, as ``(plan, floats, float64 array or None without the compiled kernel)``."""
+        limits, gains, goals, as ``(plan, floats)`` (:meth:`_input_row`: the float64 array)."""
         v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
         if plan.velocity_mode:
             v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
@@ -351,7 +359,7 @@ class ServoModel:
                 unused if plan.position_current_limit is None else plan.position_current_limit,
                 unused if plan.pwm_counts is None else plan.pwm_counts,
                 unused if plan.current_ref is None else plan.current_ref, *plan.limits)
-        return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
+        return plan, coef
 
     def _derive_plant(self, dt_s: float) -> tuple:
         """:func:`servo_ticks`'s ``plant`` for steps of ``dt_s`` at the present load inertia: the
