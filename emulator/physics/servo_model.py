@@ -93,6 +93,10 @@ class ServoModel:
         self._plan: _InputPlan | None = None     # what the firmware derives from the input items
         self._plan_table: Mapping[str, int] | None = None
         self._traces = np.empty(0), np.empty(0)     # the compiled kernel's speed / position buffers
+        #: Counts the changes of the state :meth:`kernel_state` returns: every method that changes
+        #: it adds one (a copy of the state, e.g. :class:`.coupled_arrays.CoupledArrays`, is current
+        #: while the count is the one it was taken at). The state is not to be set from outside.
+        self.state_version = 0
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -159,11 +163,13 @@ class ServoModel:
         self.motor.angle_rad = angle_rad * self.motor.gear_ratio
         self.motor.speed_radps = self.motor.current_a = 0.0
         self._started = False
+        self.state_version += 1
 
     def clear_multi_turn(self) -> None:
         """Clear instruction (0x10): Present Position back within one turn (+ Homing Offset)."""
         self._rewrap(self._encoder_pulse(self._sign))
         self._last = None
+        self.state_version += 1
 
     def reboot(self) -> None:
         """Reboot / power cycle: firmware state cleared, Present Position re-wrapped; the shaft stays put."""
@@ -177,6 +183,7 @@ class ServoModel:
         self.pending_hardware_error = 0
         if self.protection is not None:
             self.protection.reset()
+        self.state_version += 1
 
     # ---- sensors -------------------------------------------------------------------------------
     def _encoder_pulse(self, sign: int) -> int:
@@ -330,6 +337,7 @@ class ServoModel:
         self._hold_position = hold if holding else None
         self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
         self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
+        self.state_version += 1
 
     def _input_row(self, inputs: tuple) -> np.ndarray:
         """``inputs[1]`` (:meth:`_derive_inputs`) as a float64 array, made once per ``inputs``."""
