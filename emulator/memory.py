@@ -260,7 +260,8 @@ class ServoMemory:
         if address < 0 or address + length > self.size:
             raise WriteRejected(ErrorNumber.ACCESS,
                                 f"read {address}+{length} outside the table (0..{self.size - 1})")
-        self.publish()
+        if self.stale:
+            self.publish()
         if address + length <= self._special_lo or address > self._special_hi:
             return bytes(self._bytes[address:address + length])     # no indirect data in the range
         out = bytearray(self._bytes[address:address + length])
@@ -279,17 +280,18 @@ class ServoMemory:
 
         Raises :class:`WriteRejected` with the error number to report; nothing is changed then.
         """
-        if not data:
+        n = len(data)
+        if not n:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
-        if address < 0 or address + len(data) > self.size:
-            raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
-        key = (address, len(data))
-        layout = self._write_layouts[key] if key in self._write_layouts else self._write_layout(*key)
+        if address < 0 or address + n > self.size:
+            raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{n} outside the table")
+        key = (address, n)
+        layout = self._write_layouts[key] if key in self._write_layouts else self._write_layout(address, n)
         if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and
             whole = {item.name: item.read(data, item.offset)[0] for item in layout}   # the data is the
             for item in layout:                                  # items' encoding (step 4 copies it)
                 self._check_item(item, whole[item.name], whole)
-            self._bytes[address:address + len(data)] = data
+            self._bytes[address:address + n] = data
             return list(whole)
         # 1. resolve indirect data bytes to their targets; collect per-item byte patches
         direct: dict[int, int] = {}

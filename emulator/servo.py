@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "present_position",
                     "velocity_trajectory", "position_trajectory", "present_input_voltage",
                     "present_temperature", "moving", "moving_status")
+_OUTPUT_COUNT = len(DYNAMICS_OUTPUTS)
 #: Items the Control Table Backup instruction stores besides the EEPROM area (e-Manual).
 BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
@@ -190,12 +191,13 @@ class VirtualServo:
 
     def _read(self, address: int, length: int) -> tuple[int, bytes]:
         """``(error byte, data)`` of the status a Read of ``length`` bytes at ``address`` produces."""
+        m = self.memory
         try:
-            data = self.memory.read(address, length)
+            data = m.read(address, length)
         except WriteRejected as exc:
             log.debug("ID %d read rejected: %s", self.id, exc)
             return self._error_byte(exc.number), b""
-        return self._error_byte(), data
+        return ALERT_BIT if m.byte(self._hardware_error_address) else 0, data     # _error_byte(), inline
 
     def read_status(self, address: int, length: int) -> StatusPacket:
         """The status a Read (or one Sync/Bulk Read entry) produces."""
@@ -427,7 +429,7 @@ class VirtualServo:
         """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
         m = self.memory
         outputs = self.dynamics.outputs() if self.dynamics is not None else {}
-        if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
+        if self._pack_published is not None and len(outputs) == _OUTPUT_COUNT:
             try:                        # a value that is not an int raises struct.error
                 self._pack_published([int(self._tick_ms), *self._output_values(outputs)])
                 return

@@ -27,6 +27,11 @@ from .protection import Protection, limits, protection_step
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
 PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
+# The constants the present items use, as plain numbers (an IntEnum compares slower)
+_POSITION_MODES = tuple(int(m) for m in u.POSITION_MODES)
+_MODE_VELOCITY = int(u.MODE_VELOCITY)
+_PROFILE_ONGOING, _IN_POSITION, _FOLLOWING_ERROR = u.PROFILE_ONGOING, u.IN_POSITION, u.FOLLOWING_ERROR
+_PWM_FULL_SCALE, _AMP_PER_CURRENT_UNIT, _VOLT_PER_UNIT = u.PWM_FULL_SCALE, u.AMP_PER_CURRENT_UNIT, u.VOLT_PER_UNIT
 #: The items of a servo with torque off (what :meth:`ServoModel.prepare` runs the kernel on once).
 IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
                "goal_position": 0, "goal_pwm": 0, "pwm_limit": 0, "current_limit": 0, "bus_watchdog": 0}
@@ -361,7 +366,7 @@ class ServoModel:
                  plan.current_position_mode, plan.tripped, self.fw.bessel_placement == "reference",
                  self._measure_filtered, bool(kd or ff1 or ff2), plan.torque)
         unused = 0.0
-        coef = (*(1.0 if f else 0.0 for f in flags), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
+        coef = (*map(float, map(bool, flags)), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
                 v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
                 unused if plan.position_goal is None else plan.position_goal,
                 unused if plan.position_current_limit is None else plan.position_current_limit,
@@ -423,29 +428,33 @@ class ServoModel:
         if s.voltage_noise_std_v:
             volts += self.rng.normal(0.0, s.voltage_noise_std_v)
         vel = round(v_meas)
-        position_mode = mode in u.POSITION_MODES
+        profile = self.profile
+        position_mode = mode in _POSITION_MODES
         if position_mode:
-            v_traj = self.profile.velocity / PULSE_PER_S_PER_VEL_UNIT
-            p_traj = self.profile.position
+            v_traj = profile.velocity / PULSE_PER_S_PER_VEL_UNIT
+            p_traj = profile.position
         else:
-            v_traj, p_traj = (self.profile.velocity if mode == u.MODE_VELOCITY else 0.0), float(present)
-        ongoing = torque and self.profile.ongoing
-        status = (_profile_bits(self.profile.profile_type) if torque and position_mode else 0)
-        if ongoing:
-            status |= u.PROFILE_ONGOING
+            v_traj, p_traj = (profile.velocity if mode == _MODE_VELOCITY else 0.0), float(present)
+        ongoing = torque and profile.ongoing
+        status = 0
         if torque and position_mode:
-            if not ongoing and abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
-                status |= u.IN_POSITION
-            if abs(self.profile.position - present) > self.fw.following_error_pulse:
-                status |= u.FOLLOWING_ERROR
+            status = _profile_bits(profile.profile_type)
+            if ongoing:
+                status |= _PROFILE_ONGOING
+            elif abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
+                status |= _IN_POSITION
+            if abs(profile.position - present) > self.fw.following_error_pulse:
+                status |= _FOLLOWING_ERROR
+        elif ongoing:
+            status = _PROFILE_ONGOING
         return {
-            "present_pwm": round(self.duty * u.PWM_FULL_SCALE) if torque else 0,
-            "present_current": round(current / u.AMP_PER_CURRENT_UNIT),
+            "present_pwm": round(self.duty * _PWM_FULL_SCALE) if torque else 0,
+            "present_current": round(current / _AMP_PER_CURRENT_UNIT),
             "present_velocity": vel,
             "present_position": present,
             "velocity_trajectory": round(v_traj),
             "position_trajectory": round(p_traj),
-            "present_input_voltage": round(volts / u.VOLT_PER_UNIT),
+            "present_input_voltage": round(volts / _VOLT_PER_UNIT),
             "present_temperature": round(self.temperature_c),
             "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
             "moving_status": status,
