@@ -157,12 +157,14 @@ class ByteArrivals(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(self._n))]
-        if i < 0:
-            i += self._n
         if not 0 <= i < self._n:
-            raise IndexError("byte index out of range")
-        f = bisect_right(self._firsts, i) - 1
-        return self._bases[f] + (i - self._firsts[f] + 1) * self._byte_s
+            if i < 0 and i + self._n >= 0:
+                i += self._n
+            else:
+                raise IndexError("byte index out of range")
+        firsts = self._firsts
+        f = bisect_right(firsts, i) - 1
+        return self._bases[f] + (i - firsts[f] + 1) * self._byte_s
 
 
 def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s: float = 0.0) -> Delivery:
