@@ -7,6 +7,7 @@ where the item is signed) and writes the returned items back into the table.
 from __future__ import annotations
 
 import math
+import operator
 from typing import Mapping
 
 import numpy as np
@@ -97,6 +98,7 @@ class ServoModel:
         self._gains: dict[tuple, object] = {}   # raw gain items -> converted gains
         self._plan: _InputPlan | None = None     # what the firmware derives from the input items
         self._plan_table: Mapping[str, int] | None = None
+        self._plan_base: tuple | None = None    # the plan's items but the goals (_PLAN_ITEMS)
         self._traces = np.empty(0), np.empty(0)     # the compiled kernel's speed / position buffers
         #: Counts the changes of the state :meth:`kernel_state` returns: every method that changes
         #: it adds one (a copy of the state, e.g. :class:`.coupled_arrays.CoupledArrays`, is current
@@ -289,10 +291,19 @@ class ServoModel:
         firmware derives from the items and the discretised plant, each kept while unchanged
         (``plant``: ``[2]`` floats, ``[3]`` float64 array or None; ``inputs``: ``[1]`` floats)."""
         plan = self._plan
-        if not same_inputs or plan is None or table is not self._plan_table:
-            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
-            self._plan_table = table
         inputs = self._inputs
+        if not same_inputs or plan is None or table is not self._plan_table:
+            self._plan_table = table
+            try:
+                base = _PLAN_ITEMS(table)
+            except KeyError:            # a partial table: the defaults fill in (always derived afresh)
+                base = None
+            if base is not None and base == self._plan_base and inputs is not None and inputs[0] is plan:
+                plan.set_goals(table)   # only the goals changed: the rest of the plan and inputs stand
+                inputs = self._inputs = (plan, _with_goals(inputs[1], plan))
+            else:
+                plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+                self._plan_base = base
         if inputs is None or inputs[0] is not plan:
             inputs = self._inputs = self._derive_inputs(plan)
         plant = self._plant
@@ -354,9 +365,10 @@ class ServoModel:
     def _derive_inputs(self, plan: "_InputPlan") -> tuple:
         """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
         limits, gains, goals, as ``(plan, floats)`` (:meth:`_input_row`: the float64 array)."""
-        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
+        v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
+        v_goal, position_goal = _goal_coefficients(plan)
         if plan.velocity_mode:
-            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
+            v_a_max = plan.velocity_a_max
             kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
         elif plan.position_mode:
             g = plan.position_gains
@@ -367,8 +379,7 @@ class ServoModel:
                  self._measure_filtered, bool(kd or ff1 or ff2), plan.torque)
         unused = 0.0
         coef = (*map(float, map(bool, flags)), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
-                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
-                unused if plan.position_goal is None else plan.position_goal,
+                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, position_goal,
                 unused if plan.position_current_limit is None else plan.position_current_limit,
                 unused if plan.pwm_counts is None else plan.pwm_counts,
                 unused if plan.current_ref is None else plan.current_ref, *plan.limits)
@@ -485,7 +496,6 @@ class _InputPlan:
         self.firmware_mode = self.torque and (self.position_mode or self.velocity_mode or self.pwm_mode
                                               or mode == u.MODE_CURRENT)
         self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
-        self.goal_position = t["goal_position"]
         self.limits = limits(t)
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])
@@ -499,16 +509,10 @@ class _InputPlan:
         elif mode == u.MODE_CURRENT:
             self.current_ref = 0.0 if tripped else max(-i_lim_units, min(i_lim_units, float(t["goal_current"])))
         elif mode == u.MODE_VELOCITY:
-            vlim = float(t["velocity_limit"])
-            self.velocity_goal = 0.0 if tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
             pa = t["profile_acceleration"]
             self.velocity_a_max = math.inf if pa == 0 or tripped else pa * VEL_UNIT_PER_S_PER_ACC_UNIT
             self.velocity_gains = gains(("v", t["velocity_p_gain"], t["velocity_i_gain"]), VelocityGains.from_table)
         elif mode in u.POSITION_MODES:
-            goal = float(t["goal_position"])
-            if mode == u.MODE_POSITION:
-                goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
-            self.position_goal = goal
             vlim = float(t["velocity_limit"])
             pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
             self.position_v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
@@ -518,6 +522,48 @@ class _InputPlan:
                                         PositionGains.from_table)
             if mode == u.MODE_CURRENT_POSITION:
                 self.position_current_limit = float(min(abs(t["goal_current"]), t["current_limit"]))
+        self.set_goals(t)
+
+    def set_goals(self, t: Mapping[str, int]) -> None:
+        """Goal Position and Goal Velocity from the items ``t`` (limited as the mode does); the
+        rest of the plan must be that of ``t`` (a new goal changes nothing else)."""
+        self.goal_position = t["goal_position"]
+        mode = self.mode
+        if self.velocity_mode:
+            vlim = float(t["velocity_limit"])
+            self.velocity_goal = 0.0 if self.tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
+        elif self.position_mode:
+            goal = float(t["goal_position"])
+            if mode == u.MODE_POSITION:
+                goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+            self.position_goal = goal
+
+
+#: Every item :class:`_InputPlan` reads but Goal Position and Goal Velocity: a plan whose items
+#: differ from new ones only in those two is brought up to date by :meth:`_InputPlan.set_goals`.
+_PLAN_ITEMS = operator.itemgetter(
+    "drive_mode", "homing_offset", "operating_mode", "torque_enable", "temperature_limit", "min_voltage_limit",
+    "max_voltage_limit", "goal_pwm", "pwm_limit", "current_limit", "bus_watchdog", "goal_current",
+    "velocity_limit", "profile_acceleration", "velocity_p_gain", "velocity_i_gain", "min_position_limit",
+    "max_position_limit", "profile_velocity", "position_p_gain", "position_i_gain", "position_d_gain",
+    "feedforward_1st_gain", "feedforward_2nd_gain")
+#: Columns of the goals in :func:`servo_ticks`'s ``inputs`` (:meth:`ServoModel._derive_inputs`).
+_V_GOAL_COLUMN, _POSITION_GOAL_COLUMN = 14, 23
+
+
+def _goal_coefficients(plan: _InputPlan) -> tuple[float, float]:
+    """The velocity goal (velocity units) and position goal (pulse) columns of a plan's inputs
+    (0.0 in the modes that do not use them)."""
+    return (plan.velocity_goal if plan.velocity_mode else 0.0,
+            0.0 if plan.position_goal is None else plan.position_goal)
+
+
+def _with_goals(coef: tuple, plan: _InputPlan) -> tuple:
+    """``coef`` (:meth:`ServoModel._derive_inputs` of a plan that differs from ``plan`` only in
+    its goals) with ``plan``'s goals."""
+    v_goal, position_goal = _goal_coefficients(plan)
+    return (*coef[:_V_GOAL_COLUMN], v_goal, *coef[_V_GOAL_COLUMN + 1:_POSITION_GOAL_COLUMN], position_goal,
+            *coef[_POSITION_GOAL_COLUMN + 1:])
 
 
 def _profile_bits(profile_type: int) -> int:
