@@ -218,12 +218,11 @@ class VirtualServo:
         except WriteRejected as exc:
             log.debug("ID %d write rejected: %s", self.id, exc)
             return exc.number
-        self._after_write(changed)
+        if not _FOLLOWED_UP.isdisjoint(changed):
+            self._after_write(changed)
         return ErrorNumber.NONE
 
     def _after_write(self, changed: list[str]) -> None:
-        if _FOLLOWED_UP.isdisjoint(changed):
-            return
         m = self.memory
         if Reg.OPERATING_MODE in changed:   # mode change resets profile and goal limits (e-Manual)
             m.set(Reg.PROFILE_VELOCITY, 0)

@@ -414,23 +414,12 @@ class ServoModel:
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
         current and voltage is drawn per call. Before the first step: the servo at rest."""
-        if self._last is None:
+        last = self._last
+        if last is None:
             return {"present_position": math.floor(self.position_pulse),
                     "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
                     "present_temperature": round(self.temperature_c)}
-        return self._outputs(*self._last)
-
-    def _cached_gains(self, key: tuple, convert):
-        """Converted gains for raw gain items ``key[1:]`` (building the dataclass every tick is slow)."""
-        g = self._gains.get(key)
-        if g is None:
-            if len(self._gains) >= 64:  # a tuning sweep: keep the cache small
-                self._gains.clear()
-            g = self._gains[key] = convert(*key[1:])
-        return g
-
-    def _outputs(self, t: Mapping[str, int], mode: int, torque: bool, present: int, v_meas: float,
-                 sign: int) -> dict[str, int]:
+        t, mode, torque, present, v_meas, sign = last
         s = self.sensors
         current = sign * self.motor.current_a
         volts = self.supply_voltage_v
@@ -470,6 +459,15 @@ class ServoModel:
             "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
             "moving_status": status,
         }
+
+    def _cached_gains(self, key: tuple, convert):
+        """Converted gains for raw gain items ``key[1:]`` (building the dataclass every tick is slow)."""
+        g = self._gains.get(key)
+        if g is None:
+            if len(self._gains) >= 64:  # a tuning sweep: keep the cache small
+                self._gains.clear()
+            g = self._gains[key] = convert(*key[1:])
+        return g
 
 
 class _InputPlan:
