@@ -509,15 +509,15 @@ def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
 
 
 def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
-    out, pos = [], 0
-    while pos < len(params):
-        if pos + 5 > len(params):
+    out, pos, n = [], 0, len(params)
+    head = _ID_ADDRESS_LENGTH.unpack_from
+    while pos < n:
+        if pos + 5 > n:
             raise CorruptPacketError("truncated bulk write entry")
-        id_ = params[pos]
-        address, length = struct.unpack_from("<HH", params, pos + 1)
-        data = params[pos + 5:pos + 5 + length]
-        if len(data) != length:
+        id_, address, length = head(params, pos)
+        end = pos + 5 + length
+        if end > n:
             raise CorruptPacketError(f"bulk write entry for ID {id_} is truncated")
-        out.append((id_, address, bytes(data)))
-        pos += 5 + length
+        out.append((id_, address, bytes(params[pos + 5:end])))
+        pos = end
     return out

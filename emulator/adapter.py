@@ -130,7 +130,8 @@ class ByteArrivals(Sequence):
     (Return Delay Time, reply latency); ``byte_s``: one byte's time on the wire (10 bits / baud,
     >= 0). The first frame's gap counts from ``start_s``. Item ``i`` is the time the stop bit of
     byte ``i`` ends, s; the times never decrease. Reading one costs a search over the frames, so
-    :func:`deliver` touches a few bytes per USB packet instead of every byte.
+    :func:`deliver` touches a few bytes per USB packet instead of every byte, and finds where a
+    packet ends with :meth:`bisect_right`, arithmetic within a frame.
     """
 
     def __init__(self, start_s: float, frames: Sequence[tuple[float, int]], byte_s: float):
@@ -157,12 +158,38 @@ class ByteArrivals(Sequence):
     def __getitem__(self, i):
         if isinstance(i, slice):
             return [self[k] for k in range(*i.indices(self._n))]
-        if i < 0:
-            i += self._n
         if not 0 <= i < self._n:
-            raise IndexError("byte index out of range")
-        f = bisect_right(self._firsts, i) - 1
-        return self._bases[f] + (i - self._firsts[f] + 1) * self._byte_s
+            if i < 0 and i + self._n >= 0:
+                i += self._n
+            else:
+                raise IndexError("byte index out of range")
+        firsts = self._firsts
+        f = bisect_right(firsts, i) - 1
+        return self._bases[f] + (i - firsts[f] + 1) * self._byte_s
+
+    def bisect_right(self, t: float, lo: int, hi: int) -> int:
+        """``bisect.bisect_right(self, t, lo, hi)``: the first index in ``lo..hi-1`` whose time
+        is after ``t`` s (``hi`` if none), each time computed as indexing computes it."""
+        if lo >= hi:
+            return lo
+        firsts, bases, byte_s = self._firsts, self._bases, self._byte_s
+        f = bisect_right(firsts, lo) - 1
+        i = lo
+        while i < hi:
+            first, base = firsts[f], bases[f]
+            f += 1
+            end = min(firsts[f] if f < len(firsts) else self._n, hi)
+            if base + (end - first) * byte_s <= t:      # the frame's last byte in range is in by t
+                i = end
+                continue
+            while i < end - 1:                          # its first byte after t, in i..end-1
+                mid = (i + end - 1) // 2
+                if base + (mid - first + 1) * byte_s > t:
+                    end = mid + 1
+                else:
+                    i = mid + 1
+            return i
+        return hi
 
 
 def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s: float = 0.0) -> Delivery:
@@ -195,6 +222,11 @@ def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s:
     n = len(arrivals_s)
     if not isinstance(arrivals_s, ByteArrivals) and any(b < a for a, b in zip(arrivals_s, arrivals_s[1:])):
         raise ValueError("byte arrival times must be non-decreasing")
+    if isinstance(arrivals_s, ByteArrivals):
+        find = arrivals_s.bisect_right
+    else:
+        def find(t: float, lo: int, hi: int) -> int:
+            return bisect_right(arrivals_s, t, lo, hi)
     packets: list[tuple[int, float]] = []
     t_ref = last_send_s
     i = 0
@@ -203,7 +235,7 @@ def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s:
         periods = max(1, math.ceil((first - t_ref) / latency - _GRID_SLACK))
         expiry = t_ref + periods * latency
         # the bytes in by the expiry, at most a full packet (the times are in order)
-        j = bisect_right(arrivals_s, expiry + _GRID_SLACK * settings.frame_s, i, min(n, i + cap))
+        j = find(expiry + _GRID_SLACK * settings.frame_s, i, min(n, i + cap))
         sent = max(arrivals_s[j - 1], t_ref) if j - i == cap else expiry
         t_ref = _next_frame(settings, sent)
         if j > i:

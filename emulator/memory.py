@@ -15,7 +15,7 @@ A write is checked completely before any byte changes (all or nothing).
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Callable, Iterable, Iterator, Mapping, Sequence
 
 from swerve.driver.control_table import ControlTable, Reg, Register
@@ -53,6 +53,34 @@ class WriteRejected(Exception):
     def __init__(self, number: ErrorNumber, detail: str):
         super().__init__(detail)
         self.number = number
+
+
+@dataclass(frozen=True, slots=True)
+class _ItemWrite:
+    """An item a bus write covers, with its fixed rules (:meth:`ServoMemory._check_item`)."""
+
+    reg: Register
+    name: str
+    offset: int                 # of its first byte in the written data (a whole-item write)
+    read: Callable              # ``read(data, offset) -> (raw,)``
+    writable: bool
+    eeprom: bool
+    locked: bool                # made read-only by a tripped Bus Watchdog
+    lo: int
+    hi: int
+    allowed: tuple[int, ...] | None
+    limited: bool               # has a limit item (checked against the memory)
+
+
+def _item_rules(reg: Register, read: Callable) -> _ItemWrite:
+    """The write rules of item ``reg`` (at offset 0), read by ``read``."""
+    lo, hi = reg.raw_bounds()
+    return _ItemWrite(reg, reg.name, 0, read, reg.writable, reg.eeprom, reg.name in WATCHDOG_LOCKED, lo, hi,
+                      reg.allowed, reg.limit is not None or reg.limit_min is not None or reg.limit_max is not None)
+
+
+#: Most write layouts a memory keeps (:meth:`ServoMemory._write_layout`; a client writes a few).
+_MAX_WRITE_LAYOUTS = 256
 
 
 @dataclass(frozen=True)
@@ -100,6 +128,9 @@ class ServoMemory:
         # addresses a bus access must resolve byte by byte (indirect data and address items)
         special = [*self._data_slot, *self._addr_slot]
         self._special_lo, self._special_hi = (min(special), max(special)) if special else (self.size, -1)
+        #: Each item's write rules (at offset 0), and the layouts of the writes seen
+        self._rules = {reg.name: _item_rules(reg, self._readers[reg.name][0]) for reg in table}
+        self._write_layouts: dict[tuple[int, int], tuple[_ItemWrite, ...] | None] = {}
         self.watchdog_tripped = False
         self.publisher: Callable[[], None] | None = None
         self.published: frozenset[str] = frozenset()
@@ -229,7 +260,8 @@ class ServoMemory:
         if address < 0 or address + length > self.size:
             raise WriteRejected(ErrorNumber.ACCESS,
                                 f"read {address}+{length} outside the table (0..{self.size - 1})")
-        self.publish()
+        if self.stale:
+            self.publish()
         if address + length <= self._special_lo or address > self._special_hi:
             return bytes(self._bytes[address:address + length])     # no indirect data in the range
         out = bytearray(self._bytes[address:address + length])
@@ -248,16 +280,18 @@ class ServoMemory:
 
         Raises :class:`WriteRejected` with the error number to report; nothing is changed then.
         """
-        if not data:
+        n = len(data)
+        if not n:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
-        if address < 0 or address + len(data) > self.size:
-            raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{len(data)} outside the table")
-        whole = self._whole_items(address, data)
-        if whole is not None:           # whole plain items: steps 1-2 have nothing to do, and
-            regs = self.table.registers     # the data is the items' encoding (step 4 copies it)
-            for name, value in whole.items():
-                self._check(regs[name], value, whole)
-            self._bytes[address:address + len(data)] = data
+        if address < 0 or address + n > self.size:
+            raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{n} outside the table")
+        key = (address, n)
+        layout = self._write_layouts[key] if key in self._write_layouts else self._write_layout(address, n)
+        if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and
+            whole = {item.name: item.read(data, item.offset)[0] for item in layout}   # the data is the
+            for item in layout:                                  # items' encoding (step 4 copies it)
+                self._check_item(item, whole[item.name], whole)
+            self._bytes[address:address + n] = data
             return list(whole)
         # 1. resolve indirect data bytes to their targets; collect per-item byte patches
         direct: dict[int, int] = {}
@@ -306,21 +340,42 @@ class ServoMemory:
             new_values[reg.name] = reg.decode(bytes(raw))
         return self._check_and_apply(new_values, new_slots)
 
-    def _whole_items(self, address: int, data: bytes) -> dict[str, int] | None:
-        """``{item name: new raw value}`` if ``data`` covers whole items only and no indirect
-        byte; ``None`` otherwise (the general path then finds the error or the indirect targets)."""
-        end = address + len(data)
-        if not (end <= self._special_lo or address > self._special_hi):
-            return None
-        out: dict[str, int] = {}
-        a = address
-        while a < end:
-            reg = self._owner[a]
-            if reg is None or reg.address != a or a + reg.size > end:
-                return None
-            out[reg.name] = self._readers[reg.name][0](data, a - address)[0]
-            a += reg.size
-        return out
+    def _write_layout(self, address: int, length: int) -> tuple[_ItemWrite, ...] | None:
+        """The items a write of ``length`` bytes at ``address`` covers, with their rules, if it
+        covers whole items only and no indirect byte; ``None`` otherwise (the general path then
+        finds the error or the indirect targets). Kept per ``(address, length)``."""
+        layout: tuple[_ItemWrite, ...] | None = None
+        end = address + length
+        if end <= self._special_lo or address > self._special_hi:
+            items = []
+            a = address
+            while a < end:
+                reg = self._owner[a]
+                if reg is None or reg.address != a or a + reg.size > end:
+                    break
+                items.append(replace(self._rules[reg.name], offset=a - address))
+                a += reg.size
+            else:
+                layout = tuple(items)
+        if len(self._write_layouts) >= _MAX_WRITE_LAYOUTS:
+            self._write_layouts.clear()
+        self._write_layouts[(address, length)] = layout
+        return layout
+
+    def _check_item(self, item: _ItemWrite, value: int, pending: dict[str, int]) -> None:
+        """One item's rules (``item``) for the new raw ``value``, against the memory before the
+        write and the other items of the write (``pending``); nothing is applied before every
+        item passed."""
+        if not item.writable:
+            raise WriteRejected(ErrorNumber.ACCESS, f"{item.name} is read-only")
+        if item.eeprom and self.get(_TORQUE_ENABLE) == 1:
+            raise WriteRejected(ErrorNumber.ACCESS, f"{item.name} is in EEPROM and torque is on")
+        if item.locked and self.watchdog_tripped:
+            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{item.name} is locked by the bus watchdog")
+        if not item.lo <= value <= item.hi or (item.allowed is not None and value not in item.allowed):
+            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{item.name} = {value} outside [{item.lo}, {item.hi}]")
+        if item.limited:
+            self._check_limits(item.reg, value, pending)
 
     def _check_and_apply(self, new_values: dict[str, int], new_slots: dict[_Slot, int]) -> list[str]:
         """Steps 3 and 4 of :meth:`write`: the item rules, then the new values and indirect
@@ -328,26 +383,12 @@ class ServoMemory:
         call its Python ``__hash__`` on every lookup)."""
         regs = self.table.registers
         for name, value in new_values.items():
-            self._check(regs[name], value, new_values)
+            self._check_item(self._rules[name], value, new_values)
         for name, value in new_values.items():
             self._put(regs[name], value)
         for slot, v in new_slots.items():
             self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
         return list(new_values)
-
-    def _check(self, reg: Register, value: int, pending: dict[str, int]) -> None:
-        """One item's rules against the memory before the write (nothing is applied before
-        every item passed)."""
-        if not reg.writable:
-            raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is read-only")
-        if reg.eeprom and self.get(_TORQUE_ENABLE) == 1:
-            raise WriteRejected(ErrorNumber.ACCESS, f"{reg.name} is in EEPROM and torque is on")
-        if self.watchdog_tripped and reg.name in WATCHDOG_LOCKED:
-            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} is locked by the bus watchdog")
-        lo, hi = reg.raw_bounds()
-        if not lo <= value <= hi or (reg.allowed is not None and value not in reg.allowed):
-            raise WriteRejected(ErrorNumber.DATA_RANGE, f"{reg.name} = {value} outside [{lo}, {hi}]")
-        self._check_limits(reg, value, pending)
 
     def _limit_value(self, name: str, pending: dict[str, int]) -> int:
         value = pending.get(name)

@@ -146,13 +146,15 @@ class ReplyPacer:
         latency = self.clock.reply_latency_s
         gaps = []
         for r in replies:
-            wire_s += r.delay_s + extra_s + len(r.frame) * byte_t
-            starts = not r.fast or not fast        # a combined fast-read frame answers once
+            size, delay_s = len(r.frame), r.delay_s + extra_s
+            wire_s += delay_s + size * byte_t
             if r.fast:
+                starts = not fast                   # a combined fast-read frame answers once
                 fast = 1
             else:
+                starts = True
                 answering += 1
-            gaps.append((r.delay_s + extra_s + (latency if starts else 0.0), len(r.frame)))
+            gaps.append((delay_s + latency if starts else delay_s + 0.0, size))
         answering += fast
         hold_s, delivery = 0.0, None
         if self.adapter is not None:

@@ -26,6 +26,7 @@ log = logging.getLogger(__name__)
 DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "present_position",
                     "velocity_trajectory", "position_trajectory", "present_input_voltage",
                     "present_temperature", "moving", "moving_status")
+_OUTPUT_COUNT = len(DYNAMICS_OUTPUTS)
 #: Items the Control Table Backup instruction stores besides the EEPROM area (e-Manual).
 BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
@@ -190,12 +191,13 @@ class VirtualServo:
 
     def _read(self, address: int, length: int) -> tuple[int, bytes]:
         """``(error byte, data)`` of the status a Read of ``length`` bytes at ``address`` produces."""
+        m = self.memory
         try:
-            data = self.memory.read(address, length)
+            data = m.read(address, length)
         except WriteRejected as exc:
             log.debug("ID %d read rejected: %s", self.id, exc)
             return self._error_byte(exc.number), b""
-        return self._error_byte(), data
+        return ALERT_BIT if m.byte(self._hardware_error_address) else 0, data     # _error_byte(), inline
 
     def read_status(self, address: int, length: int) -> StatusPacket:
         """The status a Read (or one Sync/Bulk Read entry) produces."""
@@ -216,12 +218,11 @@ class VirtualServo:
         except WriteRejected as exc:
             log.debug("ID %d write rejected: %s", self.id, exc)
             return exc.number
-        self._after_write(changed)
+        if not _FOLLOWED_UP.isdisjoint(changed):
+            self._after_write(changed)
         return ErrorNumber.NONE
 
     def _after_write(self, changed: list[str]) -> None:
-        if _FOLLOWED_UP.isdisjoint(changed):
-            return
         m = self.memory
         if Reg.OPERATING_MODE in changed:   # mode change resets profile and goal limits (e-Manual)
             m.set(Reg.PROFILE_VELOCITY, 0)
@@ -380,16 +381,9 @@ class VirtualServo:
 
     def _advance_quiet_timers(self, dt_s: float, steps: int) -> None:
         """The timers of ``steps`` steps known not to trip the watchdog (:meth:`_quiet_steps`)."""
-        if steps <= 0:
-            return
-        tick_ms, since, d_ms = self._tick_ms, self._since_traffic_s, dt_s * 1e3
-        wrap = float(self._tick_wrap_ms)
-        for _ in range(steps):
-            tick_ms += d_ms             # (t + d) % wrap, which is t + d below the wrap
-            if tick_ms >= wrap:
-                tick_ms %= wrap
-            since += dt_s
-        self._tick_ms, self._since_traffic_s = tick_ms, since
+        if steps > 0:
+            self._tick_ms, self._since_traffic_s = quiet_timers(self._tick_ms, self._since_traffic_s, dt_s, steps,
+                                                                float(self._tick_wrap_ms))
 
     def _advance_timers(self, dt_s: float) -> None:
         """Realtime Tick and the Bus Watchdog for one step (the watchdog may trip)."""
@@ -434,7 +428,7 @@ class VirtualServo:
         """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
         m = self.memory
         outputs = self.dynamics.outputs() if self.dynamics is not None else {}
-        if self._pack_published is not None and len(outputs) == len(DYNAMICS_OUTPUTS):
+        if self._pack_published is not None and len(outputs) == _OUTPUT_COUNT:
             try:                        # a value that is not an int raises struct.error
                 self._pack_published([int(self._tick_ms), *self._output_values(outputs)])
                 return
@@ -445,6 +439,32 @@ class VirtualServo:
             for name in DYNAMICS_OUTPUTS:
                 if name in outputs:
                     m.set(name, int(outputs[name]))
+
+
+#: The last :func:`quiet_timers` call, ``(arguments, result)`` (one tuple: set atomically).
+_last_quiet_timers: list[tuple] = [((), ())]
+
+
+def quiet_timers(tick_ms: float, since_s: float, dt_s: float, steps: int, wrap_ms: float) -> tuple[float, float]:
+    """Realtime Tick (ms, wrapping at ``wrap_ms``) and the time since the last instruction (s)
+    after ``steps`` steps of ``dt_s`` s, with the float sums the steps make one by one.
+
+    The servos of a bus usually share both timers (they hear the same instructions), so the
+    last call's result is kept and returned for the same arguments (the same floats give the
+    same sums)."""
+    args = (tick_ms, since_s, dt_s, steps, wrap_ms)
+    last, result = _last_quiet_timers[0]
+    if args == last:
+        return result
+    d_ms = dt_s * 1e3
+    for _ in range(steps):
+        tick_ms += d_ms                 # (t + d) % wrap, which is t + d below the wrap
+        if tick_ms >= wrap_ms:
+            tick_ms %= wrap_ms
+        since_s += dt_s
+    result = (tick_ms, since_s)
+    _last_quiet_timers[0] = (args, result)
+    return result
 
 
 def _byte_item(table: ControlTable, name: str) -> int:

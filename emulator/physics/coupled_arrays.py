@@ -4,9 +4,10 @@
 afresh for every run between two bus events cost several times the kernel itself, so
 :class:`CoupledArrays` allocates them once per robot: the wheels' and the body's constants are
 filled at construction, each servo's discretised plant and input coefficients only when the
-servo derived new ones (the same tuple object otherwise), and the state, which Python code may
-change between runs (a reboot, a Clear, a fault, a tick stepped from Python), is copied in from
-the models in one flat assignment per array and stored back into them after the call.
+servo derived new ones (the same tuple object otherwise). The state is stored back into the
+models after each call, and copied in from a model only when Python code changed it since (a
+reboot, a Clear, a tick stepped from Python: :attr:`ServoModel.state_version`); the per-run
+inputs (goals' flags, loads, supply) go in every run, one flat assignment per array.
 """
 from __future__ import annotations
 
@@ -81,6 +82,11 @@ class CoupledArrays:
         # which converts a list of Python numbers in less than half the time NumPy's assignment takes
         self._packers = tuple((struct.Struct(f"{a.size}{'d' if a.dtype == np.float64 else 'q'}").pack_into, a)
                               for a in (self.fs, self.ints, self.servo_i, self.servo_f))
+        # one servo's state into its rows of ``fs`` and ``ints`` (pack, array, bytes per row)
+        self._row_packers = tuple((struct.Struct(f"{a.shape[1]}{'d' if a.dtype == np.float64 else 'q'}").pack_into,
+                                   a, a.itemsize * a.shape[1]) for a in (self.fs, self.ints))
+        self._versions: list[int | None] = [None] * count   # each model's state_version the rows hold
+        self._pack_input_row = None     # one servo's input coefficients into its row of ``inputs``
 
     def run(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]],
             backlash: list[float] | None) -> tuple[int, list[float] | None]:
@@ -91,20 +97,21 @@ class CoupledArrays:
         the steering backlash (rad), ``None`` before the first step. Returns the ticks run and
         the wheel angles behind the backlash after them (``backlash`` if there is none)."""
         models = self.models
-        plans, plants, inputs, floats, ints, servo_i, servo_f = [], [], [], [], [], [], []
+        plans, plants, inputs, servo_i, servo_f = [], [], [], [], []
         for m in models:
             plan, plant, inp = m.begin_run(dt_s, *runs[m])
             plants.append(plant)
             inputs.append(inp)
             plans.append(plan)
-            f, i = m.kernel_state()
-            floats += f
-            ints += i
-            servo_i += (plan.homing, m.motor.blocked, *m.run_flags(plan))
-            servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, m.motor.load_torque_nm)
+            motor = m.motor
+            servo_i += (plan.homing, motor.blocked, *m.run_flags(plan))
+            servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, motor.load_torque_nm)
         self._load_coefficients(plants, inputs)
-        for (pack, array), values in zip(self._packers, (floats, ints, servo_i, servo_f)):
-            pack(array, 0, *values)
+        self._load_state()
+        (pack_i, servo_i_array), (pack_f, servo_f_array) = self._packers[2:]
+        pack_i(servo_i_array, 0, *servo_i)
+        pack_f(servo_f_array, 0, *servo_f)
+        self._versions = [None] * len(models)      # until the state is back in the models
         self.out_i[:, 0] = 0
         half = self.body_f[0]
         if backlash is not None:
@@ -125,6 +132,7 @@ class CoupledArrays:
             bits, present = out_l[k]
             m.finish_run(runs[m][0], plans[k], bits, fs_l[k], ints_l[k], present, vm_l[k])
             m.supply_voltage_v, m.motor.load_torque_nm = sf_l[k][1], sf_l[k][2]
+        self._versions = [m.state_version for m in models]
         x, y, theta, vx, vy, w, energy = self.pose.tolist()
         body.x_m, body.y_m, body.theta_rad, body._twist = x, y, theta, (vx, vy, w)
         speeds, angles, slip, fx, fy, flong = self.wheel_out.tolist()
@@ -136,15 +144,36 @@ class CoupledArrays:
             body._fit = (tuple(speeds), tuple(angles), (vx, vy, w))
         return ran, self.backlash.tolist() if half > 0.0 else backlash
 
+    def _load_state(self) -> None:
+        """The state of every model whose :attr:`ServoModel.state_version` changed since its rows
+        were written (all of them at the first run) into ``fs`` and ``ints``."""
+        models, versions = self.models, self._versions
+        stale = [k for k, m in enumerate(models) if m.state_version != versions[k]]
+        if len(stale) == len(models):       # one flat assignment per array
+            floats, ints = [], []
+            for m in models:
+                f, i = m.kernel_state()
+                floats += f
+                ints += i
+            for (pack, array), values in zip(self._packers, (floats, ints)):
+                pack(array, 0, *values)
+            return
+        for k in stale:
+            for (pack, array, row_bytes), values in zip(self._row_packers, models[k].kernel_state()):
+                pack(array, k * row_bytes, *values)
+
     def _load_coefficients(self, plants: list[tuple], inputs: list[tuple]) -> None:
         """Each servo's plant and input coefficients (:meth:`ServoModel.begin_run`'s ``plant[3]``
-        and ``inputs[2]``) into their rows: all at the first run, then the rows whose tuple changed."""
+        and ``inputs[1]``) into their rows: all at the first run, then the rows whose tuple changed."""
         if self.plants is None:
-            self.plants, self.inputs = np.array([p[3] for p in plants]), np.array([i[2] for i in inputs])
+            self.plants, self.inputs = np.array([p[3] for p in plants]), np.array([i[1] for i in inputs])
+            row = self.inputs.shape[1]
+            self._pack_input_row = (struct.Struct(f"{row}d").pack_into, 8 * row)
         else:
+            pack, row_bytes = self._pack_input_row
             for k, (plant, inp, old_plant, old_inp) in enumerate(zip(plants, inputs, self._plant_of, self._input_of)):
                 if plant is not old_plant:
                     self.plants[k] = plant[3]
                 if inp is not old_inp:
-                    self.inputs[k] = inp[2]
+                    pack(self.inputs, k * row_bytes, *inp[1])
         self._plant_of, self._input_of = plants, inputs

@@ -7,6 +7,7 @@ where the item is signed) and writes the returned items back into the table.
 from __future__ import annotations
 
 import math
+import operator
 from typing import Mapping
 
 import numpy as np
@@ -27,6 +28,11 @@ from .protection import Protection, limits, protection_step
 PULSE_PER_S_PER_VEL_UNIT = u.RADPS_PER_VEL_UNIT / u.RAD_PER_PULSE      # 15.63 pulse/s
 VEL_UNIT_PER_S_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RADPS_PER_VEL_UNIT
 PULSE_PER_S2_PER_ACC_UNIT = u.RADPS2_PER_ACC_UNIT / u.RAD_PER_PULSE
+# The constants the present items use, as plain numbers (an IntEnum compares slower)
+_POSITION_MODES = tuple(int(m) for m in u.POSITION_MODES)
+_MODE_VELOCITY = int(u.MODE_VELOCITY)
+_PROFILE_ONGOING, _IN_POSITION, _FOLLOWING_ERROR = u.PROFILE_ONGOING, u.IN_POSITION, u.FOLLOWING_ERROR
+_PWM_FULL_SCALE, _AMP_PER_CURRENT_UNIT, _VOLT_PER_UNIT = u.PWM_FULL_SCALE, u.AMP_PER_CURRENT_UNIT, u.VOLT_PER_UNIT
 #: The items of a servo with torque off (what :meth:`ServoModel.prepare` runs the kernel on once).
 IDLE_ITEMS = {"torque_enable": 0, "operating_mode": u.MODE_PWM, "drive_mode": 0, "homing_offset": 0,
                "goal_position": 0, "goal_pwm": 0, "pwm_limit": 0, "current_limit": 0, "bus_watchdog": 0}
@@ -77,6 +83,7 @@ class ServoModel:
         self.temperature_c = thermal.ambient_c
         self._plant: tuple | None = None            # run()'s constants per step and inertia (_derive_plant)
         self._inputs: tuple | None = None           # run()'s constants per input items (_derive_inputs)
+        self._input_array: tuple | None = None      # (_inputs, the same as a float64 array) for the kernel
         self.duty = 0.0                 # applied duty in the servo's frame, -1..1
         self._wrap_pulse = 0            # multiple of 4096 removed when Present Position is re-wrapped
         self._prev_key: tuple | None = None        # (mode, torque on, drive mode) of the last step
@@ -91,7 +98,12 @@ class ServoModel:
         self._gains: dict[tuple, object] = {}   # raw gain items -> converted gains
         self._plan: _InputPlan | None = None     # what the firmware derives from the input items
         self._plan_table: Mapping[str, int] | None = None
+        self._plan_base: tuple | None = None    # the plan's items but the goals (_PLAN_ITEMS)
         self._traces = np.empty(0), np.empty(0)     # the compiled kernel's speed / position buffers
+        #: Counts the changes of the state :meth:`kernel_state` returns: every method that changes
+        #: it adds one (a copy of the state, e.g. :class:`.coupled_arrays.CoupledArrays`, is current
+        #: while the count is the one it was taken at). The state is not to be set from outside.
+        self.state_version = 0
 
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
@@ -158,11 +170,13 @@ class ServoModel:
         self.motor.angle_rad = angle_rad * self.motor.gear_ratio
         self.motor.speed_radps = self.motor.current_a = 0.0
         self._started = False
+        self.state_version += 1
 
     def clear_multi_turn(self) -> None:
         """Clear instruction (0x10): Present Position back within one turn (+ Homing Offset)."""
         self._rewrap(self._encoder_pulse(self._sign))
         self._last = None
+        self.state_version += 1
 
     def reboot(self) -> None:
         """Reboot / power cycle: firmware state cleared, Present Position re-wrapped; the shaft stays put."""
@@ -176,6 +190,7 @@ class ServoModel:
         self.pending_hardware_error = 0
         if self.protection is not None:
             self.protection.reset()
+        self.state_version += 1
 
     # ---- sensors -------------------------------------------------------------------------------
     def _encoder_pulse(self, sign: int) -> int:
@@ -247,7 +262,7 @@ class ServoModel:
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
         if _COMPILED_TICKS is not None and not noisy:
-            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], inputs[2]
+            kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], self._input_row(inputs)
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)
             speed_trace, position_trace = self._traces
@@ -274,12 +289,21 @@ class ServoModel:
     def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
         """Before a run of ticks under ``table`` (:meth:`run`): ``(plan, plant, inputs)``, what the
         firmware derives from the items and the discretised plant, each kept while unchanged
-        (``plant`` / ``inputs``: ``[2]`` floats, ``[3]`` / ``[2]`` float64 array or None)."""
+        (``plant``: ``[2]`` floats, ``[3]`` float64 array or None; ``inputs``: ``[1]`` floats)."""
         plan = self._plan
-        if not same_inputs or plan is None or table is not self._plan_table:
-            plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
-            self._plan_table = table
         inputs = self._inputs
+        if not same_inputs or plan is None or table is not self._plan_table:
+            self._plan_table = table
+            try:
+                base = _PLAN_ITEMS(table)
+            except KeyError:            # a partial table: the defaults fill in (always derived afresh)
+                base = None
+            if base is not None and base == self._plan_base and inputs is not None and inputs[0] is plan:
+                plan.set_goals(table)   # only the goals changed: the rest of the plan and inputs stand
+                inputs = self._inputs = (plan, _with_goals(inputs[1], plan))
+            else:
+                plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+                self._plan_base = base
         if inputs is None or inputs[0] is not plan:
             inputs = self._inputs = self._derive_inputs(plan)
         plant = self._plant
@@ -329,13 +353,22 @@ class ServoModel:
         self._hold_position = hold if holding else None
         self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
         self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
+        self.state_version += 1
+
+    def _input_row(self, inputs: tuple) -> np.ndarray:
+        """``inputs[1]`` (:meth:`_derive_inputs`) as a float64 array, made once per ``inputs``."""
+        cached = self._input_array
+        if cached is None or cached[0] is not inputs:
+            cached = self._input_array = (inputs, np.array(inputs[1]))
+        return cached[1]
 
     def _derive_inputs(self, plan: "_InputPlan") -> tuple:
         """:func:`servo_ticks`'s ``inputs`` for the input items ``plan``: mode flags (1.0 / 0.0),
-        limits, gains, goals, as ``(plan, floats, float64 array or None without the compiled kernel)``."""
-        v_goal = v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
+        limits, gains, goals, as ``(plan, floats)`` (:meth:`_input_row`: the float64 array)."""
+        v_a_max = kp = ki = kd = ff1 = ff2 = p_v_max = p_a_max = 0.0    # (unused in the other modes)
+        v_goal, position_goal = _goal_coefficients(plan)
         if plan.velocity_mode:
-            v_goal, v_a_max = plan.velocity_goal, plan.velocity_a_max
+            v_a_max = plan.velocity_a_max
             kp, ki = plan.velocity_gains.kp, plan.velocity_gains.ki
         elif plan.position_mode:
             g = plan.position_gains
@@ -345,13 +378,12 @@ class ServoModel:
                  plan.current_position_mode, plan.tripped, self.fw.bessel_placement == "reference",
                  self._measure_filtered, bool(kd or ff1 or ff2), plan.torque)
         unused = 0.0
-        coef = (*(1.0 if f else 0.0 for f in flags), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
-                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max,
-                unused if plan.position_goal is None else plan.position_goal,
+        coef = (*map(float, map(bool, flags)), float(plan.sign), plan.pwm_lim, plan.current_margin_v,
+                v_goal, v_a_max, kp, ki, kd, ff1, ff2, p_v_max, p_a_max, position_goal,
                 unused if plan.position_current_limit is None else plan.position_current_limit,
                 unused if plan.pwm_counts is None else plan.pwm_counts,
                 unused if plan.current_ref is None else plan.current_ref, *plan.limits)
-        return plan, coef, None if _COMPILED_TICKS is None else np.array(coef)
+        return plan, coef
 
     def _derive_plant(self, dt_s: float) -> tuple:
         """:func:`servo_ticks`'s ``plant`` for steps of ``dt_s`` at the present load inertia: the
@@ -382,11 +414,51 @@ class ServoModel:
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
         current and voltage is drawn per call. Before the first step: the servo at rest."""
-        if self._last is None:
+        last = self._last
+        if last is None:
             return {"present_position": math.floor(self.position_pulse),
                     "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
                     "present_temperature": round(self.temperature_c)}
-        return self._outputs(*self._last)
+        t, mode, torque, present, v_meas, sign = last
+        s = self.sensors
+        current = sign * self.motor.current_a
+        volts = self.supply_voltage_v
+        if s.current_noise_std_a:
+            current += self.rng.normal(0.0, s.current_noise_std_a)
+        if s.voltage_noise_std_v:
+            volts += self.rng.normal(0.0, s.voltage_noise_std_v)
+        vel = round(v_meas)
+        profile = self.profile
+        position_mode = mode in _POSITION_MODES
+        if position_mode:
+            v_traj = profile.velocity / PULSE_PER_S_PER_VEL_UNIT
+            p_traj = profile.position
+        else:
+            v_traj, p_traj = (profile.velocity if mode == _MODE_VELOCITY else 0.0), float(present)
+        ongoing = torque and profile.ongoing
+        status = 0
+        if torque and position_mode:
+            status = _profile_bits(profile.profile_type)
+            if ongoing:
+                status |= _PROFILE_ONGOING
+            elif abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
+                status |= _IN_POSITION
+            if abs(profile.position - present) > self.fw.following_error_pulse:
+                status |= _FOLLOWING_ERROR
+        elif ongoing:
+            status = _PROFILE_ONGOING
+        return {
+            "present_pwm": round(self.duty * _PWM_FULL_SCALE) if torque else 0,
+            "present_current": round(current / _AMP_PER_CURRENT_UNIT),
+            "present_velocity": vel,
+            "present_position": present,
+            "velocity_trajectory": round(v_traj),
+            "position_trajectory": round(p_traj),
+            "present_input_voltage": round(volts / _VOLT_PER_UNIT),
+            "present_temperature": round(self.temperature_c),
+            "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
+            "moving_status": status,
+        }
 
     def _cached_gains(self, key: tuple, convert):
         """Converted gains for raw gain items ``key[1:]`` (building the dataclass every tick is slow)."""
@@ -396,44 +468,6 @@ class ServoModel:
                 self._gains.clear()
             g = self._gains[key] = convert(*key[1:])
         return g
-
-    def _outputs(self, t: Mapping[str, int], mode: int, torque: bool, present: int, v_meas: float,
-                 sign: int) -> dict[str, int]:
-        s = self.sensors
-        current = sign * self.motor.current_a
-        volts = self.supply_voltage_v
-        if s.current_noise_std_a:
-            current += self.rng.normal(0.0, s.current_noise_std_a)
-        if s.voltage_noise_std_v:
-            volts += self.rng.normal(0.0, s.voltage_noise_std_v)
-        vel = round(v_meas)
-        position_mode = mode in u.POSITION_MODES
-        if position_mode:
-            v_traj = self.profile.velocity / PULSE_PER_S_PER_VEL_UNIT
-            p_traj = self.profile.position
-        else:
-            v_traj, p_traj = (self.profile.velocity if mode == u.MODE_VELOCITY else 0.0), float(present)
-        ongoing = torque and self.profile.ongoing
-        status = (_profile_bits(self.profile.profile_type) if torque and position_mode else 0)
-        if ongoing:
-            status |= u.PROFILE_ONGOING
-        if torque and position_mode:
-            if not ongoing and abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
-                status |= u.IN_POSITION
-            if abs(self.profile.position - present) > self.fw.following_error_pulse:
-                status |= u.FOLLOWING_ERROR
-        return {
-            "present_pwm": round(self.duty * u.PWM_FULL_SCALE) if torque else 0,
-            "present_current": round(current / u.AMP_PER_CURRENT_UNIT),
-            "present_velocity": vel,
-            "present_position": present,
-            "velocity_trajectory": round(v_traj),
-            "position_trajectory": round(p_traj),
-            "present_input_voltage": round(volts / u.VOLT_PER_UNIT),
-            "present_temperature": round(self.temperature_c),
-            "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
-            "moving_status": status,
-        }
 
 
 class _InputPlan:
@@ -460,7 +494,6 @@ class _InputPlan:
         self.firmware_mode = self.torque and (self.position_mode or self.velocity_mode or self.pwm_mode
                                               or mode == u.MODE_CURRENT)
         self.rewrap_on_switch = self.torque and mode == u.MODE_POSITION
-        self.goal_position = t["goal_position"]
         self.limits = limits(t)
         self.pwm_lim = pwm_lim = float(min(abs(t["goal_pwm"]), t["pwm_limit"]))
         i_lim_units = float(t["current_limit"])
@@ -474,16 +507,10 @@ class _InputPlan:
         elif mode == u.MODE_CURRENT:
             self.current_ref = 0.0 if tripped else max(-i_lim_units, min(i_lim_units, float(t["goal_current"])))
         elif mode == u.MODE_VELOCITY:
-            vlim = float(t["velocity_limit"])
-            self.velocity_goal = 0.0 if tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
             pa = t["profile_acceleration"]
             self.velocity_a_max = math.inf if pa == 0 or tripped else pa * VEL_UNIT_PER_S_PER_ACC_UNIT
             self.velocity_gains = gains(("v", t["velocity_p_gain"], t["velocity_i_gain"]), VelocityGains.from_table)
         elif mode in u.POSITION_MODES:
-            goal = float(t["goal_position"])
-            if mode == u.MODE_POSITION:
-                goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
-            self.position_goal = goal
             vlim = float(t["velocity_limit"])
             pv, pa = min(t["profile_velocity"], vlim), t["profile_acceleration"]
             self.position_v_max = math.inf if pv == 0 or tripped else pv * PULSE_PER_S_PER_VEL_UNIT
@@ -493,6 +520,48 @@ class _InputPlan:
                                         PositionGains.from_table)
             if mode == u.MODE_CURRENT_POSITION:
                 self.position_current_limit = float(min(abs(t["goal_current"]), t["current_limit"]))
+        self.set_goals(t)
+
+    def set_goals(self, t: Mapping[str, int]) -> None:
+        """Goal Position and Goal Velocity from the items ``t`` (limited as the mode does); the
+        rest of the plan must be that of ``t`` (a new goal changes nothing else)."""
+        self.goal_position = t["goal_position"]
+        mode = self.mode
+        if self.velocity_mode:
+            vlim = float(t["velocity_limit"])
+            self.velocity_goal = 0.0 if self.tripped else max(-vlim, min(vlim, float(t["goal_velocity"])))
+        elif self.position_mode:
+            goal = float(t["goal_position"])
+            if mode == u.MODE_POSITION:
+                goal = max(float(t["min_position_limit"]), min(float(t["max_position_limit"]), goal))
+            self.position_goal = goal
+
+
+#: Every item :class:`_InputPlan` reads but Goal Position and Goal Velocity: a plan whose items
+#: differ from new ones only in those two is brought up to date by :meth:`_InputPlan.set_goals`.
+_PLAN_ITEMS = operator.itemgetter(
+    "drive_mode", "homing_offset", "operating_mode", "torque_enable", "temperature_limit", "min_voltage_limit",
+    "max_voltage_limit", "goal_pwm", "pwm_limit", "current_limit", "bus_watchdog", "goal_current",
+    "velocity_limit", "profile_acceleration", "velocity_p_gain", "velocity_i_gain", "min_position_limit",
+    "max_position_limit", "profile_velocity", "position_p_gain", "position_i_gain", "position_d_gain",
+    "feedforward_1st_gain", "feedforward_2nd_gain")
+#: Columns of the goals in :func:`servo_ticks`'s ``inputs`` (:meth:`ServoModel._derive_inputs`).
+_V_GOAL_COLUMN, _POSITION_GOAL_COLUMN = 14, 23
+
+
+def _goal_coefficients(plan: _InputPlan) -> tuple[float, float]:
+    """The velocity goal (velocity units) and position goal (pulse) columns of a plan's inputs
+    (0.0 in the modes that do not use them)."""
+    return (plan.velocity_goal if plan.velocity_mode else 0.0,
+            0.0 if plan.position_goal is None else plan.position_goal)
+
+
+def _with_goals(coef: tuple, plan: _InputPlan) -> tuple:
+    """``coef`` (:meth:`ServoModel._derive_inputs` of a plan that differs from ``plan`` only in
+    its goals) with ``plan``'s goals."""
+    v_goal, position_goal = _goal_coefficients(plan)
+    return (*coef[:_V_GOAL_COLUMN], v_goal, *coef[_V_GOAL_COLUMN + 1:_POSITION_GOAL_COLUMN], position_goal,
+            *coef[_POSITION_GOAL_COLUMN + 1:])
 
 
 def _profile_bits(profile_type: int) -> int:

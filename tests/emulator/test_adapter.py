@@ -3,6 +3,7 @@ input space, exact round trips through it in lockstep robot time, the robot file
 ``--adapter-latency-ms`` option. No verdict depends on wall-clock timing."""
 from __future__ import annotations
 
+import bisect
 import math
 import signal
 import subprocess
@@ -295,6 +296,26 @@ def test_lazy_arrivals_are_the_listed_ones_and_deliver_the_same(start_s, frames,
     s = AdapterSettings(latency_ms)
     a, b = deliver(s, lazy, last_s), deliver(s, listed, last_s)
     assert (a.times_s, a.last_send_s, a.end_s) == (b.times_s, b.last_send_s, b.end_s)
+
+
+@given(st.floats(0.0, 100.0), st.lists(st.tuples(st.floats(0.0, 3e-3), st.integers(0, 70)), max_size=10),
+       st.sampled_from([0.0, BYTE_S, 10 / 57_600]), st.data())
+@example(12.345, [(50e-6, 21)] * 8, BYTE_S, None)
+@settings(max_examples=300, deadline=None)
+def test_arrivals_bisect_as_bisect_does_over_their_items(start_s, frames, byte_s, data):
+    """``ByteArrivals.bisect_right`` gives :func:`bisect.bisect_right` over the listed times, for
+    any time (an item's own, between items, outside them) and index range."""
+    lazy = byte_arrivals(start_s, frames, byte_s)
+    listed = list(lazy)
+    n = len(listed)
+    probes = [*listed[:1], *listed[-1:], start_s - 1.0, start_s + 1.0]
+    if data is None:
+        cases = [(t, 0, n) for t in probes]
+    else:
+        t = data.draw(st.one_of(st.sampled_from(probes), st.floats(start_s - 1e-3, start_s + 0.05)))
+        cases = [(t, data.draw(st.integers(0, n + 2)), data.draw(st.integers(0, n)))]
+    for t, lo, hi in cases:
+        assert lazy.bisect_right(t, lo, hi) == bisect.bisect_right(listed, t, lo, hi)
 
 
 def test_arrivals_refuse_a_negative_gap_or_byte_time():
