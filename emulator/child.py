@@ -5,20 +5,52 @@ emulator config, :func:`~swerve.emulator.factory.build_emulator` keywords) from 
 serves the robot emulator, publishes its true pose into the shared block after every run of
 physics steps, and answers fault requests until the parent says stop. Only this process loads
 the physics; the parent imports :mod:`swerve.emulator.process` alone.
+
+The child serves before it loads numba: the emulator is built with its physics kernels as
+Python (:func:`swerve.emulator.physics.jit.defer_loading`), the port goes to the parent, and
+only then does :func:`load_compiled_physics` import numba (~0.3 s of CPU, while the parent
+synthesises its gains and opens its log) and switch the kernels to their compiled form,
+between two runs of physics steps. The Python and the compiled kernels compute the same bits
+(``tests/emulator/test_batched_ticks.py``), so where the switch falls changes no result.
 """
 from __future__ import annotations
 
 import gc
 import mmap
+import sys
 import time
 from multiprocessing.connection import Connection
 
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.factory import build_emulator
+from swerve.emulator.physics import jit
 from swerve.emulator.physics.params import load_config
 from swerve.emulator.process import SHARED_STATE
-from swerve.emulator.server import freeze_startup_heap
+from swerve.emulator.server import Emulator, freeze_startup_heap
+
+#: The interpreter's thread switch interval while numba imports, s (Python's default is 5 ms):
+#: the bus thread, woken by a request, waits at most this long for the interpreter.
+LOADING_SWITCH_INTERVAL_S = 0.0005
+
+
+def load_compiled_physics(emu: Emulator) -> bool:
+    """Import numba and switch the physics kernels of the serving ``emu`` to their compiled form
+    (:func:`swerve.emulator.physics.jit.load_kernels`); returns whether they are compiled now.
+
+    numba imports while the bus thread serves (with a short switch interval, so its requests
+    wait little for the interpreter); the switch itself happens under the emulator's lock,
+    between two runs of physics steps. Each kernel loads its machine code from numba's cache
+    at its first call (~20-30 ms, in the bus thread).
+    """
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(LOADING_SWITCH_INTERVAL_S)
+    try:
+        jit.import_numba()
+    finally:
+        sys.setswitchinterval(interval)
+    with emu.lock:
+        return jit.load_kernels()
 
 
 def child_main(conn_fd: int, shared_fd: int) -> None:
@@ -36,6 +68,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         x, y, theta = emu.world.pose
         SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
+    jit.defer_loading()                # served as Python first: load_compiled_physics below
     try:
         emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
                              **{"body": BodySettings(), **kwargs})
@@ -44,13 +77,14 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    freeze_startup_heap()
-    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     try:
         conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     except OSError:                    # the parent gave up while we started
         emu.close()
         return
+    load_compiled_physics(emu)
+    freeze_startup_heap()
+    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
