@@ -6,11 +6,13 @@ serves the robot emulator, publishes its true pose into the shared block after e
 physics steps, and answers fault requests until the parent says stop. Only this process loads
 the physics; the parent imports :mod:`swerve.emulator.process` alone.
 
-The child serves before it loads numba: the emulator is built with its physics kernels as
-Python (:func:`swerve.emulator.physics.jit.defer_loading`), the port goes to the parent, and
-only then does :func:`load_compiled_physics` import numba (~0.3 s of CPU, while the parent
-synthesises its gains and opens its log) and switch the kernels to their compiled form,
-between two runs of physics steps. The Python and the compiled kernels compute the same bits
+The child serves before it loads numba: when numba's cache holds the kernels, the emulator
+is built with its physics kernels as Python (:func:`swerve.emulator.physics.jit.defer_loading`),
+the port goes to the parent, and only then does :func:`load_compiled_physics` import numba
+(~0.3 s of CPU, while the parent synthesises its gains and builds its log) and switch the
+kernels to their compiled form, between two runs of physics steps. Kernels not in the cache
+(the first start after an edit of the physics) compile while the emulator is built, before it
+serves, so no bus waits for a compilation. The Python and the compiled kernels compute the same bits
 (``tests/emulator/test_batched_ticks.py``), so where the switch falls changes no result.
 """
 from __future__ import annotations
@@ -28,6 +30,8 @@ from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.factory import build_emulator
 from swerve.emulator.physics import jit
 from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.robot import RobotPhysics
+from swerve.emulator.physics.robot_world import RobotWorld
 from swerve.emulator.process import SHARED_STATE
 from swerve.emulator.server import Emulator, freeze_startup_heap
 
@@ -36,23 +40,35 @@ from swerve.emulator.server import Emulator, freeze_startup_heap
 LOADING_SWITCH_INTERVAL_S = 0.0005
 
 
-def load_compiled_physics(emu: Emulator) -> bool:
-    """Import numba and switch the physics kernels of the serving ``emu`` to their compiled form
-    (:func:`swerve.emulator.physics.jit.load_kernels`); returns whether they are compiled now.
+def load_compiled_physics(emu: Emulator, dt_s: float) -> bool:
+    """Import numba and switch the physics kernels of the serving ``emu`` (steps of ``dt_s``
+    s) to their compiled form (:mod:`swerve.emulator.physics.jit`); returns whether they are
+    compiled now.
 
-    numba imports while the bus thread serves (with a short switch interval, so its requests
-    wait little for the interpreter); the switch itself happens under the emulator's lock,
-    between two runs of physics steps. Each kernel loads its machine code from numba's cache
-    at its first call (~20-30 ms, in the bus thread).
+    numba imports while the bus thread serves, with a short switch interval so that its
+    requests wait little for the interpreter. Each kernel then runs once on a spare copy of
+    the robot's physics in this thread (:func:`~swerve.emulator.physics.jit.warming`): it
+    loads from numba's cache (~20-30 ms; it compiles, for seconds, if the cache holds no match),
+    while the bus thread goes on with the Python kernels. The switch itself happens under
+    the emulator's lock, between two runs of physics steps.
     """
     interval = sys.getswitchinterval()
     sys.setswitchinterval(LOADING_SWITCH_INTERVAL_S)
     try:
-        jit.import_numba()
+        if not jit.prepare_kernels():
+            return False
+        if isinstance(emu.world, RobotWorld):
+            physics = emu.world.physics
+            spare = RobotPhysics(physics.cfg, physics.geometry)
+            with jit.warming():
+                for model in spare.servos.values():
+                    model.prepare(dt_s)
+                spare.prepare(dt_s)
     finally:
         sys.setswitchinterval(interval)
     with emu.lock:
-        return jit.load_kernels()
+        jit.switch_on()
+    return True
 
 
 def child_main(conn_fd: int, shared_fd: int) -> None:
@@ -70,7 +86,9 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         x, y, theta = emu.world.pose
         SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
-    jit.defer_loading()                # served as Python first: load_compiled_physics below
+    deferred = jit.ENABLED and jit.kernels_cached()     # else they compile before serving, as they load
+    if deferred:
+        jit.defer_loading()            # served as Python first: load_compiled_physics below
     try:
         emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
                              **{"body": BodySettings(), **kwargs})
@@ -84,7 +102,8 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     except OSError:                    # the parent gave up while we started
         emu.close()
         return
-    load_compiled_physics(emu)
+    if deferred:
+        load_compiled_physics(emu, 1.0 / emu.clock.rate_hz)
     freeze_startup_heap()
     gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)

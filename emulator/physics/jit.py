@@ -27,9 +27,11 @@ kernel runs as Python (with a warning) rather than compile at every start.
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import importlib.util
 import os
+import threading
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -83,25 +85,40 @@ _load_at_first_use = True
 _numba_missing = False
 
 
+class _Warming(threading.local):
+    """Per thread: whether :func:`warming` lets this thread's callers run the loaded kernels."""
+
+    on = False
+
+
+_warming = _Warming()
+
+
 class Kernel:
     """A tick loop that runs compiled once numba is loaded, and as Python until then.
 
     :meth:`ready` says which: False, callers run :attr:`python` (the same function as plain
     Python, the same bits); True, calling the kernel calls its ``numba.njit`` dispatcher
     (compiled at its first call, or loaded from :data:`CACHE_DIR`), and :attr:`signatures`
-    lists the specialisations it holds. The kernels load at the first :meth:`ready` of any of
-    them, or, after :func:`defer_loading`, when :func:`load_kernels` is called.
+    lists the specialisations it holds. The kernels load and switch on at the first
+    :meth:`ready` of any of them; after :func:`defer_loading`, :func:`prepare_kernels` loads
+    them (:meth:`ready` is then True only inside :func:`warming`, in its thread) and
+    :func:`switch_on` turns them on for every caller.
     """
 
     def __init__(self, fn: Callable):
         self.python = fn
         self._dispatcher = None
+        self._on = False
 
     def ready(self) -> bool:
         """Whether calls run the compiled kernel (loading the kernels first unless deferred)."""
+        if self._on:
+            return True
         if _load_at_first_use:
             load_kernels()
-        return self._dispatcher is not None
+            return self._on
+        return self._dispatcher is not None and _warming.on
 
     @property
     def signatures(self) -> list:
@@ -142,6 +159,14 @@ def defer_loading() -> None:
     _load_at_first_use = False
 
 
+def kernels_cached() -> bool:
+    """Whether :data:`CACHE_DIR` holds numba's index of every :func:`compiled` kernel, so that
+    each loads in ~20-30 ms; without one the first call compiles (seconds). numba names an
+    index ``<file stem>.<qualified name>-<line>.py<version>.nbi``."""
+    return all(any(CACHE_DIR.rglob(f"{Path(k.python.__code__.co_filename).stem}.{k.python.__qualname__}-*.nbi"))
+               for k in _KERNELS)
+
+
 def import_numba():
     """Import numba with :data:`CACHE_DIR` as its cache, register the :func:`jitable` helpers
     and initialise its CPU target (~0.3 s of CPU, once); the kernels stay as they are. Returns
@@ -167,11 +192,12 @@ def import_numba():
     return numba
 
 
-def load_kernels() -> bool:
-    """Make every :func:`compiled` kernel :meth:`~Kernel.ready` (importing numba first, see
-    :func:`import_numba`); each loads its machine code from the cache at its first call.
-    Returns whether they are ready (False without numba, or with no writable cache folder:
-    they then run as Python, with a warning)."""
+def prepare_kernels() -> bool:
+    """Give every :func:`compiled` kernel its ``numba.njit`` dispatcher (importing numba first,
+    see :func:`import_numba`), not yet on for its callers (:func:`switch_on`); each loads its
+    machine code from the cache, or compiles, at its first call. Returns whether they have one
+    (False without numba, or with no writable cache folder: they then stay Python, with a
+    warning)."""
     global _load_at_first_use
     _load_at_first_use = False
     if import_numba() is None:
@@ -186,3 +212,30 @@ def load_kernels() -> bool:
                           f"{kernel.python.__name__} as Python.", RuntimeWarning, stacklevel=2)
             return False
     return True
+
+
+@contextlib.contextmanager
+def warming():
+    """Inside, this thread's callers run the kernels :func:`prepare_kernels` gave a dispatcher
+    before they are switched on, e.g. on spare models, so their first calls (a load from the
+    cache, or a compilation) happen here and not in another thread that serves a bus."""
+    _warming.on = True
+    try:
+        yield
+    finally:
+        _warming.on = False
+
+
+def switch_on() -> None:
+    """Every kernel with a dispatcher (:func:`prepare_kernels`) runs compiled for every caller
+    from now on."""
+    for kernel in _KERNELS:
+        kernel._on = kernel._dispatcher is not None
+
+
+def load_kernels() -> bool:
+    """:func:`prepare_kernels`, then :func:`switch_on`; returns whether the kernels are on."""
+    loaded = prepare_kernels()
+    if loaded:
+        switch_on()
+    return loaded

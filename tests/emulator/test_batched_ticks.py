@@ -294,6 +294,7 @@ def test_deferred_kernels_switch_mid_run_without_changing_a_bit(monkeypatch, pro
     def run(switch_at: int | None) -> list:
         for kernel in (servo_model._COMPILED_TICKS, counting.kernel):
             monkeypatch.setattr(kernel, "_dispatcher", None)    # as built in the child: not loaded
+            monkeypatch.setattr(kernel, "_on", False)
         jit.defer_loading()
         emu, modes = _emulator(profile, True)
         out = []
