@@ -46,34 +46,25 @@ def simulate(law: TrackingLaw, x0, substeps: int = 2, max_time_factor: float = 1
     Returns a :class:`SimResult`; raises whatever the law raises (e.g.
     :class:`controller.errors.SingularityError` for the plain law on a singular path).
     """
-    rows = [(t, x.copy(), np.array(out.inputs), out.raw, out.reference_time_s, out.desired_state, out.error,
-             out.u - out.ud) for t, x, out in simulation_steps(law, x0, substeps, max_time_factor)]
-    cols = list(zip(*rows))
-    return SimResult(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]),
-                     np.array(cols[3]), np.array(cols[4]), np.array(cols[5]),
-                     np.array(cols[6]), np.array(cols[7]), law.reference.tf_s)
-
-
-def simulation_steps(law: TrackingLaw, x0, substeps: int = 2, max_time_factor: float = 1.5):
-    """The steps of :func:`simulate`, one at a time, computed as they are asked for.
-
-    Yields ``(t_s, x, out)`` per control step: the time, the state ``x`` (5,) at it (not to be
-    modified) and the law's output at ``x``, whose inputs then hold for one step (RK4 with
-    ``substeps``). Ends where :func:`simulate` does: when the reference ends, or after
-    ``max_time_factor * tf``. Resets ``law`` first.
-    """
     ref = law.reference
     tau, geom = ref.tau_s, ref.geom
     law.reset()
     x = np.asarray(x0, dtype=float).copy()
     n_max = int(np.ceil(max_time_factor * ref.tf_s / tau))
+    rows = []
     for k in range(n_max):
         t = k * tau
         out = law.step(t, x)
         if out.finished:
-            return
-        yield t, x, out
-        x = rk4_step(x, out.inputs, tau, geom, substeps)
+            break
+        u = out.inputs
+        rows.append((t, x.copy(), np.array(u), out.raw, out.reference_time_s, out.desired_state,
+                     out.error, out.u - out.ud))
+        x = rk4_step(x, u, tau, geom, substeps)
+    cols = list(zip(*rows))
+    return SimResult(np.array(cols[0]), np.array(cols[1]), np.array(cols[2]),
+                     np.array(cols[3]), np.array(cols[4]), np.array(cols[5]),
+                     np.array(cols[6]), np.array(cols[7]), ref.tf_s)
 
 
 def metrics(res: SimResult, Q, R, tau: float) -> dict:

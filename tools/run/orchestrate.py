@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
-import itertools
 import logging
 import math
 import time
@@ -22,7 +21,7 @@ from swerve.controller.gains_io import load_gains
 from swerve.controller.reference import build_reference
 from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
-from swerve.controller.simulate import simulation_steps
+from swerve.controller.simulate import simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 from swerve.core.errors import ConfigError
@@ -101,26 +100,11 @@ def law_for(traj, gains, geom, limits, progress: bool = False, lqr=finite_horizo
     return TrackingLaw(ref, gains, limits)
 
 
-class OverlayPoses:
-    """Poses ``(x_m, y_m, theta_rad)`` of the run's law on the ideal model (1)-(5), for the
-    plots' overlay, simulated as the log asks for them (:func:`simulation_steps`).
-
-    ``poses[k]`` (3,) is step ``k`` of :func:`~swerve.controller.simulate.simulate` from
-    ``start``; NaN after the simulation's end. The log asks for cycle ``k``'s pose when it writes
-    that cycle, which in lockstep happens while the emulator serves the next read (the clock's
-    ``defer``), so the simulation's ~40 µs a step is not spent before the first cycle. It runs
-    a law of its own on the run's reference and gains, leaving the run's law untouched.
-    """
-
-    def __init__(self, law: TrackingLaw, start):
-        own = TrackingLaw(law.reference, law.gains, law.limits, law.governor)
-        self._steps = simulation_steps(own, start)     # a generator: nothing runs until asked
-        self._poses: list[np.ndarray] = []
-
-    def __getitem__(self, k: int) -> np.ndarray:
-        for _, x, _ in itertools.islice(self._steps, max(0, k + 1 - len(self._poses))):
-            self._poses.append(x[:3].copy())
-        return self._poses[k] if k < len(self._poses) else np.full(3, np.nan)
+def simulated_poses(law, start) -> np.ndarray:
+    """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
+    poses = simulate(law, start).states[:, :3]
+    law.reset()
+    return poses
 
 
 def wall_clock_guards(cfg, time_scale: float):
@@ -195,7 +179,7 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             emu.launch()
         # the Riccati solution of an input already seen comes from the user's cache, bit for bit
         law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
-        sim = OverlayPoses(law, start) if req.log is not None else None
+        sim = simulated_poses(law, start) if req.log is not None else None
         # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
         log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
@@ -318,11 +302,13 @@ def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
     return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
 
 
-def _log_callback(writer: RunLogWriter, sim: OverlayPoses):
+def _log_callback(writer: RunLogWriter, sim: np.ndarray):
     """The loop's ``on_cycle`` callback writing each cycle, with the overlay pose ``sim[k]``,
     into the open ``writer``."""
 
     def on_cycle(fields: dict) -> None:
-        writer.write(CycleRecord(sim_pose=sim[fields["cycle"]], **fields))
+        k = fields["cycle"]
+        sim_pose = sim[k] if k < len(sim) else np.full(3, np.nan)
+        writer.write(CycleRecord(sim_pose=sim_pose, **fields))
 
     return on_cycle
