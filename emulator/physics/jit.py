@@ -56,7 +56,8 @@ def _sources_digest() -> str:
 
 def _cache_dir(digest: str) -> Path:
     """Where the kernels of these sources are cached (see the module doc). A process started by
-    one that imported this module inherits the folder in ``NUMBA_CACHE_DIR`` and keeps it."""
+    one that loaded the kernels (:func:`import_numba`) inherits the folder in ``NUMBA_CACHE_DIR``
+    and keeps it."""
     name = f"kernels-{digest}"
     given = os.environ.get("NUMBA_CACHE_DIR")
     if given:
