@@ -5,20 +5,70 @@ emulator config, :func:`~swerve.emulator.factory.build_emulator` keywords) from 
 serves the robot emulator, publishes its true pose into the shared block after every run of
 physics steps, and answers fault requests until the parent says stop. Only this process loads
 the physics; the parent imports :mod:`swerve.emulator.process` alone.
+
+The child serves before it loads numba: when numba's cache holds the kernels, the emulator
+is built with its physics kernels as Python (:func:`swerve.emulator.physics.jit.defer_loading`),
+the port goes to the parent, and only then does :func:`load_compiled_physics` import numba
+(~0.3 s of CPU, while the parent synthesises its gains and builds its log) and switch the
+kernels to their compiled form, between two runs of physics steps. Kernels not in the cache
+(the first start after an edit of the physics) compile while the emulator is built, before it
+serves, so no bus waits for a compilation. The Python and the compiled kernels compute the same bits
+(``tests/emulator/test_batched_ticks.py``), so where the switch falls changes no result.
 """
 from __future__ import annotations
 
 import gc
 import mmap
+import os
+import sys
 import time
 from multiprocessing.connection import Connection
+from typing import NoReturn
 
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.factory import build_emulator
+from swerve.emulator.physics import jit
 from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.robot import RobotPhysics
+from swerve.emulator.physics.robot_world import RobotWorld
 from swerve.emulator.process import SHARED_STATE
-from swerve.emulator.server import freeze_startup_heap
+from swerve.emulator.server import Emulator, freeze_startup_heap
+
+#: The interpreter's thread switch interval while numba imports, s (Python's default is 5 ms):
+#: the bus thread, woken by a request, waits at most this long for the interpreter.
+LOADING_SWITCH_INTERVAL_S = 0.0005
+
+
+def load_compiled_physics(emu: Emulator, dt_s: float) -> bool:
+    """Import numba and switch the physics kernels of the serving ``emu`` (steps of ``dt_s``
+    s) to their compiled form (:mod:`swerve.emulator.physics.jit`); returns whether they are
+    compiled now.
+
+    numba imports while the bus thread serves, with a short switch interval so that its
+    requests wait little for the interpreter. Each kernel then runs once on a spare copy of
+    the robot's physics in this thread (:func:`~swerve.emulator.physics.jit.warming`): it
+    loads from numba's cache (~20-30 ms; it compiles, for seconds, if the cache holds no match),
+    while the bus thread goes on with the Python kernels. The switch itself happens under
+    the emulator's lock, between two runs of physics steps.
+    """
+    interval = sys.getswitchinterval()
+    sys.setswitchinterval(LOADING_SWITCH_INTERVAL_S)
+    try:
+        if not jit.prepare_kernels():
+            return False
+        if isinstance(emu.world, RobotWorld):
+            physics = emu.world.physics
+            spare = RobotPhysics(physics.cfg, physics.geometry)
+            with jit.warming():
+                for model in spare.servos.values():
+                    model.prepare(dt_s)
+                spare.prepare(dt_s)
+    finally:
+        sys.setswitchinterval(interval)
+    with emu.lock:
+        jit.switch_on()
+    return True
 
 
 def child_main(conn_fd: int, shared_fd: int) -> None:
@@ -36,6 +86,9 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         x, y, theta = emu.world.pose
         SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
+    deferred = jit.ENABLED and jit.kernels_cached()     # else they compile before serving, as they load
+    if deferred:
+        jit.defer_loading()            # served as Python first: load_compiled_physics below
     try:
         emu = build_emulator(load_robot_config(robot_config), load_config(emulator_config),
                              **{"body": BodySettings(), **kwargs})
@@ -44,13 +97,15 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     except Exception as exc:  # noqa: BLE001 - reported to the parent as text
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
-    freeze_startup_heap()
-    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     try:
         conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     except OSError:                    # the parent gave up while we started
         emu.close()
         return
+    if deferred:
+        load_compiled_physics(emu, 1.0 / emu.clock.rate_hz)
+    freeze_startup_heap()
+    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
     cpu0 = time.process_time()         # CPU from here on: serving the bus (all threads)
     while True:                        # "stop" (or EOF: the parent died) ends the loop
         try:
@@ -75,3 +130,15 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
                                  pose=list(pose), sim_time_s=t, serve_cpu_s=serve_cpu_s)))
     except (BrokenPipeError, OSError):
         pass
+
+
+def serve_and_exit(conn_fd: int, shared_fd: int) -> NoReturn:
+    """:func:`child_main`, then the process ends at once (``os._exit``), without the
+    interpreter's finalisation: with numba loaded, tearing down its modules and objects takes
+    ~0.1 s, which the parent would wait for in :meth:`EmulatorProcess.close`; nothing is left
+    to do by then (the emulator is closed, its counters sent, the standard streams flushed).
+    An exception of :func:`child_main` leaves through the normal exit, with its traceback."""
+    child_main(conn_fd, shared_fd)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(0)

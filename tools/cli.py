@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import gc
 import importlib
 import logging
 import os
@@ -233,8 +234,17 @@ def _quiet_boundary(verbose: bool, prefix: str):
 
 
 def entry() -> int:
-    """The ``swerve`` console script: :func:`main` in a process that exits right after it."""
-    return main(process_exit=True)
+    """The ``swerve`` console script: :func:`main` in a process that exits right after it.
+
+    Before the exit the heap is frozen (``gc.freeze``): the interpreter's finalisation then
+    frees objects by their reference counts and leaves the collector's walks of everything the
+    command loaded (~0.2 s after ``swerve run``, NumPy, the controller, the log's typestore)
+    undone; the memory goes back with the process. The command has closed its files, the
+    standard streams are flushed and the ``atexit`` handlers run as before.
+    """
+    status = main(process_exit=True)
+    gc.freeze()
+    return status
 
 
 def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
@@ -249,9 +259,27 @@ def main(argv: list[str] | None = None, *, process_exit: bool = False) -> int:
         return _run_command(argv, process_exit)
 
 
+@contextlib.contextmanager
+def _imports_uncollected():
+    """The cyclic garbage collector off while the command's modules import (and its options
+    parse), then what they made frozen (``gc.freeze``: later collections skip it) and the
+    collector on again. Imports allocate much and leave almost no cyclic garbage: ~150 young
+    collections freed ~300 objects in ``swerve run``'s start. Only in a process that runs one
+    command (the console script): frozen objects are never collected."""
+    enabled = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.freeze()
+        if enabled:
+            gc.enable()
+
+
 def _run_command(argv: list[str], process_exit: bool) -> int:
     """:func:`main` once the emulator child, if any, was started."""
-    args = build_parser((chosen_command(argv),)).parse_args(argv)
+    with _imports_uncollected() if process_exit else contextlib.nullcontext():
+        args = build_parser((chosen_command(argv),)).parse_args(argv)
     verbose = bool(args._verbose or getattr(args, "verbose", False))
     prefix = f"swerve {args.command}"
     with signals_as_interrupt(process_exit), _quiet_boundary(verbose, prefix):
