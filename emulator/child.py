@@ -6,14 +6,17 @@ serves the robot emulator, publishes its true pose into the shared block after e
 physics steps, and answers fault requests until the parent says stop. Only this process loads
 the physics; the parent imports :mod:`swerve.emulator.process` alone.
 
-The child serves before it loads numba: when numba's cache holds the kernels, the emulator
-is built with its physics kernels as Python (:func:`swerve.emulator.physics.jit.defer_loading`),
+On the wall clock the child serves before it loads numba: when numba's cache holds the kernels,
+the emulator is built with its physics kernels as Python (:func:`swerve.emulator.physics.jit.defer_loading`),
 the port goes to the parent, and only then does :func:`load_compiled_physics` import numba
 (~0.3 s of CPU, while the parent synthesises its gains and builds its log) and switch the
 kernels to their compiled form, between two runs of physics steps. Kernels not in the cache
 (the first start after an edit of the physics) compile while the emulator is built, before it
 serves, so no bus waits for a compilation. The Python and the compiled kernels compute the same bits
-(``tests/emulator/test_batched_ticks.py``), so where the switch falls changes no result.
+(``tests/emulator/test_batched_ticks.py``), so where the switch falls changes no result. In lockstep
+(``timing.waits_on_physics``) the kernels load before the child serves: there the emulator's CPU
+paces the loop, and numba loading beside the bus thread made the whole ``swerve run --lockstep``
+~0.35 s longer than loading it first, though its first cycle came ~0.3 s sooner.
 """
 from __future__ import annotations
 
@@ -34,6 +37,7 @@ from swerve.emulator.physics.robot import RobotPhysics
 from swerve.emulator.physics.robot_world import RobotWorld
 from swerve.emulator.process import SHARED_STATE
 from swerve.emulator.server import Emulator, freeze_startup_heap
+from swerve.emulator.timing import Timing
 
 #: The interpreter's thread switch interval while numba imports, s (Python's default is 5 ms):
 #: the bus thread, woken by a request, waits at most this long for the interpreter.
@@ -71,6 +75,16 @@ def load_compiled_physics(emu: Emulator, dt_s: float) -> bool:
     return True
 
 
+def serves_before_loading(timing: Timing | None) -> bool:
+    """Whether the child builds and serves the emulator with its kernels as Python and loads numba
+    after (:func:`load_compiled_physics`): with numba enabled and every kernel in its cache, on a
+    clock the client does not wait on (``timing`` ``None`` is the factory's wall clock). In
+    lockstep the emulator's CPU paces the loop, so numba loading beside the bus thread would cost
+    the loop more than it saves before the first cycle; kernels not in the cache compile before
+    the child serves, so that no bus waits for a compilation."""
+    return jit.ENABLED and not (timing is not None and timing.waits_on_physics) and jit.kernels_cached()
+
+
 def child_main(conn_fd: int, shared_fd: int) -> None:
     """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
     the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
@@ -86,7 +100,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         x, y, theta = emu.world.pose
         SHARED_STATE.pack_into(shared, 0, emu.sim_time_s, x, y, theta)
 
-    deferred = jit.ENABLED and jit.kernels_cached()     # else they compile before serving, as they load
+    deferred = serves_before_loading(kwargs.get("timing"))
     if deferred:
         jit.defer_loading()            # served as Python first: load_compiled_physics below
     try:
