@@ -15,6 +15,7 @@ from types import MappingProxyType
 from typing import Any, Mapping
 
 from swerve.configs.loader import Bound, Document, Section, document, read_yaml
+from swerve.driver.adapter_latency import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
 from swerve.driver.control_table import (BAUD_RATES_BPS, CONFIG_DIR, POSITION_MODES, REFERENCE_MODEL,
                                          ControlTable, OperatingMode, Reg, table_for)
 from swerve.driver.errors import SwerveError
@@ -31,11 +32,6 @@ MODE_NAMES = {m.name.lower(): m for m in OperatingMode}
 OFFSET_MAX_M = 5.0
 WHEEL_RADIUS_MAX_M = 1.0
 SPEED_MAX_MPS = 10.0
-#: Range of an FTDI USB-serial adapter's latency timer (``link.adapter_latency_ms``), ms: whole
-#: ms in 1..255 (FTDI AN232B-04 §3.3; Linux commit db9240662a44, which also notes the chip runs
-#: the invalid 0 as 1 ms).
-ADAPTER_LATENCY_MIN_MS = 1
-ADAPTER_LATENCY_MAX_MS = 255
 #: Smallest wheel offset from the centroid and smallest wheel, m: a wheel module is larger than this.
 OFFSET_MIN_M = 0.02
 WHEEL_RADIUS_MIN_M = 0.005

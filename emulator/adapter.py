@@ -37,8 +37,8 @@ from dataclasses import dataclass
 from functools import cached_property
 
 from swerve.core.errors import ConfigError
-from swerve.driver.robot_config import ADAPTER_LATENCY_MAX_MS as LATENCY_MAX_MS
-from swerve.driver.robot_config import ADAPTER_LATENCY_MIN_MS as LATENCY_MIN_MS
+from swerve.driver.adapter_latency import ADAPTER_LATENCY_MAX_MS as LATENCY_MAX_MS
+from swerve.driver.adapter_latency import ADAPTER_LATENCY_MIN_MS as LATENCY_MIN_MS
 
 #: FTDI full-speed bulk packet: 64 bytes, of which 2 are modem status (AN232B-04 §3).
 PACKET_BYTES = 64

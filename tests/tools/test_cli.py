@@ -98,6 +98,13 @@ def test_help_imports_no_command_module():
     assert not {m for m in loaded if m.startswith("swerve.tools.commands.")}
 
 
+def test_the_cli_module_spawns_the_emulator_before_it_loads_numpy_or_the_robot_files_reader():
+    """``swerve run --emulate`` starts the emulator's child right after importing ``cli``: what
+    ``cli`` imports delays the child, which is the start-up's longer path."""
+    loaded = _modules_after("from swerve.tools import cli")
+    assert not {"numpy", "yaml", "serial", "swerve.driver.robot_config", "swerve.driver.control_table"} & loaded
+
+
 #: Heavy packages that ``swerve run --emulate --lockstep`` does not use in its own process (the log
 #: writer's rosbags comes later, while the emulator child starts).
 NOT_ON_THE_RUN_PATH = ("scipy", "numba", "matplotlib", "rosbags", "ray", "foxglove", "websockets", "mpmath")
