@@ -80,9 +80,9 @@ class DemoPlan:
     """Everything a worker process needs to run the demo's task ``index`` (picklable when a
     worker is started; see :func:`swerve.tools.demo.runs.run_job`): the output folder, the robot
     file, the tasks and how the runs go (emulator physics, lockstep or wall clock, time scale,
-    and the words for it). ``loop_gate`` is held by a worker from its emulator's start to its
-    loop's end (a lock shared by the workers: one emulated loop at a time, the others' gains,
-    start-ups, logs and figures beside it)."""
+    and the words for it). ``loop_gate`` is held by a worker while its emulator runs (a lock
+    shared by the workers: one emulated run at a time, the others' gains, logs and figures
+    beside it)."""
 
     out: Path
     choice: ConfigChoice

@@ -70,7 +70,7 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callab
              lockstep: bool, scale, pace: str, emulator_config: str, emulated_robot=None,
              loop_gate: AbstractContextManager = nullcontext()) -> DemoRow:
     """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator
-    (holding ``loop_gate`` from the emulator's start to the loop's end); ``say`` prints a message."""
+    (holding ``loop_gate`` while it runs); ``say`` prints a message."""
     tag = f"[{name}, robot file {robot}]"
     say(f"{tag} synthesising gains (Riccati) ...")
     traj = load_trajectory(name, geom, limits)
@@ -86,10 +86,10 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callab
     log_dir = out / "logs" / run_name
     if log_dir.exists():
         shutil.rmtree(log_dir)
-    res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=config, emulate=True,
-                                  lockstep=lockstep, time_scale=scale, log=log_dir,
-                                  emulator_config=emulator_config, emulated_robot=emulated_robot,
-                                  loop_gate=loop_gate))
+    with loop_gate:
+        res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=config, emulate=True,
+                                      lockstep=lockstep, time_scale=scale, log=log_dir,
+                                      emulator_config=emulator_config, emulated_robot=emulated_robot))
     figs = plot_run(read_log(log_dir), out / "plots" / run_name)
     s = res.summary.to_dict()
     state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"

@@ -10,7 +10,7 @@ import dataclasses
 import logging
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -80,9 +80,6 @@ class RunRequest:
     start: tuple | None = None              # start state (5,), m and rad; None: the trajectory's
     on_servo_fault: str = "stop"            # swerve.tools.recovery.policy: "stop" or "recover"
     live: str | None = None                 # "[HOST:]PORT" of a live view (swerve.tools.live)
-    # held from the emulator's start to the end of the loop (e.g. a lock shared by the demo's
-    # workers: one emulated loop at a time, the gains, overlay and log writer of the others beside it)
-    loop_gate: contextlib.AbstractContextManager = field(default_factory=contextlib.nullcontext)
 
 
 def prepare_law(trajectory: str, gains_path, geom, limits, progress: bool = False):
@@ -186,7 +183,6 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
         log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
-        stack.enter_context(req.loop_gate)
         if req.lockstep:
             if emu is not None:
                 emu.start()

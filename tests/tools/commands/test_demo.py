@@ -194,28 +194,22 @@ class RecordingGate:
 
 
 def test_the_emulated_run_and_the_calibration_hold_the_loop_gate_and_release_it_on_error(tmp_path, monkeypatch):
-    """A run hands the gate to its emulated run (held there from the emulator's start to the
-    loop's end, tests/tools/run/test_run_emulator.py; the gains are synthesised before it), the
-    calibration holds it around itself; an error inside leaves it released and comes back as the
-    task's error."""
+    """A run holds the gate around its emulator only (the gains are synthesised before it), the
+    calibration around itself; an error inside leaves it released and comes back as the task's error."""
 
     gate = RecordingGate()
     seen = []
 
-    def emulated_run(req, *args, **kw):
-        seen.append(req.loop_gate is gate and not gate.held)
-        raise SwerveError("emulator refused")
-
-    def calibration(*args, **kw):
+    def emulator(*args, **kw):
         seen.append(gate.held)
         raise SwerveError("emulator refused")
 
-    monkeypatch.setattr(runs, "run_tracking", emulated_run)
-    monkeypatch.setattr(runs, "_calibrate", calibration)
+    monkeypatch.setattr(runs, "run_tracking", emulator)
+    monkeypatch.setattr(runs, "_calibrate", emulator)
     choice, _ = locate_and_load(None)
     plan = DemoPlan(tmp_path, choice, tasks({"line": 40.0}, calibrate=True), "realistic", True, None, "x", gate)
     for index in (0, 1):
         done = runs.run_job(plan, index)
         assert isinstance(done.error, SwerveError) and "emulator refused" in str(done.error)
-    assert seen == [True, True] and gate.entered == 1 and not gate.held
+    assert seen == [True, True] and gate.entered == 2 and not gate.held
     assert (tmp_path / "gains" / "line.npz").is_file()          # synthesised before the gate
