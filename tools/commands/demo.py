@@ -21,13 +21,11 @@ same for any number of workers.
 from __future__ import annotations
 
 import argparse
-import multiprocessing as mp
 import os
 import shutil
 import sys
 import time
 from collections import deque
-from contextlib import nullcontext
 from pathlib import Path
 
 from tqdm import tqdm
@@ -85,12 +83,8 @@ def run(args: argparse.Namespace) -> int:
     robot_s = {name: load_trajectory(name, geom, limits).tf_s for name in names}   # valid before any output
     check_writable(out / "summary.md")      # a read-only or full target is refused before the runs
     workers = args.workers or (len(os.sched_getaffinity(0)) if lockstep else 1)
-    # Lockstep runs hand each cycle over between two processes; two runs at once on two CPUs
-    # wait on each other's hand-overs, so one emulated run goes at a time and the other workers
-    # synthesise, simulate, read logs and draw figures beside it.
-    gate = mp.get_context("spawn").Lock() if lockstep and workers > 1 else nullcontext()
     plan = DemoPlan(out, choice, tasks(robot_s, calibrate=not args.no_calibrate), str(args.emulator_config),
-                    lockstep, scale, pace, gate)
+                    lockstep, scale, pace)
     created = _missing_folder(out)
     try:
         out.mkdir(parents=True, exist_ok=True)

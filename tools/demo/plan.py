@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
-from contextlib import AbstractContextManager, nullcontext
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -80,9 +79,7 @@ class DemoPlan:
     """Everything a worker process needs to run the demo's task ``index`` (picklable when a
     worker is started; see :func:`swerve.tools.demo.runs.run_job`): the output folder, the robot
     file, the tasks and how the runs go (emulator physics, lockstep or wall clock, time scale,
-    and the words for it). ``loop_gate`` is held by a worker while its emulator runs (a lock
-    shared by the workers: one emulated run at a time, the others' gains, logs and figures
-    beside it)."""
+    and the words for it)."""
 
     out: Path
     choice: ConfigChoice
@@ -91,7 +88,6 @@ class DemoPlan:
     lockstep: bool
     scale: float | None
     pace: str
-    loop_gate: AbstractContextManager = nullcontext()
 
 
 __all__ = ["CALIBRATED_FILE", "Calibration", "DemoPlan", "DemoRow", "Task", "TaskDone", "longest_first", "tasks"]

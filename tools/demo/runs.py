@@ -8,7 +8,6 @@ import pickle
 import shutil
 import traceback
 from collections.abc import Callable
-from contextlib import AbstractContextManager, nullcontext
 from pathlib import Path
 
 from swerve.controller.gain_schedule import synthesize
@@ -35,8 +34,7 @@ def run_job(plan: DemoPlan, index: int) -> TaskDone:
     task = plan.tasks[index]
     try:
         if task.kind == "calibration":
-            with plan.loop_gate:
-                value = _calibrate(plan.out, plan.choice.path, plan.emulator_config, lines.append)
+            value = _calibrate(plan.out, plan.choice.path, plan.emulator_config, lines.append)
         else:
             value = _run_task(plan, task, lines.append)
         return TaskDone(tuple(lines), value)
@@ -54,7 +52,7 @@ def _run_task(plan: DemoPlan, task: Task, say: Callable[[str], None]) -> DemoRow
     geom, limits = geometry_and_limits(cfg)     # the calibrated file's gains are synthesised for it
     return _run_one(plan.out, task.name, geom, limits, choice, task.robot, say, lockstep=plan.lockstep,
                     scale=plan.scale, pace=plan.pace, emulator_config=plan.emulator_config,
-                    emulated_robot=emulated, loop_gate=plan.loop_gate)
+                    emulated_robot=emulated)
 
 
 def _picklable(exc: Exception) -> Exception:
@@ -67,10 +65,9 @@ def _picklable(exc: Exception) -> Exception:
 
 
 def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callable[[str], None], *,
-             lockstep: bool, scale, pace: str, emulator_config: str, emulated_robot=None,
-             loop_gate: AbstractContextManager = nullcontext()) -> DemoRow:
+             lockstep: bool, scale, pace: str, emulator_config: str, emulated_robot=None) -> DemoRow:
     """Synthesise, simulate and run one trajectory with robot file ``config`` on the emulator
-    (holding ``loop_gate`` while it runs); ``say`` prints a message."""
+    ``say`` prints a message."""
     tag = f"[{name}, robot file {robot}]"
     say(f"{tag} synthesising gains (Riccati) ...")
     traj = load_trajectory(name, geom, limits)
@@ -86,10 +83,9 @@ def _run_one(out: Path, name: str, geom, limits, config, robot: str, say: Callab
     log_dir = out / "logs" / run_name
     if log_dir.exists():
         shutil.rmtree(log_dir)
-    with loop_gate:
-        res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=config, emulate=True,
-                                      lockstep=lockstep, time_scale=scale, log=log_dir,
-                                      emulator_config=emulator_config, emulated_robot=emulated_robot))
+    res = run_tracking(RunRequest(trajectory=name, gains=gains_file, config=config, emulate=True,
+                                  lockstep=lockstep, time_scale=scale, log=log_dir,
+                                  emulator_config=emulator_config, emulated_robot=emulated_robot))
     figs = plot_run(read_log(log_dir), out / "plots" / run_name)
     s = res.summary.to_dict()
     state = "completed" if s.get("completed") else f"STOPPED: {s.get('abort_message', '?')}"
