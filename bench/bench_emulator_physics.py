@@ -73,8 +73,7 @@ def goals(cfg, t_s: float):
 def tick_kernel() -> str:
     """Where the servo ticks run: compiled with numba, or Python (no numba, or ``SWERVE_NO_JIT`` set)."""
     from swerve.emulator.physics import jit
-    numba = jit.import_numba()
-    return f"compiled (numba {numba.__version__})" if numba is not None else "Python"
+    return f"compiled (numba {jit.numba.__version__})" if jit.ENABLED else "Python"
 
 
 # --- 1. cost --------------------------------------------------------------------------------------

@@ -45,11 +45,11 @@ SHARED_STATE = struct.Struct("4d")
 #: numba, loading the cached kernels, then skips its BLAS check (``numba.np.linalg.ensure_blas``
 #: imports ``scipy.linalg``, ~0.4 s), which only numba's ``np.dot``/``np.linalg`` need, and the
 #: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise). The
-#: cyclic garbage collector is off until the emulator serves and numba is loaded
-#: (:func:`child.child_main` then freezes what start-up made and turns it on): start-up
-#: allocates much and frees little, and the collections it would trigger cost ~0.2 s of CPU.
-#: SIGINT and SIGHUP are ignored from the first line: the parent decides when the child stops,
-#: also while it imports. It ends without the interpreter's finalisation (:func:`child.serve_and_exit`).
+#: cyclic garbage collector is off until the emulator is built (:func:`child.child_main`
+#: then freezes what start-up made and turns it on): start-up allocates much and frees little,
+#: and the collections it would trigger cost ~0.2 s of CPU. SIGINT and SIGHUP are ignored from
+#: the first line: the parent decides when the child stops, also while it imports. It ends
+#: without the interpreter's finalisation (:func:`child.serve_and_exit`).
 _CHILD_PROGRAM = ("import gc, signal, sys; gc.disable(); sys.modules['scipy'] = None; "
                   "[signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGHUP)]; "
                   "from swerve.emulator.child import serve_and_exit; "

@@ -16,7 +16,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
-from typing import ClassVar, Protocol
+from typing import Protocol
 
 from swerve.driver.errors import ConfigError
 from swerve.emulator.clock import (DEFAULT_REPLY_LATENCY_S, FrozenClock, LockstepPhysicsClock, PhysicsClock,
@@ -25,13 +25,7 @@ from swerve.emulator.lockstep_socket import BARRIER_TIMEOUT_S, ControlServer
 
 
 class Timing(Protocol):
-    """A description of how simulated time runs, which builds its clock.
-
-    ``waits_on_physics``: whether the client waits for every step of the physics (lockstep: the
-    emulator's CPU paces the run, so its compiled kernels are loaded before it serves; on the
-    wall clock they load while it serves, see :mod:`swerve.emulator.child`)."""
-
-    waits_on_physics: ClassVar[bool]
+    """A description of how simulated time runs, which builds its clock."""
 
     def build(self, rate_hz: float) -> tuple[PhysicsClock, ControlServer | None]:
         """The clock stepping the physics at ``rate_hz`` steps per simulated second, and the
@@ -42,8 +36,6 @@ class Timing(Protocol):
 class Frozen:
     """Simulated time stands still; the bus only answers (step with ``emu.advance(dt_s)``)."""
 
-    waits_on_physics: ClassVar[bool] = False
-
     def build(self, rate_hz: float) -> tuple[PhysicsClock, None]:
         return FrozenClock(rate_hz), None
 
@@ -52,7 +44,6 @@ class Frozen:
 class WallTime:
     """``scale`` simulated seconds per wall second (:class:`~swerve.emulator.clock.WallPhysicsClock`)."""
 
-    waits_on_physics: ClassVar[bool] = False
     scale: float = 1.0
 
     def __post_init__(self):
@@ -71,7 +62,6 @@ class Lockstep:
     (:class:`~swerve.emulator.clock.LockstepPhysicsClock`). ``barrier_timeout_s`` bounds the wait for
     the pty bytes a control request announces (:class:`~swerve.emulator.lockstep_socket.ControlServer`)."""
 
-    waits_on_physics: ClassVar[bool] = True
     control_path: str | os.PathLike | None = None
     reply_latency_s: float = DEFAULT_REPLY_LATENCY_S
     barrier_timeout_s: float = BARRIER_TIMEOUT_S

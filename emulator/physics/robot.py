@@ -193,7 +193,7 @@ class RobotPhysics:
     def coupled(self) -> bool:
         """Whether :meth:`run_coupled` runs here: no position noise, and the compiled
         :func:`.coupled.robot_ticks` (numba)."""
-        return (coupled.ROBOT_TICKS is not None and coupled.ROBOT_TICKS.ready()
+        return (coupled.ROBOT_TICKS is not None
                 and not any(s.sensors.position_noise_std_pulse for s in self.servos.values()))
 
     def run_coupled(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]]) -> int:

@@ -161,7 +161,7 @@ class ServoModel:
         self.motor.prepare(dt_s)
         self.velocity_filter.prepare(dt_s)
         self.reference_filter.prepare(dt_s)
-        if _COMPILED_TICKS is not None and _COMPILED_TICKS.ready() and not _COMPILED_TICKS.signatures:
+        if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
             spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
             spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])
 
@@ -261,7 +261,7 @@ class ServoModel:
         plan, plant, inputs = self.begin_run(dt_s, table, same_inputs)
         noisy = bool(self.sensors.position_noise_std_pulse)
         record_speeds, record_positions = speeds is not None, positions is not None
-        if _COMPILED_TICKS is not None and not noisy and _COMPILED_TICKS.ready():
+        if _COMPILED_TICKS is not None and not noisy:
             kernel, plant_coef, input_coef = _COMPILED_TICKS, plant[3], self._input_row(inputs)
             if len(self._traces[0]) < n:
                 self._traces = np.empty(n), np.empty(n)

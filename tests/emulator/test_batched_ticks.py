@@ -129,24 +129,6 @@ def _snapshot(emu) -> list:
     return out
 
 
-class CountingKernel:
-    """A :class:`~swerve.emulator.physics.jit.Kernel` that notes each call's tick count in ``out``."""
-
-    def __init__(self, kernel: jit.Kernel, out: list):
-        self.kernel, self.out = kernel, out
-
-    def ready(self) -> bool:
-        return self.kernel.ready()
-
-    @property
-    def signatures(self) -> list:
-        return self.kernel.signatures
-
-    def __call__(self, n, *args):
-        self.out.append(n)
-        return self.kernel(n, *args)
-
-
 def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, tuple[int, int]]:
     """The same commands on two emulators: batched steps vs one :meth:`Emulator.step` per tick.
     Returns both snapshot lists and the numbers of multi-tick runs: servo after servo
@@ -160,8 +142,14 @@ def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, tuple[int,
         return original(self, dt_s, table, n, **kwargs)
 
     monkeypatch.setattr(ServoModel, "run", counting)
-    if coupled.ROBOT_TICKS is not None:
-        monkeypatch.setattr(coupled, "ROBOT_TICKS", CountingKernel(coupled.ROBOT_TICKS, robot_runs))
+    kernel = coupled.ROBOT_TICKS
+    if kernel is not None:
+        def counting_kernel(n, *args):
+            robot_runs.append(n)
+            return kernel(n, *args)
+
+        counting_kernel.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
+        monkeypatch.setattr(coupled, "ROBOT_TICKS", counting_kernel)
     batched, stepped = _emulator(**build), _emulator(**build)
     steps = round(CYCLE_S * RATE_HZ)
     a, b = [], []
@@ -244,8 +232,17 @@ def _compiled_runs(monkeypatch, **build) -> tuple[list, list, tuple[int, int]]:
     snapshot lists and the numbers of compiled calls of each kernel."""
     kernels = servo_model._COMPILED_TICKS, coupled.ROBOT_TICKS
     calls = [], []
+
+    def counting(kernel, out):
+        def call(*args):
+            out.append(args[0])
+            return kernel(*args)
+
+        call.signatures = kernel.signatures     # loaded already: prepare need not load it
+        return call
+
     snaps = []
-    for compiled_kernels in ([CountingKernel(k, c) for k, c in zip(kernels, calls)], (None, None)):
+    for compiled_kernels in ([counting(k, c) for k, c in zip(kernels, calls)], (None, None)):
         monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernels[0])
         monkeypatch.setattr(coupled, "ROBOT_TICKS", compiled_kernels[1])
         emu, modes = _emulator(**build)
@@ -273,44 +270,6 @@ def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
     else:   # the servo kernel ran every servo every cycle, but the held shafts (Python: motor.step)
         assert servo_calls >= 70 * (8 - len(STALLED_IDS))
     assert compiled == python
-
-
-SWITCH_CYCLES = (0, 1, 35, 69)     # the kernels switch to compiled before this cycle's commands
-
-
-@pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
-@pytest.mark.parametrize("switch_cycle", SWITCH_CYCLES)
-@pytest.mark.parametrize("profile", ["ideal", "realistic"])
-def test_deferred_kernels_switch_mid_run_without_changing_a_bit(monkeypatch, profile, switch_cycle):
-    """The emulator's child builds the robot with its kernels not loaded (Python) and loads them
-    while it serves (:func:`swerve.emulator.child.load_compiled_physics`): wherever the switch
-    falls, every state variable, published byte and the pose equal (``==``) those of the same
-    run in Python throughout, and the compiled kernels ran from the switch on."""
-    calls = []
-    counting = CountingKernel(coupled.ROBOT_TICKS, calls)
-    monkeypatch.setattr(coupled, "ROBOT_TICKS", counting)
-    monkeypatch.setattr(jit, "_load_at_first_use", True)      # restored after the test
-
-    def run(switch_at: int | None) -> list:
-        for kernel in (servo_model._COMPILED_TICKS, counting.kernel):
-            monkeypatch.setattr(kernel, "_dispatcher", None)    # as built in the child: not loaded
-            monkeypatch.setattr(kernel, "_on", False)
-        jit.defer_loading()
-        emu, modes = _emulator(profile, True)
-        out = []
-        for k in range(70):
-            if k == switch_at:
-                assert jit.load_kernels()
-            _commands(emu, modes, k)
-            emu.advance(CYCLE_S)
-            out.append(_snapshot(emu))
-        return out
-
-    python = run(None)
-    assert calls == [] and not counting.ready()
-    switched = run(switch_cycle)
-    assert len(calls) >= 70 - switch_cycle          # compiled from the switch on, every cycle
-    assert switched == python
 
 
 @pytest.mark.slow
@@ -353,7 +312,14 @@ def test_coupled_ticks_equal_single_ticks(monkeypatch, stall, kinematic):
     gains; with a held drive shaft also the overload protection (the run stops at the tick it
     trips). Every state variable, published byte and the pose equal (``==``)."""
     calls = []
-    monkeypatch.setattr(coupled, "ROBOT_TICKS", CountingKernel(coupled.ROBOT_TICKS, calls))
+    kernel = coupled.ROBOT_TICKS
+
+    def counting(n, *args):
+        calls.append(n)
+        return kernel(n, *args)
+
+    counting.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
+    monkeypatch.setattr(coupled, "ROBOT_TICKS", counting)
     build = _emulator
 
     def emulator(*args, **kwargs):

@@ -12,10 +12,8 @@ from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
 from swerve.emulator import process
 from swerve.emulator.process import EmulatorProcess, prestarted
 from swerve.emulator.body_settings import BodySettings
-from swerve.emulator.child import serves_before_loading
-from swerve.emulator.physics import jit
 from swerve.emulator.server import freeze_startup_heap
-from swerve.emulator.timing import Frozen, Lockstep, WallTime
+from swerve.emulator.timing import Lockstep, WallTime
 
 
 @pytest.mark.slow
@@ -146,17 +144,3 @@ def test_a_prestarted_child_that_died_is_one_clear_error(monkeypatch):
             emu.launch()
             emu.start()
     assert emu.pid is None                       # closed and reaped
-
-
-def test_the_child_serves_before_loading_numba_on_the_wall_clock_only(monkeypatch):
-    """In lockstep the client waits on every physics step, so the kernels load before the child
-    serves; on the wall clock (and frozen) they load while it serves, if numba's cache has them."""
-    monkeypatch.setattr(jit, "ENABLED", True)
-    monkeypatch.setattr(jit, "kernels_cached", lambda: True)
-    assert serves_before_loading(WallTime(5.0)) and serves_before_loading(Frozen()) and serves_before_loading(None)
-    assert not serves_before_loading(Lockstep())
-    monkeypatch.setattr(jit, "kernels_cached", lambda: False)     # they compile before serving
-    assert not serves_before_loading(WallTime(5.0))
-    monkeypatch.setattr(jit, "kernels_cached", lambda: True)
-    monkeypatch.setattr(jit, "ENABLED", False)                     # no numba: Python throughout
-    assert not serves_before_loading(WallTime(5.0))
