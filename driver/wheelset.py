@@ -78,9 +78,6 @@ class WheelSet:
         self._pos = self.table[Reg.GOAL_POSITION]
         self._vmax = config.drive_max_radps * (1 + _LIMIT_TOL)
         self._dmax = config.steer_angle_max_rad * (1 + _LIMIT_TOL)
-        # the goals' raw ranges where no other rule applies (else (1, 0): the register decides)
-        self._goal_bounds = tuple((1, 0) if r.allowed is not None else r.raw_bounds()
-                                  for r in (self._vel, self._pos))
         self._goal_plan = None       # the Bulk Write of the goals, planned at the first one
         # plain strings, as _GOAL_VELOCITY
         self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)
@@ -158,7 +155,6 @@ class WheelSet:
                              f"{len(drive_radps)} and {len(steer_rad)}")
         vmax, dmax = self._vmax, self._dmax
         vel, pos = self._vel, self._pos
-        (vlo, vhi), (plo, phi) = self._goal_bounds
         drive, steer = [], []
         for w, v, d in zip(cfg.wheels, drive_radps, steer_rad):
             v, d = float(v), float(d)
@@ -168,11 +164,8 @@ class WheelSet:
             if not -dmax <= d <= dmax:
                 raise OutOfRangeError(f"{w.name} steering angle", d, -cfg.steer_angle_max_rad,
                                       cfg.steer_angle_max_rad, "rad")
-            # Register.from_si and check_raw, with their bounds checked here first
-            raw = round(w.drive_direction * v / vel.scale)
-            drive.append(raw if vlo <= raw <= vhi else vel.from_si(w.drive_direction * v))
-            raw = w.center_pulse + round(w.steer_direction * d / pos.scale)
-            steer.append(raw if plo <= raw <= phi else pos.check_raw(raw))
+            drive.append(vel.from_si(w.drive_direction * v))
+            steer.append(pos.check_raw(w.center_pulse + round(w.steer_direction * d / pos.scale)))
         return drive + steer
 
     def write_goals(self, drive_radps: Sequence[float], steer_rad: Sequence[float]) -> None:
