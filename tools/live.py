@@ -64,6 +64,7 @@ from swerve.driver.errors import ConfigError
 from swerve.tools.logs.bag import DEFAULT_WHEELS, TOPICS, joint_names
 from swerve.tools.logs.messages import CycleMessages
 from swerve.tools.logs.record import CycleRecord
+from swerve.tools.logs.typestore import log_typestore
 
 log = logging.getLogger(__name__)
 
@@ -260,9 +261,8 @@ class LivePublisher:
     # --- lifecycle ----------------------------------------------------------------------------
     def start(self) -> "LivePublisher":
         import foxglove
-        from rosbags.typesys import Stores, get_typestore
 
-        self._ts = get_typestore(Stores.ROS2_JAZZY)
+        self._ts = log_typestore()
         self._msgs = CycleMessages(self._ts, joint_names(self._wheels))
         self._ctx = foxglove.Context()
         try:
