@@ -3,19 +3,20 @@
 The physics' coefficients come from :mod:`.exact` (40-digit mpmath: the same bits on every
 machine): the ZOH matrices of each motor (driven and coasting) and of the Bessel filters, and the
 analogue Bessel prototype. They are pure functions of their inputs, but importing mpmath and
-computing a robot's exponentials cost the emulator ~60 ms of CPU at every start. :class:`ExactCache`
-keeps each result in one file of ``$XDG_CACHE_HOME/swerve/`` (:func:`swerve.core.user_cache.user_cache_dir`),
-named by a SHA-256 of the exact bytes of the inputs (shapes, float64 values, step, norm) and of
+computing a robot's exponentials cost the emulator ~60 ms of CPU at every start.
+:class:`ExactCache` keeps each result in one file of ``$XDG_CACHE_HOME/swerve/``
+(:func:`swerve.core.user_cache.user_cache_dir`), named by a SHA-256 of the exact bytes of the inputs (shapes, float64 values, step, norm) and of
 the code that computes them (the source of :mod:`.exact` and mpmath's ``__init__.py``, which
 holds its version). A hit gives the same float64 values, so the physics, the logs and the export
 hashes are the same with and without the cache; only a miss imports :mod:`.exact`, and with it
 mpmath.
 
-A file holds :data:`LAYOUT`, the 32 bytes of its key, then the values as little-endian float64.
-One that cannot be read, has another length or names another key is recomputed and written again;
-a folder that cannot be written leaves the results uncached. Files are written atomically
-(:func:`swerve.core.atomic.write_bytes`), so a crash never leaves half a file. Delete the folder
-to empty it.
+A file holds :data:`LAYOUT`, the 32 bytes of its key, the values as little-endian float64, and
+the first bytes of the SHA-256 of all that. One that cannot be read, has another length, names
+another key or fails its checksum is recomputed and written again; a folder that cannot be
+written leaves the results uncached. Files are written atomically
+(:func:`swerve.core.atomic.write_bytes`), so a crash never leaves half a file. Delete the
+folder to empty it.
 """
 from __future__ import annotations
 
@@ -39,6 +40,8 @@ log = logging.getLogger(__name__)
 
 #: The first bytes of every cache file; bumped when the layout changes.
 LAYOUT = b"swerve exact cache 1\n"
+#: Bytes of the SHA-256 of a file's contents that end it (a damaged value is found).
+CHECK_BYTES = 8
 #: The source of :mod:`.exact`, part of every key.
 EXACT_SOURCE = Path(__file__).with_name("exact.py")
 
@@ -84,22 +87,25 @@ class ExactCache:
         of ``count`` floats), stored and returned; a new array either way."""
         path = self.path_for(key)
         head = LAYOUT + bytes.fromhex(key)
+        size = len(head) + 8 * count
         try:
             data = path.read_bytes()
         except FileNotFoundError:
-            data = None
+            data = b""
         except OSError as exc:
             log.debug("exact cache file %s ignored: %s", path, exc)
-            data = None
-        if data is not None and len(data) == len(head) + 8 * count and data.startswith(head):
+            data = b""
+        if (len(data) == size + CHECK_BYTES and data.startswith(head)
+                and hashlib.sha256(data[:size]).digest()[:CHECK_BYTES] == data[size:]):
             self.hits += 1
             return np.frombuffer(data, "<f8", count, len(head)).astype(np.float64)
         self.misses += 1
         values = np.array(compute(), np.float64)
         if values.shape != (count,):
             raise ValueError(f"{key}: computed {values.shape} values, expected {count}")
+        body = head + values.astype("<f8").tobytes()
         try:
-            write_bytes(path, head + values.astype("<f8").tobytes())
+            write_bytes(path, body + hashlib.sha256(body).digest()[:CHECK_BYTES])
         except OutputError as exc:      # a read-only or full cache folder: the result stands
             log.debug("exact cache file not written: %s", exc)
         return values
