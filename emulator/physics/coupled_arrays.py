@@ -4,10 +4,15 @@
 afresh for every run between two bus events cost several times the kernel itself, so
 :class:`CoupledArrays` allocates them once per robot: the wheels' and the body's constants are
 filled at construction, each servo's discretised plant and input coefficients only when the
-servo derived new ones (the same tuple object otherwise). The state is stored back into the
-models after each call, and copied in from a model only when Python code changed it since (a
-reboot, a Clear, a tick stepped from Python: :attr:`ServoModel.state_version`); the per-run
-inputs (goals' flags, loads, supply) go in every run, one flat assignment per array.
+servo derived new ones (the same tuple object otherwise). The servos' state stays in the arrays
+from one run to the next (:attr:`dirty`) and goes back into the models only when a reader asks:
+each model's state attributes call :meth:`CoupledArrays.store_back` when read or set
+(:attr:`ServoModel.holder`), so a lockstep cycle's three runs store it back once, for the
+present items of the read. After a reader, the next run copies a model's state in again only
+if Python code changed it (a reboot, a Clear, a tick stepped from Python:
+:attr:`ServoModel.state_version`), and the supply and loads from the models; the goals' flags go
+in every run, one flat assignment per array. The body's state goes back after every run (the
+true pose is published after each).
 """
 from __future__ import annotations
 
