@@ -94,7 +94,10 @@ class CoupledArrays:
         self._pack_input_row = None     # one servo's input coefficients into its row of ``inputs``
         #: True while the arrays hold servo state newer than the models' (:meth:`store_back`).
         self.dirty = False
-        self._last_records: list = []   # the last run's plan records (_InputPlan.record) and items, per servo
+        self._last_plans: list = []     # the last run's plans, their goal positions then, and items, per servo
+        self._last_goals: list = []
+        self._raised = True             # the last run raised Hardware Error bits (the column needs clearing)
+        self._backlash_out: object = self     # the wheel angles the last run returned (none yet)
         self._last_tables: list = []
         self._blocked = [False] * count     # each motor's ``blocked`` at the last run the models were read for
         for m in self.models:           # the models' held attributes ask these arrays first
@@ -114,19 +117,19 @@ class CoupledArrays:
         the backlash after them (``backlash`` if there is none)."""
         models = self.models
         held = self.dirty               # nothing read or changed a model since the last run
-        records, plants, inputs, servo_i, servo_f, tables = [], [], [], [], [], []
-        last_records, blocked = self._last_records, self._blocked
+        plans, goals, plants, inputs, servo_i, servo_f, tables = [], [], [], [], [], [], []
+        last_plans, last_goals, blocked = self._last_plans, self._last_goals, self._blocked
         for k, m in enumerate(models):
             table, same = runs[m]
             plan, plant, inp = m.begin_run(dt_s, table, same)
             plants.append(plant)
             inputs.append(inp)
-            records.append(plan.record())
+            plans.append(plan)
+            goals.append(plan.goal_position)
             tables.append(table)
             if held:                    # the last run's plan is the model's (ServoModel.run_flags)
-                key, goal_position = last_records[k][:2]
-                switched = plan.key != key
-                servo_i += (plan.homing, blocked[k], switched, switched or plan.goal_position != goal_position)
+                switched = plan.key != last_plans[k].key
+                servo_i += (plan.homing, blocked[k], switched, switched or plan.goal_position != last_goals[k])
             else:
                 motor = m.motor
                 blocked[k] = motor.blocked
@@ -138,11 +141,13 @@ class CoupledArrays:
         if not held:                    # else the state, supply and loads are those the last run left
             self._load_state()
             pack_f(servo_f_array, 0, *servo_f)
-        self.out_i[:, 0] = 0
+        if self._raised:                # else the kernel left the bits column at 0
+            self.out_i[:, 0] = 0
         half = self.body_f[0]
-        if backlash is not None:
-            self.backlash[:] = backlash
-        self.flags[0] = backlash is not None
+        if backlash is not self._backlash_out:     # else the array and flag hold it
+            if backlash is not None:
+                self.backlash[:] = backlash
+            self.flags[0] = backlash is not None
         body = self.body
         if self.contact:
             self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, body.slip_energy_j)
@@ -150,12 +155,13 @@ class CoupledArrays:
         else:
             self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, 0.0)
         self.dirty = True               # from the kernel's first write on, the arrays hold the newest state
-        self._last_records, self._last_tables = records, tables
+        self._last_plans, self._last_goals, self._last_tables = plans, goals, tables
         ran = coupled.ROBOT_TICKS(n, dt_s, self.plants, self.inputs, self.servo_i, self.servo_f, self.fs, self.ints,
                                   self.out_i, self.v_meas, self.wheel_i, self.wheel_f, self.backlash, self.wheel_out,
                                   self.body_f, self.flags, self.pose, self.stats)
         bits = self.out_i[:, 0].tolist()
-        if any(bits):
+        self._raised = any(bits)
+        if self._raised:
             for m, b in zip(models, bits):
                 if b:
                     m.pending_hardware_error |= b
@@ -168,7 +174,8 @@ class CoupledArrays:
             body._slip, body._fx, body._fy, body._flong = slip, fx, fy, flong
         else:
             body._fit = (tuple(speeds), tuple(angles), (vx, vy, w))
-        return ran, self.backlash.tolist() if half > 0.0 else backlash
+        self._backlash_out = self.backlash.tolist() if half > 0.0 else backlash
+        return ran, self._backlash_out
 
     def store_back(self) -> None:
         """Store the servos' state the last run left (state, supply and load, last Present
@@ -180,8 +187,11 @@ class CoupledArrays:
         self.dirty = False
         fs_l, ints_l, out_l, vm_l, sf_l = (a.tolist() for a in (self.fs, self.ints, self.out_i, self.v_meas,
                                                                  self.servo_f))
-        for k, (m, table, record) in enumerate(zip(self.models, self._last_tables, self._last_records)):
-            m.finish_run(table, record, 0, fs_l[k], ints_l[k], out_l[k][1], vm_l[k])
+        for k, (m, table, plan, goal) in enumerate(zip(self.models, self._last_tables, self._last_plans,
+                                                       self._last_goals)):
+            # (a plan's goal may have changed in place since: ServoModel.begin_run, _InputPlan.set_goals)
+            m.finish_run(table, (plan.key, goal, plan.mode, plan.torque, plan.sign), 0, fs_l[k], ints_l[k],
+                         out_l[k][1], vm_l[k])
             d = m.__dict__
             d["supply_voltage_v_"], d["motor_"].load_torque_nm = sf_l[k][1], sf_l[k][2]
         self._versions = [m.state_version for m in self.models]

@@ -78,14 +78,10 @@ class ExactCache:
         self.hits = 0
         self.misses = 0
 
-    def path_for(self, key: str) -> Path:
-        """The file of the result whose :func:`exact_key` is ``key``."""
-        return self.folder / f"exact-{key}.f8"
-
     def values(self, key: str, count: int, compute: Callable[[], Sequence[float]]) -> np.ndarray:
         """The ``count`` float64 values stored for ``key``, else ``compute()`` (a flat sequence
         of ``count`` floats), stored and returned; a new array either way."""
-        path = self.path_for(key)
+        path = self.folder / f"exact-{key}.f8"
         head = LAYOUT + bytes.fromhex(key)
         size = len(head) + 8 * count
         try:
