@@ -136,7 +136,7 @@ class Stepper:
     def _coupled_ticks(self, dt_s: float, n: int) -> int:
         """Up to ``n`` :meth:`_tick` s run by a world whose servos and body step together in one
         call (``world.run_coupled``, e.g. a robot on tyres); returns how many ran (0: none)."""
-        run = self.world.run_coupled if n > 1 and self.world is not None else None
+        run = self.world.run_coupled if self.world is not None else None
         done = 0
         while run is not None and done < n:
             ran = run(self.servos, dt_s, n - done)

@@ -2,17 +2,16 @@
 
 The analogue prototype is :func:`scipy.signal.bessel`'s, in closed form (the 2nd-order Bessel
 polynomial ``s^2 + 3 s + 3`` rescaled in frequency), and is discretised exactly (ZOH,
-:func:`.discrete.zoh`) for the physics step; both in 40-digit arithmetic, so the coefficients are
-the same bits on every machine. The state is ``[y, dy/dt]``, so filtering a position also yields a
-filtered velocity (what the firmware uses as its velocity estimate).
+:func:`.discrete.zoh`) for the physics step; both in 40-digit arithmetic (:mod:`.exact`, kept on
+disk by :mod:`.discrete`), so the coefficients are the same bits on every machine. The state is
+``[y, dy/dt]``, so filtering a position also yields a filtered velocity (what the firmware uses
+as its velocity estimate).
 """
 from __future__ import annotations
 
 from functools import lru_cache
 
-import mpmath
-
-from .discrete import DIGITS, zoh
+from .discrete import bessel_prototype, zoh
 from .jit import jitable
 
 
@@ -23,20 +22,10 @@ def bessel_coefficients(cutoff_radps: float, norm: str = "mag") -> tuple[float, 
     ``norm`` is :func:`scipy.signal.bessel`'s, with ``wc = cutoff_radps``: ``"delay"``: group
     delay ``1 / wc`` at DC, ``a1 = 3 wc``, ``a0 = 3 wc^2``; ``"phase"``: ``a1 = √3 wc``,
     ``a0 = wc^2``; ``"mag"``: -3 dB at ``wc`` (``|H(j wc)|^2 = 1/2``), ``a1 = √(3 φ) wc``,
-    ``a0 = φ wc^2`` with ``φ = (1 + √5) / 2``. Each rounded once to the nearest float.
+    ``a0 = φ wc^2`` with ``φ = (1 + √5) / 2``. Each computed in 40 digits and rounded once to
+    the nearest float (:func:`.exact.bessel_prototype`, kept on disk by :mod:`.discrete`).
     """
-    with mpmath.workdps(DIGITS):
-        wc = mpmath.mpf(cutoff_radps)
-        if norm == "delay":
-            k1, k0 = mpmath.mpf(3), mpmath.mpf(3)
-        elif norm == "phase":
-            k1, k0 = mpmath.sqrt(3), mpmath.mpf(1)
-        elif norm == "mag":
-            phi = (1 + mpmath.sqrt(5)) / 2
-            k1, k0 = mpmath.sqrt(3 * phi), phi
-        else:
-            raise ValueError(f"Bessel norm must be 'mag', 'phase' or 'delay', got {norm!r}")
-        return float(k1 * wc), float(k0 * wc * wc)
+    return bessel_prototype(cutoff_radps, norm)
 
 
 @lru_cache(maxsize=32)

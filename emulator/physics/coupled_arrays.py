@@ -4,10 +4,15 @@
 afresh for every run between two bus events cost several times the kernel itself, so
 :class:`CoupledArrays` allocates them once per robot: the wheels' and the body's constants are
 filled at construction, each servo's discretised plant and input coefficients only when the
-servo derived new ones (the same tuple object otherwise). The state is stored back into the
-models after each call, and copied in from a model only when Python code changed it since (a
-reboot, a Clear, a tick stepped from Python: :attr:`ServoModel.state_version`); the per-run
-inputs (goals' flags, loads, supply) go in every run, one flat assignment per array.
+servo derived new ones (the same tuple object otherwise). The servos' state stays in the arrays
+from one run to the next (:attr:`dirty`) and goes back into the models only when a reader asks:
+each model's state attributes call :meth:`CoupledArrays.store_back` when read or set
+(:attr:`ServoModel.holder`), so a lockstep cycle's three runs store it back once, for the
+present items of the read. After a reader, the next run copies a model's state in again only
+if Python code changed it (a reboot, a Clear, a tick stepped from Python:
+:attr:`ServoModel.state_version`), and the supply and loads from the models; the goals' flags go
+in every run, one flat assignment per array. The body's state goes back after every run (the
+true pose is published after each).
 """
 from __future__ import annotations
 
@@ -87,52 +92,79 @@ class CoupledArrays:
                                    a, a.itemsize * a.shape[1]) for a in (self.fs, self.ints))
         self._versions: list[int | None] = [None] * count   # each model's state_version the rows hold
         self._pack_input_row = None     # one servo's input coefficients into its row of ``inputs``
+        #: True while the arrays hold servo state newer than the models' (:meth:`store_back`).
+        self.dirty = False
+        self._last_plans: list = []     # the last run's plans, their goal positions then, and items, per servo
+        self._last_goals: list = []
+        self._raised = True             # the last run raised Hardware Error bits (the column needs clearing)
+        self._backlash_out: object = self     # the wheel angles the last run returned (none yet)
+        self._last_tables: list = []
+        self._blocked = [False] * count     # each motor's ``blocked`` at the last run the models were read for
+        for m in self.models:           # the models' held attributes ask these arrays first
+            if m.holder is not None:
+                m.holder.store_back()
+            m.holder = self
 
     def run(self, dt_s: float, n: int, runs: Mapping[ServoModel, tuple[Mapping[str, int], bool]],
             backlash: list[float] | None) -> tuple[int, list[float] | None]:
         """Up to ``n`` ticks of ``dt_s`` s of every servo and the body in one call of
-        :data:`.coupled.ROBOT_TICKS` (see :meth:`RobotPhysics.run_coupled`): the models' state in,
-        the kernel, the state back into the models and the body. ``runs[model]``: its raw input
-        items and whether they are those of its last run. ``backlash``: the wheel angles behind
-        the steering backlash (rad), ``None`` before the first step. Returns the ticks run and
-        the wheel angles behind the backlash after them (``backlash`` if there is none)."""
+        :data:`.coupled.ROBOT_TICKS` (see :meth:`RobotPhysics.run_coupled`): the models' state in
+        (unless these arrays hold it still), the kernel, the body's state back into the body and
+        the raised Hardware Error bits into the models; the servos' state stays here until a
+        reader asks (:meth:`store_back`). ``runs[model]``: its raw input items and whether they
+        are those of its last run. ``backlash``: the wheel angles behind the steering backlash
+        (rad), ``None`` before the first step. Returns the ticks run and the wheel angles behind
+        the backlash after them (``backlash`` if there is none)."""
         models = self.models
-        plans, plants, inputs, servo_i, servo_f = [], [], [], [], []
-        for m in models:
-            plan, plant, inp = m.begin_run(dt_s, *runs[m])
+        held = self.dirty               # nothing read or changed a model since the last run
+        plans, goals, plants, inputs, servo_i, servo_f, tables = [], [], [], [], [], [], []
+        last_plans, last_goals, blocked = self._last_plans, self._last_goals, self._blocked
+        for k, m in enumerate(models):
+            table, same = runs[m]
+            plan, plant, inp = m.begin_run(dt_s, table, same)
             plants.append(plant)
             inputs.append(inp)
             plans.append(plan)
-            motor = m.motor
-            servo_i += (plan.homing, motor.blocked, *m.run_flags(plan))
-            servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, motor.load_torque_nm)
+            goals.append(plan.goal_position)
+            tables.append(table)
+            if held:                    # the last run's plan is the model's (ServoModel.run_flags)
+                switched = plan.key != last_plans[k].key
+                servo_i += (plan.homing, blocked[k], switched, switched or plan.goal_position != last_goals[k])
+            else:
+                motor = m.motor
+                blocked[k] = motor.blocked
+                servo_i += (plan.homing, blocked[k], *m.run_flags(plan))
+                servo_f += (float(m.encoder_offset_pulse), m.supply_voltage_v, motor.load_torque_nm)
         self._load_coefficients(plants, inputs)
-        self._load_state()
         (pack_i, servo_i_array), (pack_f, servo_f_array) = self._packers[2:]
         pack_i(servo_i_array, 0, *servo_i)
-        pack_f(servo_f_array, 0, *servo_f)
-        self._versions = [None] * len(models)      # until the state is back in the models
-        self.out_i[:, 0] = 0
+        if not held:                    # else the state, supply and loads are those the last run left
+            self._load_state()
+            pack_f(servo_f_array, 0, *servo_f)
+        if self._raised:                # else the kernel left the bits column at 0
+            self.out_i[:, 0] = 0
         half = self.body_f[0]
-        if backlash is not None:
-            self.backlash[:] = backlash
-        self.flags[0] = backlash is not None
+        if backlash is not self._backlash_out:     # else the array and flag hold it
+            if backlash is not None:
+                self.backlash[:] = backlash
+            self.flags[0] = backlash is not None
         body = self.body
         if self.contact:
             self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, body.slip_energy_j)
             self.stats[:] = (body.saturated_steps, body.wheel_steps)
         else:
             self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, 0.0)
+        self.dirty = True               # from the kernel's first write on, the arrays hold the newest state
+        self._last_plans, self._last_goals, self._last_tables = plans, goals, tables
         ran = coupled.ROBOT_TICKS(n, dt_s, self.plants, self.inputs, self.servo_i, self.servo_f, self.fs, self.ints,
                                   self.out_i, self.v_meas, self.wheel_i, self.wheel_f, self.backlash, self.wheel_out,
                                   self.body_f, self.flags, self.pose, self.stats)
-        fs_l, ints_l, out_l, vm_l, sf_l = (a.tolist() for a in (self.fs, self.ints, self.out_i, self.v_meas,
-                                                                 self.servo_f))
-        for k, m in enumerate(models):
-            bits, present = out_l[k]
-            m.finish_run(runs[m][0], plans[k], bits, fs_l[k], ints_l[k], present, vm_l[k])
-            m.supply_voltage_v, m.motor.load_torque_nm = sf_l[k][1], sf_l[k][2]
-        self._versions = [m.state_version for m in models]
+        bits = self.out_i[:, 0].tolist()
+        self._raised = any(bits)
+        if self._raised:
+            for m, b in zip(models, bits):
+                if b:
+                    m.pending_hardware_error |= b
         x, y, theta, vx, vy, w, energy = self.pose.tolist()
         body.x_m, body.y_m, body.theta_rad, body._twist = x, y, theta, (vx, vy, w)
         speeds, angles, slip, fx, fy, flong = self.wheel_out.tolist()
@@ -142,7 +174,31 @@ class CoupledArrays:
             body._slip, body._fx, body._fy, body._flong = slip, fx, fy, flong
         else:
             body._fit = (tuple(speeds), tuple(angles), (vx, vy, w))
-        return ran, self.backlash.tolist() if half > 0.0 else backlash
+        self._backlash_out = self.backlash.tolist() if half > 0.0 else backlash
+        return ran, self._backlash_out
+
+    def store_back(self) -> None:
+        """Store the servos' state the last run left (state, supply and load, last Present
+        Position and measured velocity, the run's items and plan) into the models
+        (:meth:`ServoModel.finish_run`), if it is not there yet. Called by a model's held
+        attributes when read or set (:class:`~.servo_model.StateHolder`)."""
+        if not self.dirty:
+            return
+        self.dirty = False
+        fs_l, ints_l, out_l, vm_l, sf_l = (a.tolist() for a in (self.fs, self.ints, self.out_i, self.v_meas,
+                                                                 self.servo_f))
+        for k, (m, table, plan, goal) in enumerate(zip(self.models, self._last_tables, self._last_plans,
+                                                       self._last_goals)):
+            # (a plan's goal may have changed in place since: ServoModel.begin_run, _InputPlan.set_goals)
+            m.finish_run(table, (plan.key, goal, plan.mode, plan.torque, plan.sign), 0, fs_l[k], ints_l[k],
+                         out_l[k][1], vm_l[k])
+            d = m.__dict__
+            d["supply_voltage_v_"], d["motor_"].load_torque_nm = sf_l[k][1], sf_l[k][2]
+        self._versions = [m.state_version for m in self.models]
+
+    def bus_voltage_v(self) -> float:
+        """The supply voltage the servos saw at the last run's last tick, V."""
+        return float(self.servo_f[0, 1])
 
     def _load_state(self) -> None:
         """The state of every model whose :attr:`ServoModel.state_version` changed since its rows

@@ -29,6 +29,7 @@ import warnings
 from pathlib import Path
 from typing import Callable
 
+from swerve.core.user_cache import user_cache_dir
 from swerve.driver.control_table import MODELS_DIR, REFERENCE_MODEL
 
 #: The folder of this package: every kernel and helper lives here.
@@ -54,8 +55,7 @@ def _cache_dir(digest: str) -> Path:
     in_tree = PACKAGE_DIR / "__pycache__"
     if os.access(in_tree if in_tree.is_dir() else PACKAGE_DIR, os.W_OK):
         return in_tree / "numba" / name
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "swerve" / "numba" / name
+    return user_cache_dir() / "numba" / name
 
 
 #: The kernel cache folder of these sources (set as ``NUMBA_CACHE_DIR`` when numba is used).

@@ -214,5 +214,5 @@ class RobotPhysics:
                  float(sup.internal_resistance_ohm), sup.idle_current_a * len(models)), sup.enabled)
         ran, self._wheel_steer_rad = arrays.run(dt_s, n, runs, self._wheel_steer_rad)
         if self.cfg.supply.enabled:
-            self.bus_voltage_v = arrays.models[0].supply_voltage_v
+            self.bus_voltage_v = arrays.bus_voltage_v()
         return ran

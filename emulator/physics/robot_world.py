@@ -43,7 +43,7 @@ class RobotWorld:
         ``n`` times each servo's :meth:`VirtualServo.advance` then :meth:`step`. Runs up to the
         next watchdog trip or physics-raised Hardware Error. Returns the steps run (0: this world
         cannot, step tick by tick)."""
-        if n < 2:
+        if n < 1:
             return 0
         dynamics = [s.dynamics for s in servos]
         if dynamics != self._coupled_dynamics and not self._eligible(dynamics):

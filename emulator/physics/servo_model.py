@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import operator
-from typing import Mapping
+from typing import Mapping, Protocol
 
 import numpy as np
 
@@ -42,6 +42,42 @@ OUTPUT_KEYS = ("present_pwm", "present_current", "present_velocity", "present_po
                "present_temperature", "moving", "moving_status")
 
 
+class StateHolder(Protocol):
+    """What keeps a servo's newest state outside the model for a while (the compiled robot's
+    arrays, :class:`.coupled_arrays.CoupledArrays`): ``dirty`` while it holds state newer than
+    the model's, and ``store_back()`` puts it into the models (then it is not dirty)."""
+
+    dirty: bool
+
+    def store_back(self) -> None:
+        """Store the held state into the models."""
+
+
+class _Held:
+    """A part of :class:`ServoModel`'s state (see :attr:`ServoModel.holder`): reading or setting
+    it first stores back the newer state a holder keeps, so every reader sees the true state.
+    The value lives in the instance's ``__dict__`` under the name with a trailing ``_``."""
+
+    __slots__ = ("slot",)
+
+    def __set_name__(self, owner, name: str) -> None:
+        self.slot = f"{name}_"
+
+    def __get__(self, model, owner=None):
+        if model is None:
+            return self
+        holder = model.holder
+        if holder is not None and holder.dirty:
+            holder.store_back()
+        return model.__dict__[self.slot]
+
+    def __set__(self, model, value) -> None:
+        holder = model.holder
+        if holder is not None and holder.dirty:
+            holder.store_back()
+        model.__dict__[self.slot] = value
+
+
 class ServoModel:
     """Physics and firmware of one servo.
 
@@ -61,12 +97,40 @@ class ServoModel:
         Gearbox friction (output side); default none.
     protection : ProtectionParams, optional
         Firmware protection raised from the physics (:mod:`.protection`); default off.
+
+    Notes
+    -----
+    The state a run of ticks changes (the motor, filters, profile, loop, protection, temperature,
+    duty, supply and what the present items need) may be held for a while by a
+    :class:`StateHolder` (:attr:`holder`: the compiled robot's arrays keep it from one run to
+    the next): each of those attributes stores it back when read or set, so a reader always
+    sees the true state. Fetch them from the model when needed: an object kept from before a
+    run (``motor = model.motor``) is not brought up to date.
     """
+
+    motor = _Held()
+    velocity_filter = _Held()
+    reference_filter = _Held()
+    profile = _Held()
+    loop = _Held()
+    protection = _Held()
+    temperature_c = _Held()
+    duty = _Held()
+    supply_voltage_v = _Held()
+    _hold_position = _Held()
+    _goal_pulse = _Held()
+    _wrap_pulse = _Held()
+    _started = _Held()
+    _last = _Held()
+    _prev_key = _Held()
+    _prev_goal_position = _Held()
 
     def __init__(self, params: MotorParams, gear_ratio: float, supply_voltage_v: float,
                  firmware: FirmwareParams = FirmwareParams(), sensors: SensorParams = SensorParams(),
                  thermal: ThermalParams = ThermalParams(), rng: np.random.Generator | None = None,
                  friction: GearFrictionParams | None = None, protection: ProtectionParams | None = None):
+        #: The :class:`StateHolder` that may keep this model's newest state (``None``: the model holds it).
+        self.holder: StateHolder | None = None
         self.motor = GearedMotor(params, gear_ratio, friction)
         self.protection = Protection(protection) if protection is not None and protection.enabled else None
         self.pending_hardware_error = 0  # bits detected by the protection, not yet taken by the servo
@@ -283,7 +347,7 @@ class ServoModel:
             positions.extend(position_trace[:ran].tolist() if kernel is _COMPILED_TICKS else position_trace[:ran])
         floats = (*out[2:12], out[14], out[15], out[16], out[20], out[21], out[23], out[24])
         ints = (out[12], out[13], out[17], out[18], out[19], out[22], out[25])
-        self.finish_run(table, plan, out[1], floats, ints, out[26], out[27])
+        self.finish_run(table, plan.record(), out[1], floats, ints, out[26], out[27])
         return ran
 
     def begin_run(self, dt_s: float, table: Mapping[str, int], same_inputs: bool) -> tuple:
@@ -292,6 +356,7 @@ class ServoModel:
         (``plant``: ``[2]`` floats, ``[3]`` float64 array or None; ``inputs``: ``[1]`` floats)."""
         plan = self._plan
         inputs = self._inputs
+        motor = self.__dict__["motor_"]     # its constants and load inertia: no held state, no store-back
         if not same_inputs or plan is None or table is not self._plan_table:
             self._plan_table = table
             try:
@@ -302,12 +367,12 @@ class ServoModel:
                 plan.set_goals(table)   # only the goals changed: the rest of the plan and inputs stand
                 inputs = self._inputs = (plan, _with_goals(inputs[1], plan))
             else:
-                plan = self._plan = _InputPlan(table, self.motor.params.resistance_ohm, self._cached_gains)
+                plan = self._plan = _InputPlan(table, motor.params.resistance_ohm, self._cached_gains)
                 self._plan_base = base
         if inputs is None or inputs[0] is not plan:
             inputs = self._inputs = self._derive_inputs(plan)
         plant = self._plant
-        if plant is None or plant[0] != dt_s or plant[1] != self.motor.load_inertia_kg_m2:
+        if plant is None or plant[0] != dt_s or plant[1] != motor.load_inertia_kg_m2:
             plant = self._plant = self._derive_plant(dt_s)
         self._sign, self._homing = plan.sign, plan.homing
         return plan, plant, inputs
@@ -325,34 +390,48 @@ class ServoModel:
         temperature °C, duty, held goal, goal pulse, friction torque N·m, overload timer s) and
         :data:`.coupled.INTS` (profile ongoing and type, wrap pulse, started, holding, stuck,
         reported protection bits)."""
-        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
-        hold, protection = self._hold_position, self.protection
+        d = self.fresh_state()
+        motor, vf, rf, prof = d["motor_"], d["velocity_filter_"], d["reference_filter_"], d["profile_"]
+        hold, protection = d["_hold_position_"], d["protection_"]
         return ((motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position,
-                 prof.velocity, prof.acceleration, self.loop.integral, self.temperature_c, self.duty,
-                 0.0 if hold is None else hold, self._goal_pulse, motor.friction_torque_nm,
+                 prof.velocity, prof.acceleration, d["loop_"].integral, d["temperature_c_"], d["duty_"],
+                 0.0 if hold is None else hold, d["_goal_pulse_"], motor.friction_torque_nm,
                  0.0 if protection is None else protection.overload_timer_s),
-                (prof.ongoing, prof.profile_type, self._wrap_pulse, self._started, hold is not None, motor.stuck,
+                (prof.ongoing, prof.profile_type, d["_wrap_pulse_"], d["_started_"], hold is not None, motor.stuck,
                  0 if protection is None else protection.raised))
 
-    def finish_run(self, table: Mapping[str, int], plan: "_InputPlan", bits: int, floats, ints, present: int,
+    def fresh_state(self) -> dict:
+        """The model's attributes (``__dict__``, the held ones under their names with a trailing
+        ``_``) after the :attr:`holder`'s newer state, if any, was stored back: one check for a
+        method that reads many of them."""
+        holder = self.holder
+        if holder is not None and holder.dirty:
+            holder.store_back()
+        return self.__dict__
+
+    def finish_run(self, table: Mapping[str, int], record: tuple, bits: int, floats, ints, present: int,
                    v_meas: float) -> None:
-        """After a run of ticks under ``table`` and ``plan``: store the state :func:`servo_ticks`
+        """After a run of ticks under ``table`` and the plan whose :meth:`_InputPlan.record` is
+        ``record`` (taken when the run began): store the state :func:`servo_ticks`
         left (``floats``, ``ints``: as :meth:`kernel_state` orders them), the last Present
         Position (pulse) and measured velocity (velocity units), and note the Hardware Error
-        ``bits`` it raised."""
-        motor, vf, rf, prof = self.motor, self.velocity_filter, self.reference_filter, self.profile
+        ``bits`` it raised. The caller holds the newest state: no :attr:`holder` is dirty."""
+        d = self.__dict__
+        motor, vf, rf, prof, loop = d["motor_"], d["velocity_filter_"], d["reference_filter_"], d["profile_"], d["loop_"]
         (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position, prof.velocity,
-         prof.acceleration, self.loop.integral, self.temperature_c, self.duty, hold, self._goal_pulse,
+         prof.acceleration, loop.integral, d["temperature_c_"], d["duty_"], hold, d["_goal_pulse_"],
          motor.friction_torque_nm, overload_s) = floats
-        ongoing, prof.profile_type, self._wrap_pulse, started, holding, stuck, raised = ints
-        prof.ongoing, self._started, motor.stuck = bool(ongoing), bool(started), bool(stuck)
-        if self.protection is not None:
-            self.protection.overload_timer_s, self.protection.raised = overload_s, raised
+        ongoing, prof.profile_type, d["_wrap_pulse_"], started, holding, stuck, raised = ints
+        prof.ongoing, d["_started_"], motor.stuck = bool(ongoing), bool(started), bool(stuck)
+        protection = d["protection_"]
+        if protection is not None:
+            protection.overload_timer_s, protection.raised = overload_s, raised
         if bits:
             self.pending_hardware_error |= bits
-        self._hold_position = hold if holding else None
-        self._prev_key, self._prev_goal_position = plan.key, plan.goal_position
-        self._last = (table, plan.mode, plan.torque, present, v_meas, plan.sign)
+        d["_hold_position_"] = hold if holding else None
+        key, goal_position, mode, torque, sign = record
+        d["_prev_key_"], d["_prev_goal_position_"] = key, goal_position
+        d["_last_"] = (table, mode, torque, present, v_meas, sign)
         self.state_version += 1
 
     def _input_row(self, inputs: tuple) -> np.ndarray:
@@ -414,21 +493,22 @@ class ServoModel:
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
         current and voltage is drawn per call. Before the first step: the servo at rest."""
-        last = self._last
+        d = self.fresh_state()
+        last = d["_last_"]
         if last is None:
             return {"present_position": math.floor(self.position_pulse),
                     "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
                     "present_temperature": round(self.temperature_c)}
         t, mode, torque, present, v_meas, sign = last
         s = self.sensors
-        current = sign * self.motor.current_a
-        volts = self.supply_voltage_v
+        current = sign * d["motor_"].current_a
+        volts = d["supply_voltage_v_"]
         if s.current_noise_std_a:
             current += self.rng.normal(0.0, s.current_noise_std_a)
         if s.voltage_noise_std_v:
             volts += self.rng.normal(0.0, s.voltage_noise_std_v)
         vel = round(v_meas)
-        profile = self.profile
+        profile = d["profile_"]
         position_mode = mode in _POSITION_MODES
         if position_mode:
             v_traj = profile.velocity / PULSE_PER_S_PER_VEL_UNIT
@@ -441,21 +521,21 @@ class ServoModel:
             status = _profile_bits(profile.profile_type)
             if ongoing:
                 status |= _PROFILE_ONGOING
-            elif abs(self._goal_pulse - present) <= self.fw.in_position_window_pulse:
+            elif abs(d["_goal_pulse_"] - present) <= self.fw.in_position_window_pulse:
                 status |= _IN_POSITION
             if abs(profile.position - present) > self.fw.following_error_pulse:
                 status |= _FOLLOWING_ERROR
         elif ongoing:
             status = _PROFILE_ONGOING
         return {
-            "present_pwm": round(self.duty * _PWM_FULL_SCALE) if torque else 0,
+            "present_pwm": round(d["duty_"] * _PWM_FULL_SCALE) if torque else 0,
             "present_current": round(current / _AMP_PER_CURRENT_UNIT),
             "present_velocity": vel,
             "present_position": present,
             "velocity_trajectory": round(v_traj),
             "position_trajectory": round(p_traj),
             "present_input_voltage": round(volts / _VOLT_PER_UNIT),
-            "present_temperature": round(self.temperature_c),
+            "present_temperature": round(d["temperature_c_"]),
             "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
             "moving_status": status,
         }
@@ -521,6 +601,11 @@ class _InputPlan:
             if mode == u.MODE_CURRENT_POSITION:
                 self.position_current_limit = float(min(abs(t["goal_current"]), t["current_limit"]))
         self.set_goals(t)
+
+    def record(self) -> tuple:
+        """``(key, goal_position, mode, torque, sign)`` as they are now (:meth:`set_goals` changes
+        the goal in place): what :meth:`ServoModel.finish_run` keeps of a run's plan."""
+        return self.key, self.goal_position, self.mode, self.torque, self.sign
 
     def set_goals(self, t: Mapping[str, int]) -> None:
         """Goal Position and Goal Velocity from the items ``t`` (limited as the mode does); the
