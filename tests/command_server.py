@@ -13,7 +13,9 @@ What the fork does not repeat is the start-up itself: the server's imports are c
 print nothing (:attr:`CommandServer.import_output`), since a fresh command would print the same
 on every run. The server's working directory and environment are the children's.
 
-Protocol (one JSON object a line): the client sends ``{"argv": [...], "out": PREFIX}``; the
+Protocol (one JSON object a line): the client sends ``{"argv": [...], "out": PREFIX, "cwd": DIR,
+"env": {NAME: VALUE}}`` (``cwd`` and ``env``: the command's working directory and the variables
+it sets on the server's environment, read by the command when it runs, not when it imports); the
 server answers ``{"pid": N}`` once the child is forked, then ``{"status": S}`` when it ended
 (``S`` as :attr:`subprocess.CompletedProcess.returncode`: negative for a signal).
 """
@@ -70,12 +72,15 @@ class CommandServer:
             raise RuntimeError(f"the command server ended (status {self._proc.wait()})")
         return json.loads(line)
 
-    def run(self, argv: list[str], timeout_s: float) -> Finished:
-        """Run ``swerve *argv`` in a forked child; kill it and raise :class:`TimeoutError` after
+    def run(self, argv: list[str], timeout_s: float, cwd: Path | None = None,
+            env: dict[str, str] | None = None) -> Finished:
+        """Run ``swerve *argv`` in a forked child, in ``cwd`` (default: the server's) with ``env``
+        set on the server's environment; kill it and raise :class:`TimeoutError` after
         ``timeout_s`` (a hang guard)."""
         self._count += 1
         prefix = self.scratch / f"cmd{self._count}"
-        self._proc.stdin.write(json.dumps({"argv": argv, "out": str(prefix)}) + "\n")
+        request = {"argv": argv, "out": str(prefix), "cwd": None if cwd is None else str(cwd), "env": env or {}}
+        self._proc.stdin.write(json.dumps(request) + "\n")
         self._proc.stdin.flush()
         pid = self._reply(timeout_s=60.0)["pid"]
         try:
@@ -109,9 +114,13 @@ def _exit_status(code) -> int:
     return 1
 
 
-def _child(cli, argv: list[str], prefix: str) -> None:
-    """In the forked child: the standard streams redirected, ``swerve *argv`` run by ``cli``
-    (:mod:`swerve.tools.cli`), then exit."""
+def _child(cli, request: dict) -> None:
+    """In the forked child: the working directory, environment and standard streams of
+    ``request``, its ``swerve *argv`` run by ``cli`` (:mod:`swerve.tools.cli`), then exit."""
+    argv, prefix = request["argv"], request["out"]
+    if request["cwd"] is not None:
+        os.chdir(request["cwd"])
+    os.environ.update(request["env"])
     null = os.open(os.devnull, os.O_RDONLY)
     os.dup2(null, 0)
     for fd, suffix in ((1, ".out"), (2, ".err")):
@@ -161,7 +170,7 @@ def _serve() -> None:
         if pid == 0:
             proto_in.close()
             proto_out.close()
-            _child(cli, request["argv"], request["out"])
+            _child(cli, request)
         proto_out.write(json.dumps({"pid": pid}) + "\n")
         _, wait_status = os.waitpid(pid, 0)
         proto_out.write(json.dumps({"status": os.waitstatus_to_exitcode(wait_status)}) + "\n")
