@@ -1,6 +1,8 @@
 """Bad input to every ``swerve`` command: one line of error, a non-zero exit, nothing half-written.
 
-Each case runs the real ``swerve`` command in a subprocess and asserts:
+Each case runs the real ``swerve`` command (the console script's function) in a child process
+forked from one interpreter that has imported swerve once (:mod:`tests.command_server`; a few
+cases also run in a fresh interpreter and must end the same, byte for byte), and asserts:
 
 - a non-zero exit status that is not the "bug" status (70);
 - exactly one line on stderr, with no ``Traceback`` and no "internal error";
@@ -27,10 +29,11 @@ import pytest
 
 from swerve.configs import shipped
 
+from .command_server import CommandServer
 from .tools.logs import synthetic
 
 
-pytestmark = pytest.mark.slow      # about 130 subprocesses of a second or two each
+pytestmark = pytest.mark.slow      # about 140 commands, most refused within a few ms of their start
 
 #: Hang guard for one command, s (a healthy case takes about one second).
 HANG_GUARD_S = 180
@@ -263,14 +266,46 @@ def _leftovers(folder: Path) -> list[str]:
     return sorted(str(p.relative_to(folder)) for p in folder.rglob("*.tmp"))
 
 
-@pytest.mark.parametrize("argv,output", [pytest.param(a, o, id=i) for i, a, o in CASES])
-def test_bad_input_is_one_line_and_a_non_zero_exit(argv, output, work):
-    args = [a.replace("{W}", str(work)) for a in argv]
-    before = _leftovers(work)
+def _environment(work: Path) -> dict[str, str]:
     env = dict(os.environ, XDG_STATE_HOME=str(work / "state"), XDG_CONFIG_HOME=str(work / "xdg"))
     env.pop("SWERVE_CONFIG", None)
-    out = subprocess.run([sys.executable, "-m", "swerve.tools.cli", *args], capture_output=True, text=True,
-                         timeout=HANG_GUARD_S, cwd=work, env=env, stdin=subprocess.DEVNULL)
+    return env
+
+
+@pytest.fixture(scope="module")
+def server(work, tmp_path_factory):
+    """The command server of this module's cases: in the work folder, with their environment."""
+    with CommandServer(work, _environment(work), tmp_path_factory.mktemp("streams")) as srv:
+        yield srv
+
+
+def _args(argv: list[str], work: Path) -> list[str]:
+    return [a.replace("{W}", str(work)) for a in argv]
+
+
+def test_importing_every_command_prints_nothing(server):
+    """What a forked command does not repeat, checked once: a fresh command's imports are silent."""
+    assert server.import_output == ""
+
+
+#: Cases that also run in a fresh interpreter: a bad option, a bad value the work refuses, a file
+#: it cannot write (OSError), the command line itself.
+FRESH = ("emulate-time-scale-nan", "emulate-faults-vanish-absent", "synth-out-read-only-fs", "no-command")
+
+
+@pytest.mark.parametrize("argv", [pytest.param(a, id=i) for i, a, _ in CASES if i in FRESH])
+def test_a_forked_command_ends_as_a_fresh_one(argv, work, server):
+    args = _args(argv, work)
+    fresh = subprocess.run([sys.executable, "-m", "swerve.tools.cli", *args], capture_output=True, text=True,
+                           timeout=HANG_GUARD_S, cwd=work, env=_environment(work), stdin=subprocess.DEVNULL)
+    forked = server.run(args, HANG_GUARD_S)
+    assert (forked.returncode, forked.stdout, forked.stderr) == (fresh.returncode, fresh.stdout, fresh.stderr)
+
+
+@pytest.mark.parametrize("argv,output", [pytest.param(a, o, id=i) for i, a, o in CASES])
+def test_bad_input_is_one_line_and_a_non_zero_exit(argv, output, work, server):
+    before = _leftovers(work)
+    out = server.run(_args(argv, work), HANG_GUARD_S)
     lines = out.stderr.strip().splitlines()
     assert out.returncode not in (0, EXIT_BUG), out.stderr
     assert len(lines) == 1, out.stderr

@@ -10,7 +10,8 @@
   new file or folder behind (a run log keeps the cycles that reached the disk, by design).
 
 The read-only mount and the full disk are real tmpfs mounts (the tests run as root); without
-the right to mount, those cases are skipped.
+the right to mount, those cases are skipped. The commands run forked from one interpreter that
+has imported swerve once (:mod:`tests.command_server`).
 """
 from __future__ import annotations
 
@@ -18,13 +19,13 @@ import os
 import shutil
 import stat
 import subprocess
-import sys
 from pathlib import Path
 
 import pytest
 
 from swerve.configs import shipped
 
+from .command_server import CommandServer, Finished
 from .tools.logs import synthetic
 
 
@@ -34,11 +35,21 @@ HANG_GUARD_S = 300
 ROBOT = Path(shipped("robot.yaml"))
 
 
-def _swerve(args: list[str], cwd: Path) -> subprocess.CompletedProcess:
-    env = dict(os.environ, XDG_STATE_HOME=str(cwd / ".state"))
+@pytest.fixture(scope="module")
+def server(tmp_path_factory):
+    """The command server of this module's commands (without ``$SWERVE_CONFIG``)."""
+    env = dict(os.environ)
     env.pop("SWERVE_CONFIG", None)
-    return subprocess.run([sys.executable, "-m", "swerve.tools.cli", *map(str, args)], capture_output=True,
-                          text=True, timeout=HANG_GUARD_S, cwd=cwd, env=env, stdin=subprocess.DEVNULL)
+    with CommandServer(tmp_path_factory.mktemp("server"), env, tmp_path_factory.mktemp("streams")) as srv:
+        yield srv
+
+
+@pytest.fixture
+def swerve(server):
+    """``swerve(args, cwd)``: the command run in ``cwd``, its crash files in ``cwd/.state``."""
+    def run(args: list[str], cwd: Path) -> Finished:
+        return server.run(list(map(str, args)), HANG_GUARD_S, cwd=cwd, env={"XDG_STATE_HOME": str(cwd / ".state")})
+    return run
 
 
 @pytest.fixture(scope="module")
@@ -139,13 +150,13 @@ def _existing_output(name: str, folder: Path, mode: int) -> Path:
 
 
 @pytest.mark.parametrize("name", SYMLINKED)
-def test_a_symlinked_output_is_written_through(name, tmp_path, log_dir):
+def test_a_symlinked_output_is_written_through(name, tmp_path, log_dir, swerve):
     target_name = COMMANDS[name][2]
     real = _existing_output(name, tmp_path / "real", 0o640)
     before = real.read_bytes()
     link = tmp_path / f"link-{target_name}"
     link.symlink_to(real)
-    proc = _swerve(_argv(name, link, log_dir, tmp_path / "side"), tmp_path)
+    proc = swerve(_argv(name, link, log_dir, tmp_path / "side"), tmp_path)
     assert proc.returncode == 0, proc.stderr
     assert link.is_symlink() and os.readlink(link) == str(real)
     assert real.read_bytes() != before
@@ -154,22 +165,23 @@ def test_a_symlinked_output_is_written_through(name, tmp_path, log_dir):
 
 
 @pytest.mark.parametrize("name", [n for n, c in COMMANDS.items() if c[1] in ("file", "robot")])
-def test_a_read_only_output_file_is_refused(name, tmp_path, log_dir):
+def test_a_read_only_output_file_is_refused(name, tmp_path, log_dir, swerve):
     out = _existing_output(name, tmp_path / "out", 0o444)
     before = _tree(out.parent)
-    proc = _swerve(_argv(name, out, log_dir, tmp_path / "side"), tmp_path)
+    proc = swerve(_argv(name, out, log_dir, tmp_path / "side"), tmp_path)
     _one_line(proc, str(out), "read-only")
     assert _tree(out.parent) == before
 
 
 @pytest.mark.parametrize("kind", ["ro", "full"])
 @pytest.mark.parametrize("name", sorted(COMMANDS))
-def test_a_read_only_mount_or_full_disk_is_one_line_and_leaves_nothing(name, kind, mount, tmp_path, log_dir):
+def test_a_read_only_mount_or_full_disk_is_one_line_and_leaves_nothing(name, kind, mount, tmp_path, log_dir,
+                                                                          swerve):
     what, target_name = COMMANDS[name][1:]
     point = mount(kind, _setup(what, target_name))
     out = point / target_name
     before = _tree(point)
-    proc = _swerve(_argv(name, out, log_dir, tmp_path / "side"), tmp_path)
+    proc = swerve(_argv(name, out, log_dir, tmp_path / "side"), tmp_path)
     reason = "Read-only file system" if kind == "ro" else "No space left on device"
     line = _one_line(proc, reason)
     assert str(out) in line or str(point) in line, line

@@ -100,7 +100,14 @@ EMULATING_OPTION: dict[str, str] = {"run": "--emulate"}
 #: Commands whose work is a module apart from their options: its ``run(args)`` is imported once
 #: the command line has parsed, so a bad option is refused before the work's imports (the
 #: others' ``run`` is in their command module).
-WORK_MODULES: dict[str, str] = {"tune": "swerve.tools.tune.command"}
+WORK_MODULES: dict[str, str] = {
+    "emulate": "swerve.tools.emulate_command",
+    "doctor": "swerve.tools.doctor.command",
+    "calibrate": "swerve.tools.calibrate_command",
+    "campaign": "swerve.tools.campaign.command",
+    "tune": "swerve.tools.tune.command",
+    "plot": "swerve.tools.plot_command",
+}
 
 
 def starts_emulator(argv: list[str]) -> bool:

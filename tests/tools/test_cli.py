@@ -2,6 +2,8 @@
 import subprocess
 import sys
 
+import pytest
+
 from swerve.tools import cli
 
 
@@ -144,14 +146,30 @@ def test_only_a_command_line_that_emulates_starts_an_emulator_child_ahead():
     assert not cli.starts_emulator([])
 
 
-def test_a_bad_tune_option_is_refused_before_the_work_is_imported():
+#: A bad option of each command whose work is a module apart (:data:`cli.WORK_MODULES`).
+BAD_OPTION = {
+    "emulate": ["emulate", "--time-scale", "nan"],
+    "doctor": ["doctor", "--emulate", "--cycles", "0"],
+    "calibrate": ["calibrate", "--emulate", "--speed", "0"],
+    "campaign": ["campaign", "run", "smoke", "--out", "x", "--workers", "0"],
+    "tune": ["tune", "--emulate", "--seed", "-3"],
+    "plot": ["plot", "LOG"],
+}
+
+
+def test_every_work_module_has_a_bad_option_case():
+    assert set(BAD_OPTION) == set(cli.WORK_MODULES)
+
+
+@pytest.mark.parametrize("name", sorted(BAD_OPTION))
+def test_a_bad_option_is_refused_before_the_work_is_imported(name):
     code = ("from swerve.tools import cli\n"
-            "try:\n    cli.main(['tune', '--emulate', '--seed', '-3'])\n"
+            f"try:\n    cli.main({BAD_OPTION[name]!r})\n"
             "except SystemExit as exc:\n    assert exc.code == 2, exc.code\n"
             "else:\n    raise AssertionError('no exit')")
     loaded = _modules_after(code)
-    assert "swerve.tools.commands.tune" in loaded
-    assert "swerve.tools.tune.command" not in loaded
+    assert cli.command_module(name).__name__ in loaded
+    assert cli.WORK_MODULES[name] not in loaded
     assert not {m.split(".")[0] for m in loaded} & {"scipy", "numba", "matplotlib"}
 
 

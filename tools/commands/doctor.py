@@ -5,21 +5,16 @@ every command). Settings ``swerve run`` writes itself before it moves (operating
 Delay Time) pass, with what run will set. With ``--emulate`` the bus is an emulated robot started
 here (register-only), its replies paced as on the cable and through its USB adapter, whose
 latency timer is checked as a ttyUSB's is on the robot.
+
+This module holds the options; the work is :mod:`swerve.tools.doctor.command`, imported only
+once the command line is valid.
 """
 from __future__ import annotations
 
 import argparse
-import contextlib
-import json
 
-from swerve.configs import locate_robot_file
-from swerve.driver.errors import ConfigError
-from swerve.driver.robot_config import load_robot_config
-from swerve.emulator.factory import build_emulator
-from swerve.emulator.server import LinkSettings
 from swerve.tools.argtypes import finite_float, int_range
 from swerve.tools.cli import add_adapter_option, add_bus_options
-from swerve.tools.doctor import EmulatedLatencyTimer, diagnose
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -33,32 +28,3 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="slack on every reply deadline (default 2 ms; 50 ms with --emulate)")
     add_adapter_option(parser)
     parser.add_argument("--json", action="store_true", help="print the report as JSON")
-
-
-def run(args: argparse.Namespace) -> int:
-    if args.adapter_latency_ms is not None and not args.emulate:
-        raise ConfigError("--adapter-latency-ms needs --emulate (on the robot, doctor reads the adapter's own)")
-    cfg = load_robot_config(locate_robot_file(args.config).path)
-    margin_ms = args.timeout_margin_ms if args.timeout_margin_ms is not None else (50.0 if args.emulate else 2.0)
-    latency = None
-    with contextlib.ExitStack() as stack:
-        if args.emulate:
-            emu = stack.enter_context(build_emulator(cfg, link=LinkSettings(wire_timing=True),  # register-only
-                                                     adapter_latency_ms=args.adapter_latency_ms))
-            port = emu.port
-            latency = EmulatedLatencyTimer(emu.adapter)
-            if args.timeout_margin_ms is None and emu.adapter is not None:
-                # a ttyUSB's deadlines count the latency timer twice (driver.transport); a pty has none
-                margin_ms += 2 * emu.adapter.latency_ms
-        else:
-            port = args.port or cfg.link.port
-        report = diagnose(cfg, port, fix=args.fix, margin_s=margin_ms * 1e-3, cycles=args.cycles, latency=latency)
-    if args.json:
-        print(json.dumps(report.as_dict(), indent=2))
-    else:
-        for c in report.checks:
-            print(c.line())
-        for f in report.fixed:
-            print(f"fixed: {f}")
-        print(report.verdict())
-    return report.exit_code

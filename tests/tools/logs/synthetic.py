@@ -5,6 +5,7 @@ Also runnable as ``python synthetic.py BAG N_CYCLES FLUSH_EVERY``: writes N cycl
 """
 from __future__ import annotations
 
+import signal
 import sys
 import time
 
@@ -55,6 +56,9 @@ def write(path, recs, flush_every: int = 1) -> None:
 
 if __name__ == "__main__":
     bag, n, flush = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    # Ctrl-C as in a terminal, whatever the starting process left ignored: a pytest-xdist worker
+    # was seen with SIGINT ignored (SigIgn in /proc), which Python keeps for its children
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     with RunLogWriter(bag, META, flush_every=flush) as w:
         for r in iter_records(n):
             w.write(r)
