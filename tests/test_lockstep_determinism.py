@@ -79,12 +79,13 @@ MACHINES = {
 
 @pytest.mark.parametrize("profile", ["ideal", "realistic"])
 def test_lockstep_csv_is_the_same_on_other_cpus(tmp_path, profile, other_cpu, short_line):
-    """The gains are synthesised, the body fitted and the motors discretised in each run, so any
-    BLAS- or SIMD-dependent step on the way would change the export."""
+    """The gains are synthesised, the body fitted and the motors discretised in each run (each
+    "machine" with an empty cache folder, so no Riccati solution or ZOH matrix comes from another's
+    run), so any BLAS- or SIMD-dependent step on the way would change the export."""
     csv = {}
     for name, env in MACHINES.items():
         log = tmp_path / name
-        other_cpu(env, "-m", "swerve.tools.cli", "run", "--trajectory", str(short_line), "--emulate", "--lockstep",
+        other_cpu({**env, "XDG_CACHE_HOME": str(tmp_path / f"cache-{name}")}, "-m", "swerve.tools.cli", "run", "--trajectory", str(short_line), "--emulate", "--lockstep",
                   "--emulator-config", profile, "--log", str(log))
         csv[name] = export_csv(read_log(log), tmp_path / f"{name}.csv").read_bytes()
     assert len(csv["nehalem"].splitlines()) == SHORT_CYCLES + 1
