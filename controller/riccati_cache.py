@@ -36,12 +36,6 @@ log = logging.getLogger(__name__)
 LAYOUT = b"swerve riccati cache 1"
 
 
-def user_cache_dir() -> Path:
-    """``$XDG_CACHE_HOME/swerve`` (``~/.cache/swerve`` by default)."""
-    base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
-    return Path(base) / "swerve"
-
-
 def _code_digest() -> bytes:
     """SHA-256 of the source of the recursion and of the arithmetic it runs on."""
     digest = hashlib.sha256(LAYOUT)

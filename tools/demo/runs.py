@@ -12,7 +12,8 @@ from pathlib import Path
 
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import save_gains
-from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
+from swerve.controller.riccati_cache import RiccatiCache
+from swerve.core.user_cache import user_cache_dir
 from swerve.controller.simulate import metrics, simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory

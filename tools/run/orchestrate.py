@@ -20,7 +20,8 @@ from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import load_gains
 from swerve.controller.reference import build_reference
 from swerve.controller.riccati import finite_horizon_lqr
-from swerve.controller.riccati_cache import RiccatiCache, user_cache_dir
+from swerve.controller.riccati_cache import RiccatiCache
+from swerve.core.user_cache import user_cache_dir
 from swerve.controller.simulate import simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
