@@ -17,8 +17,8 @@ per cycle; the profile is ``DIR/callgrind.out.<pid>`` (``callgrind_annotate`` re
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-import multiprocessing
 import os
 import shutil
 import subprocess
@@ -26,6 +26,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 STEP_S = 1e-3
 PERIOD_S = 0.016
@@ -131,12 +132,16 @@ def main() -> None:
                            f"--callgrind-out-file={out_dir}/callgrind.out.%p {sys.executable} \"$@\"\n")
         wrapper.chmod(0o755)
         os.environ["SWERVE_NO_JIT"] = "1"
-        multiprocessing.set_executable(str(wrapper))
 
     robot = locate_robot_file(None).path
     cfg = load_robot_config(robot)
-    with EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), timing=Lockstep(),
-                         noise="seed=1", rate_hz=1 / STEP_S) as emu, \
+    emu = EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), timing=Lockstep(),
+                          noise="seed=1", rate_hz=1 / STEP_S)
+    # the child is a fresh interpreter started as ``sys.executable`` (emulator/process.py):
+    # under callgrind, the wrapper that runs it under valgrind
+    with mock.patch.object(sys, "executable", str(wrapper)) if args.callgrind else contextlib.nullcontext():
+        emu.launch()
+    with emu, \
             LockstepLoopClock(emu.control_path) as clock, Bus(emu.port, cfg.link.baud, retries=0,
                                                           default_model=cfg.model,
                                                           timeout_margin_s=5.0) as bus:
