@@ -12,7 +12,7 @@ Run: ``.venv/bin/python bench/bench_emu_serve.py [--cycles 2000] [--emulator-con
 during the cycles, ``SWERVE_NO_JIT=1`` so no compiler runs under it) and print its instructions
 per cycle; the profile is ``DIR/callgrind.out.<pid>`` (``callgrind_annotate`` reads it).
 ``--exclude step_many`` leaves the physics out of the count (any ``Emulator`` methods by name, or
-``<Class>.<name>`` of ``ControlServer``, ``VirtualServo``, ``ServoMemory``, ``PacketParser``).
+``<Class>.<name>`` of ``ControlServer``, ``VirtualServo``, ``ServoMemory``, ``PacketParser``, ``ReplyPacer``).
 """
 from __future__ import annotations
 
@@ -53,10 +53,11 @@ import ctypes, functools
 from swerve.driver.parser import PacketParser
 from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.memory import ServoMemory
+from swerve.emulator.reply_pacing import ReplyPacer
 from swerve.emulator.server import Emulator
 from swerve.emulator.servo import VirtualServo
 _classes = dict(PacketParser=PacketParser, ControlServer=ControlServer, ServoMemory=ServoMemory,
-                VirtualServo=VirtualServo)
+                VirtualServo=VirtualServo, ReplyPacer=ReplyPacer)
 _toggle = ctypes.CDLL({lib!r}).toggle_collect
 _depth = [0]
 def _excluded(method):
@@ -82,7 +83,7 @@ for _name in {names!r}:
 def _build_exclusions(hook: Path, names: list[str]) -> None:
     """A ``sitecustomize`` in ``hook`` that stops callgrind collecting inside the
     methods ``names`` (of :class:`Emulator`, or ``<Class>.<name>`` of ``ControlServer``,
-    ``VirtualServo``, ``ServoMemory``, ``PacketParser``), by client requests
+    ``VirtualServo``, ``ServoMemory``, ``PacketParser``, ``ReplyPacer``), by client requests
     from a small C library built here."""
     if not names:
         return

@@ -271,6 +271,21 @@ class ServoMemory:
                 out[a - address] = self._bytes[self._target(slot)]
         return bytes(out)
 
+    def plain_range(self, address: int, length: int) -> bool:
+        """True if a bus read of ``length`` bytes at ``address`` is a copy of the stored bytes:
+        at least one byte, inside the table, no Indirect Data byte (:meth:`read_plain` then
+        returns what :meth:`read` would)."""
+        end = address + length
+        return 0 < length and 0 <= address and end <= self.size and (end <= self._special_lo
+                                                                      or address > self._special_hi)
+
+    def read_plain(self, address: int, end: int) -> bytes:
+        """:meth:`read` of bytes ``address .. end-1`` for a range :meth:`plain_range` accepted:
+        the published items brought up to date, then the stored bytes."""
+        if self.stale:
+            self.publish()
+        return self._bytes[address:end]
+
     def _target(self, slot: _Slot) -> int:
         return int.from_bytes(self._bytes[slot.address:slot.address + 2], "little")
 
