@@ -203,7 +203,9 @@ class InstructionPacket:
         if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
             raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
         body = unstuff(body)
-        return cls(id_, body[0], body[1:])
+        pkt = _new(cls)                 # the fields are checked: an ID above, a non-status byte, bytes
+        pkt.__dict__.update(id=id_, instruction=body[0], params=body[1:])
+        return pkt
 
     @property
     def name(self) -> str:

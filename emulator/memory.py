@@ -79,6 +79,8 @@ def _item_rules(reg: Register, read: Callable) -> _ItemWrite:
                       reg.allowed, reg.limit is not None or reg.limit_min is not None or reg.limit_max is not None)
 
 
+#: A write layout not worked out yet (:meth:`ServoMemory._write_layout`).
+_UNSEEN = object()
 #: Most write layouts a memory keeps (:meth:`ServoMemory._write_layout`; a client writes a few).
 _MAX_WRITE_LAYOUTS = 256
 
@@ -300,8 +302,15 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
         if address < 0 or address + n > self.size:
             raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{n} outside the table")
-        key = (address, n)
-        layout = self._write_layouts[key] if key in self._write_layouts else self._write_layout(address, n)
+        layout = self._write_layouts.get((address, n), _UNSEEN)
+        if layout is _UNSEEN:
+            layout = self._write_layout(address, n)
+        if layout is not None and len(layout) == 1:     # one whole plain item (a goal): as below
+            item = layout[0]
+            value = item.read(data, 0)[0]
+            self._check_item(item, value, {item.name: value})
+            self._bytes[address:address + n] = data
+            return [item.name]
         if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and
             whole = {item.name: item.read(data, item.offset)[0] for item in layout}   # the data is the
             for item in layout:                                  # items' encoding (step 4 copies it)
@@ -413,7 +422,8 @@ class ServoMemory:
         if reg.limit is not None:
             if reg.name == _PROFILE_VELOCITY and self.get(_DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
                 return  # time-based profile: Profile Velocity is a time, not capped by Velocity Limit
-            cap = self._limit_value(reg.limit, pending)
+            limit = reg.limit
+            cap = pending[limit] if limit in pending else self.get(limit)
             if abs(value) > cap:
                 raise WriteRejected(self.limit_error, f"|{reg.name}| = {abs(value)} above {reg.limit} {cap}")
         if reg.limit_min is not None or reg.limit_max is not None:
