@@ -511,6 +511,7 @@ def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
 
 
 def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
+    params = bytes(params)              # its slices are then bytes (no copy if it is bytes)
     out, pos, n = [], 0, len(params)
     head = _ID_ADDRESS_LENGTH.unpack_from
     while pos < n:
@@ -520,6 +521,6 @@ def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
         end = pos + 5 + length
         if end > n:
             raise CorruptPacketError(f"bulk write entry for ID {id_} is truncated")
-        out.append((id_, address, bytes(params[pos + 5:end])))
+        out.append((id_, address, params[pos + 5:end]))
         pos = end
     return out

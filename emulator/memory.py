@@ -414,10 +414,6 @@ class ServoMemory:
             self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
         return list(new_values)
 
-    def _limit_value(self, name: str, pending: dict[str, int]) -> int:
-        value = pending.get(name)
-        return self.get(name) if value is None else value
-
     def _check_limits(self, reg: Register, value: int, pending: dict[str, int]) -> None:
         if reg.limit is not None:
             if reg.name == _PROFILE_VELOCITY and self.get(_DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
@@ -429,8 +425,9 @@ class ServoMemory:
         if reg.limit_min is not None or reg.limit_max is not None:
             if reg.name == _GOAL_POSITION and self.get(_OPERATING_MODE) != POSITION_MODE:
                 return  # position limits apply only in Position Control Mode (3)
-            lo = self._limit_value(reg.limit_min, pending) if reg.limit_min else None
-            hi = self._limit_value(reg.limit_max, pending) if reg.limit_max else None
+            lo, hi = reg.limit_min, reg.limit_max
+            lo = (pending[lo] if lo in pending else self.get(lo)) if lo else None
+            hi = (pending[hi] if hi in pending else self.get(hi)) if hi else None
             if (lo is not None and value < lo) or (hi is not None and value > hi):
                 raise WriteRejected(self.limit_error, f"{reg.name} = {value} outside [{lo}, {hi}]")
 
