@@ -281,9 +281,9 @@ class ServoMemory:
         return 0 < length and 0 <= address and end <= self.size and (end <= self._special_lo
                                                                       or address > self._special_hi)
 
-    def read_plain(self, address: int, end: int) -> bytes:
+    def read_plain(self, address: int, end: int) -> bytearray:
         """:meth:`read` of bytes ``address .. end-1`` for a range :meth:`plain_range` accepted:
-        the published items brought up to date, then the stored bytes."""
+        the published items brought up to date, then a copy of the stored bytes."""
         if self.stale:
             self.publish()
         return self._bytes[address:end]
