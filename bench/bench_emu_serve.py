@@ -12,13 +12,13 @@ Run: ``.venv/bin/python bench/bench_emu_serve.py [--cycles 2000] [--emulator-con
 during the cycles, ``SWERVE_NO_JIT=1`` so no compiler runs under it) and print its instructions
 per cycle; the profile is ``DIR/callgrind.out.<pid>`` (``callgrind_annotate`` reads it).
 ``--exclude step_many`` leaves the physics out of the count (any ``Emulator`` methods by name, or
-``<Class>.<name>`` of ``ControlServer``, ``VirtualServo``, ``ServoMemory``, ``PacketParser``).
+``<Class>.<name>`` of ``ControlServer``, ``VirtualServo``, ``ServoMemory``, ``PacketParser``, ``ReplyPacer``).
 """
 from __future__ import annotations
 
 import argparse
+import contextlib
 import math
-import multiprocessing
 import os
 import shutil
 import subprocess
@@ -26,6 +26,7 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from unittest import mock
 
 STEP_S = 1e-3
 PERIOD_S = 0.016
@@ -52,10 +53,11 @@ import ctypes, functools
 from swerve.driver.parser import PacketParser
 from swerve.emulator.lockstep_socket import ControlServer
 from swerve.emulator.memory import ServoMemory
+from swerve.emulator.reply_pacing import ReplyPacer
 from swerve.emulator.server import Emulator
 from swerve.emulator.servo import VirtualServo
 _classes = dict(PacketParser=PacketParser, ControlServer=ControlServer, ServoMemory=ServoMemory,
-                VirtualServo=VirtualServo)
+                VirtualServo=VirtualServo, ReplyPacer=ReplyPacer)
 _toggle = ctypes.CDLL({lib!r}).toggle_collect
 _depth = [0]
 def _excluded(method):
@@ -81,7 +83,7 @@ for _name in {names!r}:
 def _build_exclusions(hook: Path, names: list[str]) -> None:
     """A ``sitecustomize`` in ``hook`` that stops callgrind collecting inside the
     methods ``names`` (of :class:`Emulator`, or ``<Class>.<name>`` of ``ControlServer``,
-    ``VirtualServo``, ``ServoMemory``, ``PacketParser``), by client requests
+    ``VirtualServo``, ``ServoMemory``, ``PacketParser``, ``ReplyPacer``), by client requests
     from a small C library built here."""
     if not names:
         return
@@ -131,12 +133,16 @@ def main() -> None:
                            f"--callgrind-out-file={out_dir}/callgrind.out.%p {sys.executable} \"$@\"\n")
         wrapper.chmod(0o755)
         os.environ["SWERVE_NO_JIT"] = "1"
-        multiprocessing.set_executable(str(wrapper))
 
     robot = locate_robot_file(None).path
     cfg = load_robot_config(robot)
-    with EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), timing=Lockstep(),
-                         noise="seed=1", rate_hz=1 / STEP_S) as emu, \
+    emu = EmulatorProcess(robot, resolve_emulator_config(args.emulator_config), timing=Lockstep(),
+                          noise="seed=1", rate_hz=1 / STEP_S)
+    # the child is a fresh interpreter started as ``sys.executable`` (emulator/process.py):
+    # under callgrind, the wrapper that runs it under valgrind
+    with mock.patch.object(sys, "executable", str(wrapper)) if args.callgrind else contextlib.nullcontext():
+        emu.launch()
+    with emu, \
             LockstepLoopClock(emu.control_path) as clock, Bus(emu.port, cfg.link.baud, retries=0,
                                                           default_model=cfg.model,
                                                           timeout_margin_s=5.0) as bus:

@@ -203,7 +203,9 @@ class InstructionPacket:
         if not (0 <= id_ <= MAX_ID or id_ == BROADCAST_ID):
             raise CorruptPacketError(f"invalid ID {id_} in instruction frame")
         body = unstuff(body)
-        return cls(id_, body[0], body[1:])
+        pkt = _new(cls)                 # the fields are checked: an ID above, a non-status byte, bytes
+        pkt.__dict__.update(id=id_, instruction=body[0], params=body[1:])
+        return pkt
 
     @property
     def name(self) -> str:
@@ -509,6 +511,7 @@ def parse_bulk_read(params: bytes) -> list[tuple[int, int, int]]:
 
 
 def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
+    params = bytes(params)              # its slices are then bytes (no copy if it is bytes)
     out, pos, n = [], 0, len(params)
     head = _ID_ADDRESS_LENGTH.unpack_from
     while pos < n:
@@ -518,6 +521,6 @@ def parse_bulk_write(params: bytes) -> list[tuple[int, int, bytes]]:
         end = pos + 5 + length
         if end > n:
             raise CorruptPacketError(f"bulk write entry for ID {id_} is truncated")
-        out.append((id_, address, bytes(params[pos + 5:end])))
+        out.append((id_, address, params[pos + 5:end]))
         pos = end
     return out

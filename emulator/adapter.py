@@ -163,6 +163,10 @@ class ByteArrivals(Sequence):
                 i += self._n
             else:
                 raise IndexError("byte index out of range")
+        return self.time_of(i)
+
+    def time_of(self, i: int) -> float:
+        """Item ``i`` for an index ``0 <= i < len(self)`` (unchecked), s."""
         firsts = self._firsts
         f = bisect_right(firsts, i) - 1
         return self._bases[f] + (i - firsts[f] + 1) * self._byte_s
@@ -220,23 +224,28 @@ def deliver(settings: AdapterSettings, arrivals_s: Sequence[float], last_send_s:
     latency = settings.latency_s
     cap = settings.payload_bytes
     n = len(arrivals_s)
-    if not isinstance(arrivals_s, ByteArrivals) and any(b < a for a, b in zip(arrivals_s, arrivals_s[1:])):
-        raise ValueError("byte arrival times must be non-decreasing")
     if isinstance(arrivals_s, ByteArrivals):
-        find = arrivals_s.bisect_right
+        find, at = arrivals_s.bisect_right, arrivals_s.time_of
     else:
+        if any(b < a for a, b in zip(arrivals_s, arrivals_s[1:])):
+            raise ValueError("byte arrival times must be non-decreasing")
+        at = arrivals_s.__getitem__
+
         def find(t: float, lo: int, hi: int) -> int:
             return bisect_right(arrivals_s, t, lo, hi)
     packets: list[tuple[int, float]] = []
     t_ref = last_send_s
     i = 0
     while i < n:
-        first = max(arrivals_s[i], t_ref)
+        first = max(at(i), t_ref)
         periods = max(1, math.ceil((first - t_ref) / latency - _GRID_SLACK))
         expiry = t_ref + periods * latency
-        # the bytes in by the expiry, at most a full packet (the times are in order)
-        j = find(expiry + _GRID_SLACK * settings.frame_s, i, min(n, i + cap))
-        sent = max(arrivals_s[j - 1], t_ref) if j - i == cap else expiry
+        # the bytes in by the expiry, at most a full packet (the times are in order): all of
+        # them when the last one is (a full packet, or the rest of the bytes), else a search
+        hi = min(n, i + cap)
+        limit = expiry + _GRID_SLACK * settings.frame_s
+        j = hi if at(hi - 1) <= limit else find(limit, i, hi - 1)
+        sent = max(at(j - 1), t_ref) if j - i == cap else expiry
         t_ref = _next_frame(settings, sent)
         if j > i:
             packets.append((j, t_ref))

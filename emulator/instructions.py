@@ -221,6 +221,8 @@ def _bus_read(pkt: InstructionPacket, listening: Sequence[VirtualServo],
     by_id = {s.id: s for s in listening}
     if pkt.instruction in SYNC_READS:
         address, length, ids = parse_sync_read(pkt.params)
+        if pkt.instruction == Instruction.SYNC_READ and _plain_everywhere(listening, address, length):
+            return plain_sync_read(address, length, ids, by_id, rules)
         items = [(i, address, length) for i in ids]
     else:
         items = parse_bulk_read(pkt.params)
@@ -229,7 +231,24 @@ def _bus_read(pkt: InstructionPacket, listening: Sequence[VirtualServo],
             return [], []
     if pkt.instruction in FAST_READS:
         return _fast_read(items, by_id, rules)
-    # every listed servo reads (and publishes its present items) before any reply is built
+    return listed_reads(items, by_id, rules)
+
+
+def _plain_everywhere(listening: Sequence[VirtualServo], address: int, length: int) -> bool:
+    """True if a read of ``length`` bytes at ``address`` is a plain copy of the stored bytes
+    (:meth:`~swerve.emulator.memory.ServoMemory.plain_range`) on every listening servo (they
+    share one control table, so the first one's answer holds for all)."""
+    if not listening:
+        return False
+    table = listening[0].table
+    return listening[0].memory.plain_range(address, length) and all(s.table is table for s in listening)
+
+
+def listed_reads(items: Sequence[tuple[int, int, int]], by_id: dict[int, VirtualServo],
+                 rules: DispatchRules) -> tuple[list[Reply], list[VirtualServo]]:
+    """Replies and servos read of a Sync or Bulk Read of ``items`` ``(id, address, length)``
+    (any IDs and ranges; ``by_id``: the listening servos): every listed servo reads (and
+    publishes its present items) before any reply is built; replies in listed order."""
     frames: list[tuple[VirtualServo | None, bytes]] = []
     for id_, address, length in items:
         s = by_id.get(id_)
@@ -248,6 +267,27 @@ def _bus_read(pkt: InstructionPacket, listening: Sequence[VirtualServo],
                 break
             continue
         replies.append(Reply(frame, s.return_delay_s))
+    return replies, present
+
+
+def plain_sync_read(address: int, length: int, ids: Sequence[int], by_id: dict[int, VirtualServo],
+                    rules: DispatchRules) -> tuple[list[Reply], list[VirtualServo]]:
+    """:func:`listed_reads` of a Sync Read of ``length`` bytes at ``address`` from ``ids``, for
+    a range that is plain on every servo (``_plain_everywhere``): one call per servo
+    (:meth:`VirtualServo.plain_read_reply`). The same replies and servo states."""
+    end = address + length
+    replies: list[Reply] = []
+    present: list[VirtualServo] = []
+    silent = False                      # a listed servo was absent: later replies are dropped
+    for id_ in ids:
+        s = by_id.get(id_)
+        if s is None:
+            silent = silent or rules.sync_chain_break
+            continue
+        present.append(s)
+        frame, delay_s = s.plain_read_reply(address, end)
+        if not silent:
+            replies.append(Reply(frame, delay_s))
     return replies, present
 
 

@@ -150,7 +150,8 @@ class ControlServer:
         self._fds = (self._listener.fileno(),)
 
     def fds(self) -> tuple[int, ...]:
-        """Descriptors the bus thread selects on (kept up to date as connections come and go)."""
+        """Descriptors the bus thread selects on: a new tuple whenever a connection comes or goes
+        (the same object while none does)."""
         return self._fds
 
     def handle(self, fd: int, bus: ControlledBus) -> None:

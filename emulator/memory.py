@@ -79,6 +79,8 @@ def _item_rules(reg: Register, read: Callable) -> _ItemWrite:
                       reg.allowed, reg.limit is not None or reg.limit_min is not None or reg.limit_max is not None)
 
 
+#: A write layout not worked out yet (:meth:`ServoMemory._write_layout`).
+_UNSEEN = object()
 #: Most write layouts a memory keeps (:meth:`ServoMemory._write_layout`; a client writes a few).
 _MAX_WRITE_LAYOUTS = 256
 
@@ -271,6 +273,21 @@ class ServoMemory:
                 out[a - address] = self._bytes[self._target(slot)]
         return bytes(out)
 
+    def plain_range(self, address: int, length: int) -> bool:
+        """True if a bus read of ``length`` bytes at ``address`` is a copy of the stored bytes:
+        at least one byte, inside the table, no Indirect Data byte (:meth:`read_plain` then
+        returns what :meth:`read` would)."""
+        end = address + length
+        return 0 < length and 0 <= address and end <= self.size and (end <= self._special_lo
+                                                                      or address > self._special_hi)
+
+    def read_plain(self, address: int, end: int) -> bytearray:
+        """:meth:`read` of bytes ``address .. end-1`` for a range :meth:`plain_range` accepted:
+        the published items brought up to date, then a copy of the stored bytes."""
+        if self.stale:
+            self.publish()
+        return self._bytes[address:end]
+
     def _target(self, slot: _Slot) -> int:
         return int.from_bytes(self._bytes[slot.address:slot.address + 2], "little")
 
@@ -285,8 +302,15 @@ class ServoMemory:
             raise WriteRejected(ErrorNumber.DATA_LENGTH, "write without data")
         if address < 0 or address + n > self.size:
             raise WriteRejected(ErrorNumber.ACCESS, f"write {address}+{n} outside the table")
-        key = (address, n)
-        layout = self._write_layouts[key] if key in self._write_layouts else self._write_layout(address, n)
+        layout = self._write_layouts.get((address, n), _UNSEEN)
+        if layout is _UNSEEN:
+            layout = self._write_layout(address, n)
+        if layout is not None and len(layout) == 1:     # one whole plain item (a goal): as below
+            item = layout[0]
+            value = item.read(data, 0)[0]
+            self._check_item(item, value, {item.name: value})
+            self._bytes[address:address + n] = data
+            return [item.name]
         if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and
             whole = {item.name: item.read(data, item.offset)[0] for item in layout}   # the data is the
             for item in layout:                                  # items' encoding (step 4 copies it)
@@ -390,22 +414,20 @@ class ServoMemory:
             self._bytes[slot.address:slot.address + 2] = v.to_bytes(2, "little")
         return list(new_values)
 
-    def _limit_value(self, name: str, pending: dict[str, int]) -> int:
-        value = pending.get(name)
-        return self.get(name) if value is None else value
-
     def _check_limits(self, reg: Register, value: int, pending: dict[str, int]) -> None:
         if reg.limit is not None:
             if reg.name == _PROFILE_VELOCITY and self.get(_DRIVE_MODE) & TIME_BASED_PROFILE_BIT:
                 return  # time-based profile: Profile Velocity is a time, not capped by Velocity Limit
-            cap = self._limit_value(reg.limit, pending)
+            limit = reg.limit
+            cap = pending[limit] if limit in pending else self.get(limit)
             if abs(value) > cap:
                 raise WriteRejected(self.limit_error, f"|{reg.name}| = {abs(value)} above {reg.limit} {cap}")
         if reg.limit_min is not None or reg.limit_max is not None:
             if reg.name == _GOAL_POSITION and self.get(_OPERATING_MODE) != POSITION_MODE:
                 return  # position limits apply only in Position Control Mode (3)
-            lo = self._limit_value(reg.limit_min, pending) if reg.limit_min else None
-            hi = self._limit_value(reg.limit_max, pending) if reg.limit_max else None
+            lo, hi = reg.limit_min, reg.limit_max
+            lo = (pending[lo] if lo in pending else self.get(lo)) if lo else None
+            hi = (pending[hi] if hi in pending else self.get(hi)) if hi else None
             if (lo is not None and value < lo) or (hi is not None and value > hi):
                 raise WriteRejected(self.limit_error, f"{reg.name} = {value} outside [{lo}, {hi}]")
 

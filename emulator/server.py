@@ -285,10 +285,14 @@ class Emulator:
         control = self.control
         self._first_byte_t = self._last_rx_t = 0.0
         inter_byte_s = self.settings.inter_byte_timeout_s
+        control_fds: tuple[int, ...] = ()
+        fds = [pty.master, self._wake_r]
         while not self._stop.is_set():
             timeout = inter_byte_s if parser.pending and control is None else IDLE_POLL_S
             timeout = min(timeout, self._run_clock())
-            fds = [pty.master, self._wake_r, *control.fds()] if control is not None else [pty.master, self._wake_r]
+            if control is not None and control.fds() is not control_fds:    # a client came or went
+                control_fds = control.fds()
+                fds = [pty.master, self._wake_r, *control_fds]
             try:
                 ready, _, _ = select.select(fds, [], [], timeout)
             except (OSError, ValueError):

@@ -208,6 +208,17 @@ class VirtualServo:
         Bulk Read entry; the ID is this servo's, 0..252 by the ID item's range)."""
         return status_frame(self.id, *self._read(address, length))
 
+    def plain_read_reply(self, address: int, end: int) -> tuple[bytes, float]:
+        """A Sync/Bulk Read entry of the bytes ``address .. end-1``, a range the memory's
+        :meth:`~swerve.emulator.memory.ServoMemory.plain_range` accepted, in one call:
+        :meth:`note_traffic`, then ``(read_frame(address, end - address), return_delay_s)``
+        (the frame as on the wire, the Return Delay Time in s)."""
+        self._since_traffic_s = 0.0
+        m = self.memory
+        data = m.read_plain(address, end)
+        frame = status_frame(self.id, ALERT_BIT if m.byte(self._hardware_error_address) else 0, data)
+        return frame, m.byte(self._return_delay_address) * self._return_delay_unit_s
+
     def bus_write(self, address: int, data: bytes) -> ErrorNumber:
         """A Write (or Sync/Bulk Write entry) with every rule; returns the error number."""
         torque = self._torque_address
