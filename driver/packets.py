@@ -262,6 +262,55 @@ class StatusPacket:
         return pkt
 
 
+#: Bytes of a status frame before its data: header, ID, LENGTH, INST, ERR.
+STATUS_HEAD_BYTES = PREFIX_BYTES + 2
+
+
+@dataclass(frozen=True)
+class ExpectedStatus:
+    """An error-free status from servo ``id`` carrying ``length`` data bytes: a reply known in
+    advance (a Sync Read's), checked by its head and the CRC of its data alone.
+
+    ``head`` holds the frame's first :data:`STATUS_HEAD_BYTES` bytes (header, ID, LENGTH, INST,
+    ERR 0) and ``head_crc`` their CRC-16, so :meth:`decode` compares the head, continues the CRC
+    over the data and builds the :class:`StatusPacket`. It accepts exactly the frames
+    :meth:`StatusPacket.decode` decodes to that ID, error 0 and ``length`` data bytes without
+    unstuffing, and gives the same packet; anything else (an error byte, stuffed or corrupt
+    data, a frame cut short) it leaves to :meth:`StatusPacket.decode`.
+    """
+
+    id: int
+    length: int
+    head: bytes
+    head_crc: int
+
+    @classmethod
+    def of(cls, id_: int, length: int) -> "ExpectedStatus":
+        """The expected status of servo ``id_`` (0..252) with ``length`` data bytes (0..MAX_LENGTH - 4)."""
+        _check_id(id_, allow_broadcast=False)
+        if not 0 <= length <= MAX_LENGTH - 4:
+            raise ValueError(f"status data length {length} outside 0..{MAX_LENGTH - 4}")
+        head = HEADER + struct.pack("<BHBB", id_, length + 4, _STATUS, 0)
+        return cls(id_, length, head, crc16(head))
+
+    @property
+    def frame_bytes(self) -> int:
+        """Bytes of the whole frame: head, data, CRC."""
+        return STATUS_HEAD_BYTES + self.length + 2
+
+    def decode(self, buf: bytes | bytearray) -> StatusPacket | None:
+        """The status the frame at the start of ``buf`` holds if it is this one (head equal, no
+        ``FF FF FD`` in the data, CRC right), else ``None``; ``buf`` may continue after it."""
+        end = STATUS_HEAD_BYTES + self.length
+        if (len(buf) < end + 2 or not buf.startswith(self.head)
+                or buf.find(_STUFF_PATTERN, STATUS_HEAD_BYTES, end) >= 0):
+            return None
+        data = bytes(buf[STATUS_HEAD_BYTES:end])
+        if crc16(data, self.head_crc) != buf[end] | buf[end + 1] << 8:
+            return None
+        return StatusPacket._checked(self.id, 0, data)
+
+
 @dataclass(frozen=True)
 class FastStatus:
     """The single combined reply to Fast Sync Read / Fast Bulk Read.
