@@ -17,8 +17,13 @@ the controller's **critical chain** (from the Sync Read's reply, read and decode
 Run: ``.venv/bin/python bench/bench_replay.py [--record FILE] [--replays 3]``. ``--record``
 keeps the recording (``.pkl``) and reuses it if present, so another checkout's interpreter can
 replay the same run: ``OLD/.venv/bin/python bench/bench_replay.py --record /tmp/line.pkl``.
-For an instruction count (independent of the neighbours), run one replay under
-``valgrind --tool=callgrind`` with ``--replays 1 --no-stamps``.
+For an instruction count of the critical chain alone (independent of the neighbours), build
+``bench/cg_toggle.c`` (its header says how) and run one replay under callgrind::
+
+    valgrind --tool=callgrind --collect-atstart=no --callgrind-out-file=cg.out \
+        .venv/bin/python bench/bench_replay.py --record R.pkl --replays 1 --no-stamps --callgrind /tmp/cg_toggle.so
+
+``callgrind_annotate cg.out | head`` then gives the chain's instructions over all the run's cycles.
 """
 from __future__ import annotations
 
@@ -183,11 +188,31 @@ class _Peer:
         self.server.close()
 
 
-def replay(rec: dict, stamps: bool, extra: tuple = ()) -> dict:
-    """Run the controller against the recording; returns the step CPU times and the export."""
+class _Chain:
+    """Switches callgrind's collection on while the controller is on the critical chain: from a
+    reply's wait to the ``advance`` request sent, the recording's answers left out."""
+
+    def __init__(self, toggle):
+        self.toggle, self.on = toggle, False
+
+    def start(self) -> None:
+        if not self.on:
+            self.toggle()
+            self.on = True
+
+    def stop(self) -> None:
+        if self.on:
+            self.toggle()
+            self.on = False
+
+
+def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
+    """Run the controller against the recording; returns the step CPU times and the export.
+    ``toggle``: callgrind's collection switch, flipped at the ends of the critical chain."""
     from swerve.tools.run.orchestrate import RunRequest, run_tracking
 
     marks: list[tuple[str, int]] = []
+    meter = _Chain(toggle) if toggle is not None else None
     with tempfile.TemporaryDirectory() as tmp:
         peer = _Peer(rec, Path(tmp))
 
@@ -197,17 +222,34 @@ def replay(rec: dict, stamps: bool, extra: tuple = ()) -> dict:
         def write(original):
             def w(self, data):
                 original(self, data)
+                on = meter is not None and meter.on
+                if on:
+                    meter.stop()
                 peer.wrote(bytes(data))
+                if on:
+                    meter.start()
             return w
 
         def send(original):
             def s(self, request):
                 original(self, request)
+                if meter is not None:
+                    meter.stop()
+                    if not request.startswith("advance "):
+                        meter.start()
                 peer.sent(request)
             return s
 
+        def read(original):
+            def r(self, deadline):
+                meter.start()
+                return original(self, deadline)
+            return r
+
         undo = [_wrap("swerve.driver.transport:Transport", "write", write),
                 _wrap("swerve.tools.run.lockstep:LockstepLoopClock", "_send", send)]
+        if meter is not None:
+            undo.append(_wrap("swerve.driver.transport:Transport", "read_packets", read))
         if stamps:
             for path, name, enter, leave in STAMPED + extra:
                 def make(original, enter=enter, leave=leave):
@@ -225,6 +267,8 @@ def replay(rec: dict, stamps: bool, extra: tuple = ()) -> dict:
                                           port=peer.port, time_scale=None, log=log))
             digest = _export(log)
         finally:
+            if meter is not None:
+                meter.stop()
             for u in reversed(undo):
                 u()
             peer.close()
@@ -268,6 +312,8 @@ def main() -> None:
     ap.add_argument("--replays", type=int, default=3)
     ap.add_argument("--skip", type=int, default=200, help="cycles left out at the start (default 200)")
     ap.add_argument("--no-stamps", action="store_true", help="no per-step stamps (for callgrind)")
+    ap.add_argument("--callgrind", metavar="LIB", help="shared library built from bench/cg_toggle.c: "
+                    "under valgrind --tool=callgrind --collect-atstart=no, collect the critical chain only")
     ap.add_argument("--stamp", action="append", default=[], metavar="MODULE:CLASS.METHOD",
                     help="stamp this method's entry and exit too, e.g. swerve.driver.bus:Bus._exchange")
     args = ap.parse_args()
@@ -289,8 +335,13 @@ def main() -> None:
           f"{len(rec['writes'])} pty writes and {len(rec['requests'])} requests recorded")
     per_step: list[list[float]] = []
     chains, loops, shape = [], [], None
+    toggle = None
+    if args.callgrind:
+        import ctypes
+
+        toggle = ctypes.CDLL(args.callgrind).cg_toggle
     for n in range(args.replays):
-        got = replay(rec, not args.no_stamps, tuple(
+        got = replay(rec, not args.no_stamps, toggle=toggle, extra=tuple(
             (spec.rsplit(".", 1)[0], spec.rsplit(".", 1)[1], spec.rsplit(":", 1)[1], spec.rsplit(":", 1)[1] + " done")
             for spec in args.stamp))
         if got["export"] != rec["export"]:

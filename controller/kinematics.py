@@ -115,8 +115,13 @@ def wheel_commands(v1_mps: float, delta1_rad: float, delta2_rad: float) -> np.nd
     Wheels 1 and 4 are front, 2 and 3 rear (the paper's order); drive goals in m/s
     (ground speed), steering goals in rad. Returns shape (8,).
     """
+    return np.array(wheel_command_floats(v1_mps, delta1_rad, delta2_rad))
+
+
+def wheel_command_floats(v1_mps: float, delta1_rad: float, delta2_rad: float) -> list[float]:
+    """:func:`wheel_commands` as a list of 8 floats (the control loop's form)."""
     v, d1, d2 = float(v1_mps), float(delta1_rad), float(delta2_rad)
-    return np.array([v, v, v, v, d1, d2, d2, d1])
+    return [v, v, v, v, d1, d2, d2, d1]
 
 
 def drive_angular_speed(v1_mps, wheel_radius_m: float = 0.033):
