@@ -132,6 +132,37 @@ def status_frame(id_: int, error: int, params: bytes) -> bytes:
     return prefix + params + _CRC_FIELD.pack(crc16(params, crc))
 
 
+#: Instruction frame heads by (ID, instruction, parameter bytes): header, ID, LENGTH, INST; their CRC.
+_INSTRUCTION_HEADS: dict[tuple[int, int, int], tuple[bytes, int]] = {}
+_INSTRUCTION_HEADS_MAX = 4096
+
+
+def instruction_frame(id_: int, instruction: int, params: bytes) -> bytes:
+    """The wire frame of an instruction packet (stuffed, with CRC): :meth:`InstructionPacket.encode`
+    for fields the packet has checked.
+
+    The head (header, ID, LENGTH, INST) and its running CRC depend only on the ID, the instruction
+    and the number of parameter bytes, so a request sent again (the control loop's Bulk Write)
+    reuses them and only the parameters' CRC is computed. Parameters that need stuffing (``FF FF
+    FD``, or an instruction byte 0xFF that could start the pattern) go the general way.
+    """
+    if instruction == 0xFF or params.find(_STUFF_PATTERN) >= 0:
+        return _frame(id_, bytes((instruction,)) + params)
+    key = (id_, instruction, len(params))
+    head = _INSTRUCTION_HEADS.get(key)
+    if head is None:
+        if len(_INSTRUCTION_HEADS) >= _INSTRUCTION_HEADS_MAX:
+            _INSTRUCTION_HEADS.clear()
+        prefix = HEADER + _INSTRUCTION_HEAD.pack(id_, len(params) + 3, instruction)
+        head = _INSTRUCTION_HEADS[key] = (prefix, crc16(prefix))
+    prefix, crc = head
+    return prefix + params + _CRC_FIELD.pack(crc16(params, crc))
+
+
+#: ID, LENGTH and INST of an instruction frame's head.
+_INSTRUCTION_HEAD = struct.Struct("<BHB")
+
+
 def _frame(id_: int, body: bytes, *, stuffed: bool = True) -> bytes:
     """Wrap ``body`` (INST [ERR] params) into a full frame with header, LENGTH and CRC."""
     if stuffed:
@@ -186,7 +217,7 @@ class InstructionPacket:
 
     def encode(self) -> bytes:
         """The frame as sent on the wire (stuffed, with CRC)."""
-        return _frame(self.id, bytes((self.instruction,)) + self.params)
+        return instruction_frame(self.id, self.instruction, self.params)
 
     def wire_length(self) -> int:
         """``len(self.encode())`` without computing the CRC: header, ID and LENGTH
