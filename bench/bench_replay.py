@@ -233,11 +233,12 @@ def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
         def send(original):
             def s(self, request):
                 original(self, request)
-                if meter is not None:
+                on = meter is not None and meter.on
+                if on:
                     meter.stop()
-                    if not request.startswith("advance "):
-                        meter.start()
                 peer.sent(request)
+                if on and not request.startswith("advance "):
+                    meter.start()
             return s
 
         def read(original):
