@@ -40,6 +40,8 @@ from pathlib import Path
 
 from benchutil import cpu_model
 
+#: Bus timeout slack in a replay, s.
+REPLAY_TIMEOUT_MARGIN_S = 60.0
 #: Recordings made at most to get one without a late reply.
 RECORD_TRIES = 5
 #: (class path, method, label at entry, label at exit)
@@ -264,8 +266,10 @@ def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
                 undo.append(_wrap(path, name, make))
         try:
             log = Path(tmp) / "log"
+            # the recorded replies are there when asked for: no timeout may fire, even under callgrind
             res = run_tracking(RunRequest(trajectory=rec["trajectory"], lockstep=True, control=peer.path,
-                                          port=peer.port, time_scale=None, log=log))
+                                          port=peer.port, time_scale=None, log=log,
+                                          timeout_margin_s=REPLAY_TIMEOUT_MARGIN_S))
             digest = _export(log)
         finally:
             if meter is not None:
