@@ -38,22 +38,13 @@ import time
 import tty
 from pathlib import Path
 
+from bench_cycle import STAMPED
 from benchutil import cpu_model
 
 #: Bus timeout slack in a replay, s.
 REPLAY_TIMEOUT_MARGIN_S = 60.0
 #: Recordings made at most to get one without a late reply.
 RECORD_TRIES = 5
-#: (class path, method, label at entry, label at exit)
-STAMPED = (
-    ("swerve.driver.transport:Transport", "write", "pty write", "pty written"),
-    ("swerve.driver.transport:Transport", "read_packets", "pty wait", "pty reply in"),
-    ("swerve.tools.run.lockstep:LockstepLoopClock", "_send", "request", "request sent"),
-    ("swerve.tools.run.lockstep:LockstepLoopClock", "_answer", "answer wait", "answer in"),
-    ("swerve.controller.tracking:TrackingLaw", "step", "law", "law done"),
-    ("swerve.tools.logs.bag:RunLogWriter", "write", "log", "log written"),
-)
-
 
 def _cls(path: str):
     import importlib
@@ -208,6 +199,17 @@ class _Chain:
             self.on = False
 
 
+def _aside(meter: _Chain | None, work, arg, resume: bool = True) -> None:
+    """``work(arg)`` (the recording's side) outside the chain's count; the count goes on after it
+    if it was on and ``resume``."""
+    on = meter is not None and meter.on
+    if on:
+        meter.stop()
+    work(arg)
+    if on and resume:
+        meter.start()
+
+
 def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
     """Run the controller against the recording; returns the step CPU times and the export.
     ``toggle``: callgrind's collection switch, flipped at the ends of the critical chain."""
@@ -224,23 +226,13 @@ def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
         def write(original):
             def w(self, data):
                 original(self, data)
-                on = meter is not None and meter.on
-                if on:
-                    meter.stop()
-                peer.wrote(bytes(data))
-                if on:
-                    meter.start()
+                _aside(meter, peer.wrote, bytes(data))
             return w
 
         def send(original):
             def s(self, request):
                 original(self, request)
-                on = meter is not None and meter.on
-                if on:
-                    meter.stop()
-                peer.sent(request)
-                if on and not request.startswith("advance "):
-                    meter.start()
+                _aside(meter, peer.sent, request, resume=not request.startswith("advance "))
             return s
 
         def read(original):

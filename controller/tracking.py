@@ -48,6 +48,11 @@ STATE_MARGIN = 0.1
 PLAIN_MIN_MARGIN = 0.02
 
 
+def _diagnostic(k: int, doc: str) -> property:
+    """A :class:`LawOutput` property: its ``diagnostics[k]`` as a new float array."""
+    return property(lambda self: np.array(self.diagnostics[k], dtype=float), doc=doc)
+
+
 @dataclass(frozen=True, slots=True)
 class LawOutput:
     """One step of :meth:`TrackingLaw.step`: the inputs, the steering goals and why.
@@ -83,30 +88,12 @@ class LawOutput:
         """``(v1_mps, omega1_radps, omega2_radps)``, the saturated inputs."""
         return self.v1_mps, self.omega1_radps, self.omega2_radps
 
-    @property
-    def error(self) -> np.ndarray:
-        """Chained error ``x - xd`` (heading wrapped), shape (5,)."""
-        return np.array(self.diagnostics[0], dtype=float)
-
-    @property
-    def u(self) -> np.ndarray:
-        """Chained inputs ``r ud + K x~``, shape (3,)."""
-        return np.array(self.diagnostics[1], dtype=float)
-
-    @property
-    def ud(self) -> np.ndarray:
-        """Desired chained inputs, shape (3,)."""
-        return np.array(self.diagnostics[2], dtype=float)
-
-    @property
-    def raw(self) -> np.ndarray:
-        """Unsaturated ``(v1_mps, omega1_radps, omega2_radps)``, shape (3,)."""
-        return np.array(self.diagnostics[3], dtype=float)
-
-    @property
-    def desired_state(self) -> np.ndarray:
-        """Reference state ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, shape (5,)."""
-        return np.array(self.diagnostics[4], dtype=float)
+    error = _diagnostic(0, "Chained error ``x - xd`` (heading wrapped), shape (5,).")
+    u = _diagnostic(1, "Chained inputs ``r ud + K x~``, shape (3,).")
+    ud = _diagnostic(2, "Desired chained inputs, shape (3,).")
+    raw = _diagnostic(3, "Unsaturated ``(v1_mps, omega1_radps, omega2_radps)``, shape (3,).")
+    desired_state = _diagnostic(4, "Reference state ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, "
+                                   "shape (5,).")
 
     @property
     def wheel_goals(self) -> np.ndarray:
