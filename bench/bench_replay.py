@@ -182,14 +182,16 @@ class _Peer:
 
 
 class _Chain:
-    """Switches callgrind's collection on while the controller is on the critical chain: from a
-    reply's wait to the ``advance`` request sent, the recording's answers left out."""
+    """Switches callgrind's collection on while the controller is on the critical chain: in the
+    tracking loop, from a reply's wait to the ``advance`` request sent, the recording's answers
+    left out."""
 
     def __init__(self, toggle):
         self.toggle, self.on = toggle, False
+        self.armed = False          # inside the tracking loop
 
     def start(self) -> None:
-        if not self.on:
+        if self.armed and not self.on:
             self.toggle()
             self.on = True
 
@@ -243,8 +245,19 @@ def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
 
         undo = [_wrap("swerve.driver.transport:Transport", "write", write),
                 _wrap("swerve.tools.run.lockstep:LockstepLoopClock", "_send", send)]
+        def loop(original):
+            def run(self, start_state):
+                meter.armed = True
+                try:
+                    return original(self, start_state)
+                finally:
+                    meter.armed = False
+                    meter.stop()
+            return run
+
         if meter is not None:
             undo.append(_wrap("swerve.driver.transport:Transport", "read_packets", read))
+            undo.append(_wrap("swerve.tools.run.loop:TrackingLoop", "run", loop))
         if stamps:
             for path, name, enter, leave in STAMPED + extra:
                 def make(original, enter=enter, leave=leave):
