@@ -255,9 +255,19 @@ def replay(rec: dict, stamps: bool, extra: tuple = (), toggle=None) -> dict:
                     meter.stop()
             return run
 
+        def law(original):
+            def step(self, t_s, state):
+                out = original(self, t_s, state)
+                if out.finished:        # the loop ends here: its teardown is not a cycle's chain
+                    meter.armed = False
+                    meter.stop()
+                return out
+            return step
+
         if meter is not None:
             undo.append(_wrap("swerve.driver.transport:Transport", "read_packets", read))
             undo.append(_wrap("swerve.tools.run.loop:TrackingLoop", "run", loop))
+            undo.append(_wrap("swerve.controller.tracking:TrackingLaw", "step", law))
         if stamps:
             for path, name, enter, leave in STAMPED + extra:
                 def make(original, enter=enter, leave=leave):
