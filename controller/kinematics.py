@@ -102,10 +102,12 @@ def rk4_step_floats(state, inputs, dt_s: float, geom: Geometry = Geometry(),
         k2 = _pose_rates(th + 0.5 * h * k1[2], d1m, d2m, v1, k, cos, sin)
         k3 = _pose_rates(th + 0.5 * h * k2[2], d1m, d2m, v1, k, cos, sin)
         k4 = _pose_rates(th + h * k3[2], d1 + h * w1, d2 + h * w2, v1, k, cos, sin)
-        x, y, th = (p + (h / 6.0) * (r1 + 2 * r2 + 2 * r3 + r4)
-                    for p, r1, r2, r3, r4 in zip((x, y, th), k1, k2, k3, k4))
-        d1 = d1 + (h / 6.0) * (w1 + 2 * w1 + 2 * w1 + w1)
-        d2 = d2 + (h / 6.0) * (w2 + 2 * w2 + 2 * w2 + w2)
+        c = h / 6.0
+        x = x + c * (k1[0] + 2 * k2[0] + 2 * k3[0] + k4[0])
+        y = y + c * (k1[1] + 2 * k2[1] + 2 * k3[1] + k4[1])
+        th = th + c * (k1[2] + 2 * k2[2] + 2 * k3[2] + k4[2])
+        d1 = d1 + c * (w1 + 2 * w1 + 2 * w1 + w1)
+        d2 = d2 + c * (w2 + 2 * w2 + 2 * w2 + w2)
     return [x, y, th, d1, d2]
 
 
@@ -115,8 +117,13 @@ def wheel_commands(v1_mps: float, delta1_rad: float, delta2_rad: float) -> np.nd
     Wheels 1 and 4 are front, 2 and 3 rear (the paper's order); drive goals in m/s
     (ground speed), steering goals in rad. Returns shape (8,).
     """
+    return np.array(wheel_command_floats(v1_mps, delta1_rad, delta2_rad))
+
+
+def wheel_command_floats(v1_mps: float, delta1_rad: float, delta2_rad: float) -> list[float]:
+    """:func:`wheel_commands` as a list of 8 floats (the control loop's form)."""
     v, d1, d2 = float(v1_mps), float(delta1_rad), float(delta2_rad)
-    return np.array([v, v, v, v, d1, d2, d2, d1])
+    return [v, v, v, v, d1, d2, d2, d1]
 
 
 def drive_angular_speed(v1_mps, wheel_radius_m: float = 0.033):

@@ -45,7 +45,7 @@ class Odometry:
 
     def __init__(self, geom: Geometry, pose=(0.0, 0.0, 0.0)):
         self.geom = geom
-        self._pose = np.asarray(pose, dtype=float).tolist()
+        self._pose = tuple(np.asarray(pose, dtype=float).tolist())
         self._last: tuple[float, float, float] | None = None
         self._angles: list[float] | None = None
 
@@ -55,13 +55,19 @@ class Odometry:
         return np.array(self._pose)
 
     @property
+    def pose_floats(self) -> tuple[float, float, float]:
+        """:attr:`pose` as a tuple of floats (no array: the control loop's form)."""
+        return self._pose
+
+    @property
     def state(self) -> np.ndarray:
         """Model state ``(x, y, theta, delta1, delta2)``, shape (5,); steering NaN before the first sample."""
         d1, d2 = (self._last[1], self._last[2]) if self._last else (np.nan, np.nan)
         return np.array([*self._pose, d1, d2])
 
-    def update(self, dt_s: float, wheel_speeds_radps, steer_rad, wheel_angles_rad=None) -> np.ndarray:
-        """Advance by ``dt_s`` with the new sample; returns the pose, shape (3,).
+    def update(self, dt_s: float, wheel_speeds_radps, steer_rad, wheel_angles_rad=None
+               ) -> tuple[float, float, float]:
+        """Advance by ``dt_s`` with the new sample; returns the pose ``(x_m, y_m, theta_rad)``.
 
         ``wheel_angles_rad`` (4,), optional: drive wheel rotation angles (multi-turn), preferred
         over the speeds for the distance rolled.
@@ -77,7 +83,7 @@ class Odometry:
                 v_bar = 0.5 * (v0 + v1)
             u = (v_bar, (d1 - e1) / dt_s, (d2 - e2) / dt_s)
             # 16 ms: one RK4 step suffices
-            self._pose = rk4_step_floats([*self._pose, e1, e2], u, dt_s, self.geom, 1)[:3]
+            self._pose = tuple(rk4_step_floats([*self._pose, e1, e2], u, dt_s, self.geom, 1)[:3])
         self._last = (v1, d1, d2)
         self._angles = angles
-        return self.pose
+        return self._pose

@@ -48,6 +48,11 @@ STATE_MARGIN = 0.1
 PLAIN_MIN_MARGIN = 0.02
 
 
+def _diagnostic(k: int, doc: str) -> property:
+    """A :class:`LawOutput` property: its ``diagnostics[k]`` as a new float array."""
+    return property(lambda self: np.array(self.diagnostics[k], dtype=float), doc=doc)
+
+
 @dataclass(frozen=True, slots=True)
 class LawOutput:
     """One step of :meth:`TrackingLaw.step`: the inputs, the steering goals and why.
@@ -57,10 +62,12 @@ class LawOutput:
     state's angles advanced by ``omega * tau`` and kept within the steering limit),
     ``finished`` (the reference has ended: inputs are zero, the diagnostics NaN),
     ``reference_time_s`` (the governor's clock), ``index`` (gain-schedule step, -1 when
-    finished), ``phi_rad`` (chained frame), ``error`` (5,) chained error ``x - xd``, ``u`` (3,)
-    chained inputs ``r ud + K x~``, ``ud`` (3,) desired chained inputs, ``raw`` (3,) unsaturated
-    ``(v1_mps, omega1_radps, omega2_radps)``, ``desired_state`` (5,) reference state
-    ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, ``saturated`` (a limit was hit).
+    finished), ``phi_rad`` (chained frame), ``saturated`` (a limit was hit). The diagnostics
+    are kept as the law computed them, floats, and read as arrays: :attr:`error` (5,) chained
+    error ``x - xd``, :attr:`u` (3,) chained inputs ``r ud + K x~``, :attr:`ud` (3,) desired
+    chained inputs, :attr:`raw` (3,) unsaturated ``(v1_mps, omega1_radps, omega2_radps)``,
+    :attr:`desired_state` (5,) reference state ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``
+    (each access makes a new array, so a control loop reads them off its critical path).
     """
 
     v1_mps: float
@@ -72,17 +79,21 @@ class LawOutput:
     reference_time_s: float
     index: int
     phi_rad: float
-    error: np.ndarray
-    u: np.ndarray
-    ud: np.ndarray
-    raw: np.ndarray
-    desired_state: np.ndarray
     saturated: bool
+    #: ``(error, u, ud, raw, desired_state)``, sequences of 5, 3, 3, 3 and 5 floats.
+    diagnostics: tuple
 
     @property
     def inputs(self) -> tuple[float, float, float]:
         """``(v1_mps, omega1_radps, omega2_radps)``, the saturated inputs."""
         return self.v1_mps, self.omega1_radps, self.omega2_radps
+
+    error = _diagnostic(0, "Chained error ``x - xd`` (heading wrapped), shape (5,).")
+    u = _diagnostic(1, "Chained inputs ``r ud + K x~``, shape (3,).")
+    ud = _diagnostic(2, "Desired chained inputs, shape (3,).")
+    raw = _diagnostic(3, "Unsaturated ``(v1_mps, omega1_radps, omega2_radps)``, shape (3,).")
+    desired_state = _diagnostic(4, "Reference state ``(x_m, y_m, theta_rad, delta1_rad, delta2_rad)``, "
+                                   "shape (5,).")
 
     @property
     def wheel_goals(self) -> np.ndarray:
@@ -90,8 +101,8 @@ class LawOutput:
         return wheel_commands(self.v1_mps, self.delta1_rad, self.delta2_rad)
 
 
-_NAN3, _NAN5 = np.full(3, np.nan), np.full(5, np.nan)
-_NAN3.flags.writeable = _NAN5.flags.writeable = False
+_NAN3, _NAN5 = (math.nan,) * 3, (math.nan,) * 5
+_FINISHED = (_NAN5, _NAN3, _NAN3, _NAN3, _NAN5)
 
 
 def _chained_terms(state, phi, geom, floor, sign_hint=0.0):
@@ -223,7 +234,10 @@ class TrackingLaw:
         :class:`SingularityError` if the plain (fixed-frame) law meets the chained form's
         singular set.
         """
-        st = np.asarray(state, dtype=float).reshape(-1).tolist()
+        try:
+            st = list(map(float, state))
+        except (TypeError, ValueError):
+            st = []
         if len(st) != 5 or not all(map(math.isfinite, st)) or not math.isfinite(t_s):
             raise ControllerError(f"state must be 5 finite numbers, got {state!r} at t = {t_s}")
         self._advance_clock(float(t_s))
@@ -231,7 +245,7 @@ class TrackingLaw:
         dmax = lim.steer_angle_max_rad
         if self.finished():
             return LawOutput(0.0, 0.0, 0.0, min(max(st[3], -dmax), dmax), min(max(st[4], -dmax), dmax),
-                             True, self._s, -1, math.nan, _NAN5, _NAN3, _NAN3, _NAN3, _NAN5, False)
+                             True, self._s, -1, math.nan, False, _FINISHED)
         i = self.reference.index(self._s)
         phi = self._phi[i]
         sd, _, xd, ud = self.reference.sample(self._s, phi)
@@ -252,13 +266,13 @@ class TrackingLaw:
         return LawOutput(
             min(max(v1, -vmax), vmax), ws[0], ws[1],
             min(max(st[3] + ws[0] * tau, -dmax), dmax), min(max(st[4] + ws[1] * tau, -dmax), dmax),
-            False, self._s, i, phi, e, np.array(u), np.array(ud), np.array([v1, w1, w2]),
-            np.array(sd), abs(v1) > vmax or abs(w1) > wmax or abs(w2) > wmax)
+            False, self._s, i, phi, abs(v1) > vmax or abs(w1) > wmax or abs(w2) > wmax,
+            (e, u, ud, (v1, w1, w2), sd))
 
     def _feedback(self, st, i, phi, xd, ud):
         """The law at schedule step ``i`` (frame ``phi``) for the state ``st`` (5 floats).
 
-        Returns the chained error ``x - xd`` (5,) array (heading wrapped, as
+        Returns the chained error ``x - xd`` (5 floats, heading wrapped, as
         :func:`controller.ltv.chained_error`), the chained inputs ``u = r ud + K_i x~`` (3 floats)
         and the unsaturated ``(v1, omega1, omega2)``, NaN where the input map is singular.
         """
@@ -273,7 +287,7 @@ class TrackingLaw:
         d[2] = (d[2] + math.pi) % (2 * math.pi) - math.pi
         r = self._rate if self.governor else 1.0
         u = [r * a + b for a, b in zip(ud, sl.matvec(self._K[i], d))]
-        return np.array(d), u, _inverse_input_map(u, *terms)
+        return d, u, _inverse_input_map(u, *terms)
 
     def _advance_clock(self, t_s: float) -> None:
         """Advance the reference clock to robot time ``t_s`` (at the governor's rate)."""

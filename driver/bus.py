@@ -34,8 +34,8 @@ from swerve.driver import packets as pk
 from swerve.driver.control_table import ControlTable, HardwareError, Reg, Register, table_for
 from swerve.driver.errors import (ConfigError, CorruptPacketError, DxlError, DxlTimeoutError,
                            RegisterError, ServoError)
-from swerve.driver.packets import (BROADCAST_ID, FastStatus, Instruction, InstructionPacket, StatusPacket,
-                                   fast_status_bytes)
+from swerve.driver.packets import (BROADCAST_ID, ExpectedStatus, FastStatus, Instruction, InstructionPacket,
+                                   StatusPacket, fast_status_bytes)
 from swerve.driver.span_codec import STRUCT_CODES, span_decoder, span_values
 from swerve.driver.transport import DEFAULT_MARGIN_S, Transport, packet_timeout_s
 
@@ -50,7 +50,7 @@ RegLike = str | Reg
 
 #: Reads whose replies form a chain in request order (a silent servo cuts off those after it).
 _CHAINED_READS = frozenset((Instruction.SYNC_READ, Instruction.BULK_READ))
-#: Encoded Sync Read requests kept for reuse (the control loop repeats one request).
+#: Sync Read and Bulk Write plans kept for reuse (the control loop repeats one of each).
 _REQUEST_CACHE_SIZE = 32
 
 
@@ -139,8 +139,7 @@ class Bus:
         self.drained_bytes = 0      # late bytes discarded after a failed exchange
         self._unsettled = False     # last exchange failed: drain before the next one
         self._gate: ReplyGate | None = None
-        self._requests: dict[tuple, tuple[InstructionPacket, bytes]] = {}
-        # per-request plans: sync read spans (address, length, names, values) and bulk write layouts
+        # per-request plans: sync reads (_SyncReadPlan) and bulk write layouts (BulkWritePlan)
         self._plans: dict[tuple, tuple] = {}
 
     # --- lifecycle ---------------------------------------------------------------------------
@@ -233,14 +232,16 @@ class Bus:
     def _exchange(self, pkt: InstructionPacket, expect: Sequence[int], reply_bytes: int,
                   *, window_s: float | None = None, until_all: bool = True,
                   check: bool = True, frame: bytes | None = None,
-                  fast_lengths: Sequence[int] | None = None) -> dict[int, StatusPacket]:
+                  fast_lengths: Sequence[int] | None = None,
+                  statuses: Mapping[int, ExpectedStatus] | None = None) -> dict[int, StatusPacket]:
         """Send ``pkt`` and collect one status per ID in ``expect`` (lock held by caller).
 
         Returns ``{id: status}``. Raises DxlTimeoutError for IDs that stayed silent (or
         the corrupt-frame error if one arrived instead), ServoError for an error byte
         when ``check``. ``until_all=False`` (broadcast ping) listens for the whole window.
         ``frame``: ``pkt`` already encoded. ``fast_lengths``: the data lengths of a fast
-        read; the combined reply is returned as ``{0xFE: FastStatus}``.
+        read; the combined reply is returned as ``{0xFE: FastStatus}``. ``statuses``: the replies
+        expected, decoded by their cached heads (:meth:`PacketParser.expect_statuses`).
         """
         transport = self._transport
         if frame is None:
@@ -253,6 +254,8 @@ class Bus:
             self.drained_bytes += transport.drain_quiet(self.timeout_margin_s, 10 * timeout)
             self._unsettled = False
         transport.parser.expect_fast(fast_lengths)
+        if statuses is not None:
+            transport.parser.expect_statuses(statuses)
         transport.write(frame)
         if not expect:
             return {}
@@ -297,6 +300,8 @@ class Bus:
                 # anything else is our own echo (loop://, half-duplex adapters) or another host's
         if fast_lengths is not None:
             transport.parser.expect_fast(None)
+        if statuses is not None:
+            transport.parser.expect_statuses(None)
         missing = [] if len(got) == len(wanted) else [i for i in expect if i not in got]
         if ((missing and until_all) or corrupt) and not (due is not None and transport.bytes_received >= due):
             self._unsettled = True      # a late reply may still come (a gate said none will)
@@ -522,37 +527,32 @@ class Bus:
         span in address order, and per ID (in the order of ``ids``) a tuple of their raw values
         in that order. No dict is built: the form for a loop that reads the same span each cycle.
         """
-        ids = tuple(ids)
-        key = (ids, first, last)
+        key = (tuple(ids), first, last, fast)
         plan = self._plans.get(key)
         if plan is None:
-            t = self._group_table(ids)
-            address, length = t.span(first, last if last is not None else first)
-            plan = (address, length) + span_values(t, address, length)
+            plan = self._sync_read_plan(key[0], first, last, fast)
             if len(self._plans) >= _REQUEST_CACHE_SIZE:
                 self._plans.clear()
             self._plans[key] = plan
-        address, length, names, values = plan
-        data = self._with_retries(self._sync_read_once, ids, address, length, fast)
-        return names, [values(d) for d in data]
+        data = self._with_retries(self._sync_read_once, plan)
+        values = plan.values
+        return plan.names, [values(d) for d in data]
 
-    def _sync_read_request(self, ids: Sequence[int], address: int, length: int,
-                           fast: bool) -> tuple[InstructionPacket, bytes]:
-        key = (address, length, tuple(ids), fast)
-        req = self._requests.get(key)
-        if req is None:
-            pkt = pk.sync_read(address, length, ids, fast=fast)
-            if len(self._requests) >= _REQUEST_CACHE_SIZE:
-                self._requests.clear()
-            req = self._requests[key] = (pkt, pkt.encode())
-        return req
+    def _sync_read_plan(self, ids: tuple[int, ...], first: RegLike, last: RegLike | None,
+                        fast: bool) -> "_SyncReadPlan":
+        t = self._group_table(ids)
+        address, length = t.span(first, last if last is not None else first)
+        pkt = pk.sync_read(address, length, ids, fast=fast)
+        return _SyncReadPlan(ids, length, *span_values(t, address, length), pkt, pkt.encode(),
+                             None if fast else {i: ExpectedStatus.of(i, length) for i in ids},
+                             (STATUS_OVERHEAD + length) * len(ids))
 
-    def _sync_read_once(self, ids: Sequence[int], address: int, length: int, fast: bool) -> list[bytes]:
-        """The data of each ID's reply, in the order of ``ids``."""
-        pkt, frame = self._sync_read_request(ids, address, length, fast)
-        if fast:
-            return self._fast_exchange(pkt, [(i, length) for i in ids], frame)
-        got = self._exchange(pkt, ids, (STATUS_OVERHEAD + length) * len(ids), frame=frame)
+    def _sync_read_once(self, plan: "_SyncReadPlan") -> list[bytes]:
+        """The data of each ID's reply, in the order of the plan's IDs."""
+        ids, length = plan.ids, plan.length
+        if plan.statuses is None:
+            return self._fast_exchange(plan.packet, [(i, length) for i in ids], plan.frame)
+        got = self._exchange(plan.packet, ids, plan.reply_bytes, frame=plan.frame, statuses=plan.statuses)
         out = [got[i].params for i in ids]
         for i, data in zip(ids, out):
             if len(data) != length:
@@ -664,6 +664,23 @@ class Bus:
         (:attr:`BulkWritePlan.names`); each is range-checked first (OutOfRangeError, nothing sent)."""
         self._with_retries(self._simple, pk.InstructionPacket(BROADCAST_ID, Instruction.BULK_WRITE,
                                                               plan.params(values)))
+
+
+@dataclass(frozen=True)
+class _SyncReadPlan:
+    """A Sync Read (or Fast Sync Read) of the same span from the same IDs, worked out once: the
+    register ``names`` wholly inside the ``length``-byte span and ``values(data) -> raws`` for
+    one ID's data (:func:`span_values`), the request ``packet`` and its ``frame``, the replies
+    expected (``statuses`` per ID; ``None`` for a fast read) and their bytes on the wire."""
+
+    ids: tuple[int, ...]
+    length: int
+    names: tuple[str, ...]
+    values: Callable[[bytes], tuple[int, ...]]
+    packet: InstructionPacket
+    frame: bytes
+    statuses: dict[int, ExpectedStatus] | None
+    reply_bytes: int
 
 
 @dataclass(frozen=True)

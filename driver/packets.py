@@ -132,6 +132,37 @@ def status_frame(id_: int, error: int, params: bytes) -> bytes:
     return prefix + params + _CRC_FIELD.pack(crc16(params, crc))
 
 
+#: Instruction frame heads by (ID, instruction, parameter bytes): header, ID, LENGTH, INST; their CRC.
+_INSTRUCTION_HEADS: dict[tuple[int, int, int], tuple[bytes, int]] = {}
+_INSTRUCTION_HEADS_MAX = 4096
+
+
+def instruction_frame(id_: int, instruction: int, params: bytes) -> bytes:
+    """The wire frame of an instruction packet (stuffed, with CRC): :meth:`InstructionPacket.encode`
+    for fields the packet has checked.
+
+    The head (header, ID, LENGTH, INST) and its running CRC depend only on the ID, the instruction
+    and the number of parameter bytes, so a request sent again (the control loop's Bulk Write)
+    reuses them and only the parameters' CRC is computed. Parameters that need stuffing (``FF FF
+    FD``, or an instruction byte 0xFF that could start the pattern) go the general way.
+    """
+    if instruction == 0xFF or params.find(_STUFF_PATTERN) >= 0:
+        return _frame(id_, bytes((instruction,)) + params)
+    key = (id_, instruction, len(params))
+    head = _INSTRUCTION_HEADS.get(key)
+    if head is None:
+        if len(_INSTRUCTION_HEADS) >= _INSTRUCTION_HEADS_MAX:
+            _INSTRUCTION_HEADS.clear()
+        prefix = HEADER + _INSTRUCTION_HEAD.pack(id_, len(params) + 3, instruction)
+        head = _INSTRUCTION_HEADS[key] = (prefix, crc16(prefix))
+    prefix, crc = head
+    return prefix + params + _CRC_FIELD.pack(crc16(params, crc))
+
+
+#: ID, LENGTH and INST of an instruction frame's head.
+_INSTRUCTION_HEAD = struct.Struct("<BHB")
+
+
 def _frame(id_: int, body: bytes, *, stuffed: bool = True) -> bytes:
     """Wrap ``body`` (INST [ERR] params) into a full frame with header, LENGTH and CRC."""
     if stuffed:
@@ -186,7 +217,7 @@ class InstructionPacket:
 
     def encode(self) -> bytes:
         """The frame as sent on the wire (stuffed, with CRC)."""
-        return _frame(self.id, bytes((self.instruction,)) + self.params)
+        return instruction_frame(self.id, self.instruction, self.params)
 
     def wire_length(self) -> int:
         """``len(self.encode())`` without computing the CRC: header, ID and LENGTH
@@ -262,6 +293,55 @@ class StatusPacket:
         pkt = _new(cls)
         pkt.__dict__.update(id=id_, error=error, params=params)
         return pkt
+
+
+#: Bytes of a status frame before its data: header, ID, LENGTH, INST, ERR.
+STATUS_HEAD_BYTES = PREFIX_BYTES + 2
+
+
+@dataclass(frozen=True)
+class ExpectedStatus:
+    """An error-free status from servo ``id`` carrying ``length`` data bytes: a reply known in
+    advance (a Sync Read's), checked by its head and the CRC of its data alone.
+
+    ``head`` holds the frame's first :data:`STATUS_HEAD_BYTES` bytes (header, ID, LENGTH, INST,
+    ERR 0) and ``head_crc`` their CRC-16, so :meth:`decode` compares the head, continues the CRC
+    over the data and builds the :class:`StatusPacket`. It accepts exactly the frames
+    :meth:`StatusPacket.decode` decodes to that ID, error 0 and ``length`` data bytes without
+    unstuffing, and gives the same packet; anything else (an error byte, stuffed or corrupt
+    data, a frame cut short) it leaves to :meth:`StatusPacket.decode`.
+    """
+
+    id: int
+    length: int
+    head: bytes
+    head_crc: int
+
+    @classmethod
+    def of(cls, id_: int, length: int) -> "ExpectedStatus":
+        """The expected status of servo ``id_`` (0..252) with ``length`` data bytes (0..MAX_LENGTH - 4)."""
+        _check_id(id_, allow_broadcast=False)
+        if not 0 <= length <= MAX_LENGTH - 4:
+            raise ValueError(f"status data length {length} outside 0..{MAX_LENGTH - 4}")
+        head = HEADER + struct.pack("<BHBB", id_, length + 4, _STATUS, 0)
+        return cls(id_, length, head, crc16(head))
+
+    @property
+    def frame_bytes(self) -> int:
+        """Bytes of the whole frame: head, data, CRC."""
+        return STATUS_HEAD_BYTES + self.length + 2
+
+    def decode(self, buf: bytes | bytearray) -> StatusPacket | None:
+        """The status the frame at the start of ``buf`` holds if it is this one (head equal, no
+        ``FF FF FD`` in the data, CRC right), else ``None``; ``buf`` may continue after it."""
+        end = STATUS_HEAD_BYTES + self.length
+        if (len(buf) < end + 2 or not buf.startswith(self.head)
+                or buf.find(_STUFF_PATTERN, STATUS_HEAD_BYTES, end) >= 0):
+            return None
+        data = bytes(buf[STATUS_HEAD_BYTES:end])
+        if crc16(data, self.head_crc) != buf[end] | buf[end + 1] << 8:
+            return None
+        return StatusPacket._checked(self.id, 0, data)
 
 
 @dataclass(frozen=True)

@@ -81,6 +81,8 @@ class WheelSet:
         self._goal_plan = None       # the Bulk Write of the goals, planned at the first one
         # plain strings, as _GOAL_VELOCITY
         self._first, self._last = str(Reg.PRESENT_CURRENT), str(Reg.PRESENT_POSITION)
+        self._names: tuple[str, ...] | None = None     # the read's register names, and
+        self._at: tuple[int, int, int] = (0, 0, 0)     # where current, velocity, position are in them
         # per wheel, the SI factor of each present value with the direction sign in it (the
         # sign is +-1, so sign * (raw * scale) == raw * (sign * scale) exactly)
         cur, vel, pos = (self.table[r].to_si(1) for r in
@@ -182,8 +184,11 @@ class WheelSet:
         (or Fast Sync Read) of addresses 126..135, converted to the wheel frame."""
         names, rows = self.bus.sync_read_rows(self.ids, self._first, self._last, fast=self.fast)
         t = time.monotonic()
-        ic, iv, ip = names.index(Reg.PRESENT_CURRENT), names.index(Reg.PRESENT_VELOCITY), \
-            names.index(Reg.PRESENT_POSITION)
+        if names is not self._names:      # the bus's plan: the same tuple each cycle
+            self._names = names
+            self._at = (names.index(Reg.PRESENT_CURRENT), names.index(Reg.PRESENT_VELOCITY),
+                        names.index(Reg.PRESENT_POSITION))
+        ic, iv, ip = self._at
         dv, dp, dc, sp, sv, sc = [], [], [], [], [], []
         for (kdv, kdp, kdc, center, ksp, ksv, ksc), d, s in zip(self._si, rows, rows[len(self.drive_ids):]):
             dv.append(kdv * d[iv])

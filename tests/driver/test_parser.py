@@ -18,6 +18,13 @@ def test_instruction_round_trip(id_, inst, params):
     assert InstructionPacket.decode(pkt.encode()) == pkt
 
 
+@given(st.one_of(ids, st.just(P.BROADCAST_ID)), st.integers(0, 255), payload)
+def test_instruction_frame_is_the_general_frame(id_, inst, params):
+    """The cached-head encoder gives the bytes of the general one, stuffing or not, twice."""
+    for _ in range(2):
+        assert P.instruction_frame(id_, inst, params) == P._frame(id_, bytes((inst,)) + params)
+
+
 @given(ids, st.integers(0, 255), payload)
 def test_status_round_trip(id_, err, params):
     pkt = StatusPacket(id_, err, params)

@@ -28,7 +28,7 @@ from typing import Callable, Protocol, Sequence
 
 import numpy as np
 
-from swerve.controller.kinematics import Geometry, drive_angular_speed, wheel_commands
+from swerve.controller.kinematics import Geometry, drive_angular_speed, wheel_command_floats
 from swerve.controller.odometry import Odometry
 from swerve.controller.simulate import SimResult, metrics
 from swerve.controller.tracking import TrackingLaw
@@ -40,6 +40,7 @@ from swerve.tools.run.ticker import Clock, Ticker, WallLoopClock, collector_paus
 log = logging.getLogger(__name__)
 
 _OVERRUN, _STALE = int(CycleFlag.OVERRUN), int(CycleFlag.STALE)
+_NO_POSE = (np.nan,) * 3
 
 
 class WheelReading(Protocol):
@@ -152,6 +153,7 @@ class TrackingLoop:
         if not time_scale > 0:
             raise ValueError(f"time scale must be positive, got {time_scale}")
         self.wheels, self.law, self.geom = wheels, law, geom
+        drive_angular_speed(0.0, geom.wheel_radius_m)      # raises for a radius that is not > 0
         self.tau_s = law.reference.tau_s
         self.time_scale = float(time_scale)
         self.max_failed_reads = int(max_failed_reads)
@@ -200,8 +202,9 @@ class TrackingLoop:
     def _goals(self, v1_mps: float, delta1_rad: float, delta2_rad: float) -> tuple[list[float], list[float]]:
         """The wheel goals ``(drive_radps (4,), steer_rad (4,))`` for ground speed ``v1_mps`` and the
         steering angles: the robot's goal layout (:func:`wheel_commands`), speeds at the wheel."""
-        goals = wheel_commands(v1_mps, delta1_rad, delta2_rad)     # [v1] * 4 + [d1, d2, d2, d1]
-        return drive_angular_speed(goals[:4], self.geom.wheel_radius_m).tolist(), goals[4:].tolist()
+        goals = wheel_command_floats(v1_mps, delta1_rad, delta2_rad)     # [v1] * 4 + [d1, d2, d2, d1]
+        r = self.geom.wheel_radius_m        # v / r: what drive_angular_speed divides, on floats
+        return [v / r for v in goals[:4]], goals[4:]
 
     def _touch_bus(self, now: float | None = None) -> None:
         """Before a transaction: abort if the bus was silent longer than the Bus Watchdog
@@ -217,10 +220,12 @@ class TrackingLoop:
                             "they have stopped", "stalled")
         self._last_tx = now
 
-    def _pose_truth(self) -> np.ndarray:
+    def _pose_truth(self) -> tuple[float, float, float]:
+        """The true pose ``(x_m, y_m, theta_rad)`` (NaN without one)."""
         if self.true_pose is None:
-            return np.full(3, np.nan)
-        return np.asarray(self.true_pose(), dtype=float)
+            return _NO_POSE
+        x, y, theta = self.true_pose()
+        return float(x), float(y), float(theta)
 
     def move_to_start(self, delta1: float, delta2: float, timeout_s: float = 5.0,
                       tolerance_rad: float = 0.03) -> None:
@@ -299,8 +304,8 @@ class TrackingLoop:
                         t_prev_meas = t_meas
                         odo.update(dt, st.drive_radps, st.steer_rad, st.drive_rad)
                         meas = st
-                    pose = odo.pose
-                    state = np.array([*pose, d1, d2])
+                    pose = odo.pose_floats
+                    state = [*pose, d1, d2]
                     out = law.step(t, state)
                     if out.finished:
                         break
@@ -312,12 +317,12 @@ class TrackingLoop:
                     period = ticker.stats.periods_s[-1] * self.time_scale if ticker.stats.periods_s else np.nan
                     if ticker.stats.overruns and rows and ticker.stats.overruns > rows[-1][-1]:
                         flags |= _OVERRUN
-                    rows.append((t, state, truth, out.desired_state, (v1, w1, w2), out.raw,
-                                 out.reference_time_s, out.error, out.u, out.ud, ticker.stats.overruns))
+                    # the law's diagnostics become arrays off the cycle's chain (at the end, in the log)
+                    rows.append((t, state, truth, (v1, w1, w2), out, ticker.stats.overruns))
                     log_args = None
                     if self.on_cycle is not None:
                         log_args = (k_base + k, t, period, drive, steer, v1, w1, w2, meas, pose,
-                                    out.desired_state, truth, flags, self._stamp_ns())
+                                    out.diagnostics[4], truth, flags, self._stamp_ns())
 
                     def finish_cycle(log_args=log_args):
                         # the log's record is built and written while a lockstep emulator runs
@@ -357,19 +362,21 @@ class TrackingLoop:
     def _cycle(k, t, period, drive, steer, v1, w1, w2, meas, pose, sd, truth, flags, stamp_ns) -> dict:
         """The ``on_cycle`` dict: :class:`tools.logs.record.CycleRecord` fields, float64 arrays.
 
-        ``pose`` (3,) must be the caller's own copy (it is logged as is)."""
+        ``pose`` and ``truth``: 3 floats each; ``sd``: the reference state, 5 floats."""
         if meas is None:
             meas_drive = meas_steer = np.full(4, np.nan)
             meas_current = np.full(8, np.nan)
         else:
             meas_drive, meas_steer = np.array(meas.drive_radps), np.array(meas.steer_rad)
             meas_current = np.array([*meas.drive_current_a, *meas.steer_current_a])
+        sd = np.array(sd, float)
         return dict(
             cycle=k, t_s=t, stamp_ns=stamp_ns, period_s=period,
             cmd_drive_radps=np.array(drive, float), cmd_steer_rad=np.array(steer, float),
             cmd_v1_mps=float(v1), cmd_omega_radps=np.array([w1, w2]),
             meas_drive_radps=meas_drive, meas_steer_rad=meas_steer, meas_current_a=meas_current,
-            est_pose=pose, ref_pose=sd[:3], ref_delta=sd[3:5], true_pose=truth, flags=flags)
+            est_pose=np.array(pose, float), ref_pose=sd[:3], ref_delta=sd[3:5], true_pose=np.array(truth, float),
+            flags=flags)
 
     def _result(self, rows, ticker: Ticker, aborted, cpu_s=(), cpu_overruns=0) -> LoopResult:
         traj = self.law.reference.trajectory
@@ -391,14 +398,14 @@ class TrackingLoop:
         states = est.copy()
         if use_truth:
             states[:, :3] = truth
-        res = SimResult(t, states, np.array(cols[4]), np.array(cols[5]), np.array(cols[6]),
-                        np.array(cols[3]), np.array(cols[7]),
-                        np.array(cols[8]) - np.array(cols[9]), traj.tf_s)
+        # the law's diagnostics: (error, u, ud, raw, desired_state) per cycle
+        err, u, ud, raw, desired = (np.array(c, dtype=float) for c in zip(*(o.diagnostics for o in cols[4])))
+        ref_t = np.array([o.reference_time_s for o in cols[4]])
+        res = SimResult(t, states, np.array(cols[3]), raw, ref_t, desired, err, u - ud, traj.tf_s)
         settled = bool(np.any(t >= traj.tf_s / 4))
         if not settled:  # stopped before tf/4: the settled-error keys are undefined, not 0
             res.tf_s = 0.0
         tracking = tracking_errors(
             metrics(res, traj.Q, traj.R, self.tau_s), "true_pose" if use_truth else "odometry",
             settled, np.hypot(*(est[:, :2] - truth[:, :2]).T) if use_truth else None)
-        return LoopResult(t, est, truth, np.array(cols[3]), np.array(cols[4]), tracking=tracking,
-                          **common)
+        return LoopResult(t, est, truth, desired, np.array(cols[3]), tracking=tracking, **common)
