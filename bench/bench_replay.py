@@ -384,7 +384,7 @@ def main() -> None:
     print("|---|---|" + "---|" * len(per_step))
     for j in range(len(shape) - 1):
         print(f"| {shape[j]} | {shape[j + 1]} | " + " | ".join(f"{r[j]:.1f}" for r in per_step) + " |")
-    print(f"| **critical chain** (pty wait .. advance sent) | | "
+    print("| **critical chain** (pty wait .. advance sent) | | "
           + " | ".join(f"**{c:.1f}**" for c in chains) + " |")
     print(f"\ncritical chain median of the replays: {statistics.median(chains):.1f} µs")
 
