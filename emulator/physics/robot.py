@@ -178,7 +178,7 @@ class RobotPhysics:
             current += sup.idle_current_a * len(self.servos)
             self.bus_voltage_v = self.cfg.supply_voltage_v - sup.internal_resistance_ohm * current
             for s in self.servos.values():
-                s.supply_voltage_v = self.bus_voltage_v
+                s.set_supply_voltage(self.bus_voltage_v)
         return pose
 
 

@@ -172,9 +172,10 @@ class ServoModel:
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
         """Set the load on the output shaft: an opposing torque (N·m) and optionally an inertia (kg·m²)."""
-        self.motor.load_torque_nm = float(torque_nm)
+        motor = self.fresh_state()["motor_"]
+        motor.load_torque_nm = float(torque_nm)
         if inertia_kg_m2 is not None:
-            self.motor.load_inertia_kg_m2 = float(inertia_kg_m2)
+            motor.load_inertia_kg_m2 = float(inertia_kg_m2)
 
     @property
     def shaft_angle_rad(self) -> float:
@@ -189,8 +190,9 @@ class ServoModel:
     @property
     def position_pulse(self) -> float:
         """Continuous (unquantised) position in Present Position's frame, pulse."""
-        return (self._sign * (self.motor.output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
-                - self._wrap_pulse + self._homing)
+        d = self.fresh_state()
+        return (self._sign * (d["motor_"].output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
+                - d["_wrap_pulse_"] + self._homing)
 
     @property
     def true_position_pulse(self) -> float:
@@ -205,12 +207,18 @@ class ServoModel:
     @property
     def velocity_radps(self) -> float:
         """True output speed in the servo's frame (Drive Mode direction applied), rad/s."""
-        return self._sign * self.motor.output_speed_radps
+        return self._sign * self.fresh_state()["motor_"].output_speed_radps
 
     @property
     def supply_current_a(self) -> float:
         """Current drawn from the supply by the bridge (duty × armature current), A."""
-        return self._sign * self.duty * self.motor.current_a
+        d = self.fresh_state()
+        return self._sign * d["duty_"] * d["motor_"].current_a
+
+    def set_supply_voltage(self, volts: float) -> None:
+        """The bus voltage at the servo's terminals from now on, V (what :attr:`supply_voltage_v`
+        = ``volts`` does, with one check of the :attr:`holder`)."""
+        self.fresh_state()["supply_voltage_v_"] = volts
 
     def take_hardware_error(self) -> int:
         """Hardware Error Status bits the protection detected since the last call (then cleared)."""
@@ -336,10 +344,12 @@ class ServoModel:
             position_trace = [0.0] * n if record_positions else None
         switched, new_goal = self.run_flags(plan)
         f, i = self.kernel_state()
+        d = self.__dict__               # fresh: kernel_state stored any held state back
+        motor = d["motor_"]
         out = kernel(n, dt_s, plant_coef, input_coef, plan.homing, record_speeds, speed_trace, record_positions,
-                     position_trace, self.rng if noisy else None, self.motor.blocked, *f[:10], i[0], i[1], f[10], f[11],
+                     position_trace, self.rng if noisy else None, motor.blocked, *f[:10], i[0], i[1], f[10], f[11],
                      f[12], i[2], i[3], switched, new_goal, i[4], f[13], f[14], i[5], f[15], f[16], i[6],
-                     float(self.encoder_offset_pulse), self.supply_voltage_v, self.motor.load_torque_nm)
+                     float(self.encoder_offset_pulse), d["supply_voltage_v_"], motor.load_torque_nm)
         ran = out[0]
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
@@ -380,8 +390,9 @@ class ServoModel:
     def run_flags(self, plan: "_InputPlan") -> tuple[bool, bool]:
         """``(switched, new_goal)`` of :func:`servo_ticks` for a run under ``plan``: the mode (or
         torque, Drive Mode) changed since the last run, the goal position did."""
-        switched = plan.key != self._prev_key
-        return switched, switched or plan.goal_position != self._prev_goal_position
+        d = self.fresh_state()
+        switched = plan.key != d["_prev_key_"]
+        return switched, switched or plan.goal_position != d["_prev_goal_position_"]
 
     def kernel_state(self) -> tuple[tuple, tuple]:
         """The state :func:`servo_ticks` takes, as ``(floats, ints)`` in the columns of
