@@ -192,8 +192,7 @@ class CoupledArrays:
             # (a plan's goal may have changed in place since: ServoModel.begin_run, _InputPlan.set_goals)
             m.finish_run(table, (plan.key, goal, plan.mode, plan.torque, plan.sign), 0, fs_l[k], ints_l[k],
                          out_l[k][1], vm_l[k])
-            d = m.__dict__
-            d["supply_voltage_v_"], d["motor_"].load_torque_nm = sf_l[k][1], sf_l[k][2]
+            m.supply_voltage_v_, m.motor_.load_torque_nm = sf_l[k][1], sf_l[k][2]
         self._versions = [m.state_version for m in self.models]
 
     def bus_voltage_v(self) -> float:

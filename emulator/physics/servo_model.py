@@ -56,7 +56,7 @@ class StateHolder(Protocol):
 class _Held:
     """A part of :class:`ServoModel`'s state (see :attr:`ServoModel.holder`): reading or setting
     it first stores back the newer state a holder keeps, so every reader sees the true state.
-    The value lives in the instance's ``__dict__`` under the name with a trailing ``_``."""
+    The value is the instance's attribute of the name with a trailing ``_`` (``motor_``)."""
 
     __slots__ = ("slot",)
 
@@ -69,13 +69,13 @@ class _Held:
         holder = model.holder
         if holder is not None and holder.dirty:
             holder.store_back()
-        return model.__dict__[self.slot]
+        return getattr(model, self.slot)
 
     def __set__(self, model, value) -> None:
         holder = model.holder
         if holder is not None and holder.dirty:
             holder.store_back()
-        model.__dict__[self.slot] = value
+        setattr(model, self.slot, value)
 
 
 class ServoModel:
@@ -172,7 +172,9 @@ class ServoModel:
     # ---- body coupling -------------------------------------------------------------------------
     def external_load(self, torque_nm: float = 0.0, inertia_kg_m2: float | None = None) -> None:
         """Set the load on the output shaft: an opposing torque (N·m) and optionally an inertia (kg·m²)."""
-        motor = self.fresh_state()["motor_"]
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        motor = self.motor_
         motor.load_torque_nm = float(torque_nm)
         if inertia_kg_m2 is not None:
             motor.load_inertia_kg_m2 = float(inertia_kg_m2)
@@ -190,9 +192,10 @@ class ServoModel:
     @property
     def position_pulse(self) -> float:
         """Continuous (unquantised) position in Present Position's frame, pulse."""
-        d = self.fresh_state()
-        return (self._sign * (d["motor_"].output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
-                - d["_wrap_pulse_"] + self._homing)
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        return (self._sign * (self.motor_.output_angle_rad / u.RAD_PER_PULSE + self.encoder_offset_pulse)
+                - self._wrap_pulse_ + self._homing)
 
     @property
     def true_position_pulse(self) -> float:
@@ -207,18 +210,23 @@ class ServoModel:
     @property
     def velocity_radps(self) -> float:
         """True output speed in the servo's frame (Drive Mode direction applied), rad/s."""
-        return self._sign * self.fresh_state()["motor_"].output_speed_radps
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        return self._sign * self.motor_.output_speed_radps
 
     @property
     def supply_current_a(self) -> float:
         """Current drawn from the supply by the bridge (duty × armature current), A."""
-        d = self.fresh_state()
-        return self._sign * d["duty_"] * d["motor_"].current_a
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        return self._sign * self.duty_ * self.motor_.current_a
 
     def set_supply_voltage(self, volts: float) -> None:
         """The bus voltage at the servo's terminals from now on, V (what :attr:`supply_voltage_v`
         = ``volts`` does, with one check of the :attr:`holder`)."""
-        self.fresh_state()["supply_voltage_v_"] = volts
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        self.supply_voltage_v_ = volts
 
     def take_hardware_error(self) -> int:
         """Hardware Error Status bits the protection detected since the last call (then cleared)."""
@@ -344,12 +352,11 @@ class ServoModel:
             position_trace = [0.0] * n if record_positions else None
         switched, new_goal = self.run_flags(plan)
         f, i = self.kernel_state()
-        d = self.__dict__               # fresh: kernel_state stored any held state back
-        motor = d["motor_"]
+        motor = self.motor_             # fresh: kernel_state stored any held state back
         out = kernel(n, dt_s, plant_coef, input_coef, plan.homing, record_speeds, speed_trace, record_positions,
                      position_trace, self.rng if noisy else None, motor.blocked, *f[:10], i[0], i[1], f[10], f[11],
                      f[12], i[2], i[3], switched, new_goal, i[4], f[13], f[14], i[5], f[15], f[16], i[6],
-                     float(self.encoder_offset_pulse), d["supply_voltage_v_"], motor.load_torque_nm)
+                     float(self.encoder_offset_pulse), self.supply_voltage_v_, motor.load_torque_nm)
         ran = out[0]
         if record_speeds:
             speeds.extend(speed_trace[:ran].tolist() if kernel is _COMPILED_TICKS else speed_trace[:ran])
@@ -366,7 +373,7 @@ class ServoModel:
         (``plant``: ``[2]`` floats, ``[3]`` float64 array or None; ``inputs``: ``[1]`` floats)."""
         plan = self._plan
         inputs = self._inputs
-        motor = self.__dict__["motor_"]     # its constants and load inertia: no held state, no store-back
+        motor = self.motor_             # its constants and load inertia: no held state, no store-back
         if not same_inputs or plan is None or table is not self._plan_table:
             self._plan_table = table
             try:
@@ -390,9 +397,10 @@ class ServoModel:
     def run_flags(self, plan: "_InputPlan") -> tuple[bool, bool]:
         """``(switched, new_goal)`` of :func:`servo_ticks` for a run under ``plan``: the mode (or
         torque, Drive Mode) changed since the last run, the goal position did."""
-        d = self.fresh_state()
-        switched = plan.key != d["_prev_key_"]
-        return switched, switched or plan.goal_position != d["_prev_goal_position_"]
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        switched = plan.key != self._prev_key_
+        return switched, switched or plan.goal_position != self._prev_goal_position_
 
     def kernel_state(self) -> tuple[tuple, tuple]:
         """The state :func:`servo_ticks` takes, as ``(floats, ints)`` in the columns of
@@ -401,24 +409,24 @@ class ServoModel:
         temperature °C, duty, held goal, goal pulse, friction torque N·m, overload timer s) and
         :data:`.coupled.INTS` (profile ongoing and type, wrap pulse, started, holding, stuck,
         reported protection bits)."""
-        d = self.fresh_state()
-        motor, vf, rf, prof = d["motor_"], d["velocity_filter_"], d["reference_filter_"], d["profile_"]
-        hold, protection = d["_hold_position_"], d["protection_"]
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        motor, vf, rf, prof = self.motor_, self.velocity_filter_, self.reference_filter_, self.profile_
+        hold, protection = self._hold_position_, self.protection_
         return ((motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position,
-                 prof.velocity, prof.acceleration, d["loop_"].integral, d["temperature_c_"], d["duty_"],
-                 0.0 if hold is None else hold, d["_goal_pulse_"], motor.friction_torque_nm,
+                 prof.velocity, prof.acceleration, self.loop_.integral, self.temperature_c_, self.duty_,
+                 0.0 if hold is None else hold, self._goal_pulse_, motor.friction_torque_nm,
                  0.0 if protection is None else protection.overload_timer_s),
-                (prof.ongoing, prof.profile_type, d["_wrap_pulse_"], d["_started_"], hold is not None, motor.stuck,
+                (prof.ongoing, prof.profile_type, self._wrap_pulse_, self._started_, hold is not None, motor.stuck,
                  0 if protection is None else protection.raised))
 
-    def fresh_state(self) -> dict:
-        """The model's attributes (``__dict__``, the held ones under their names with a trailing
-        ``_``) after the :attr:`holder`'s newer state, if any, was stored back: one check for a
-        method that reads many of them."""
+    def fresh(self) -> None:
+        """Store back the :attr:`holder`'s newer state, if any: after it, a method reads and sets
+        the held attributes by their stored names (``motor_`` for :attr:`motor`: a plain
+        attribute, not the checking descriptor), one check for all of them."""
         holder = self.holder
         if holder is not None and holder.dirty:
             holder.store_back()
-        return self.__dict__
 
     def finish_run(self, table: Mapping[str, int], record: tuple, bits: int, floats, ints, present: int,
                    v_meas: float) -> None:
@@ -427,22 +435,21 @@ class ServoModel:
         left (``floats``, ``ints``: as :meth:`kernel_state` orders them), the last Present
         Position (pulse) and measured velocity (velocity units), and note the Hardware Error
         ``bits`` it raised. The caller holds the newest state: no :attr:`holder` is dirty."""
-        d = self.__dict__
-        motor, vf, rf, prof, loop = d["motor_"], d["velocity_filter_"], d["reference_filter_"], d["profile_"], d["loop_"]
+        motor, vf, rf, prof, loop = self.motor_, self.velocity_filter_, self.reference_filter_, self.profile_, self.loop_
         (motor.current_a, motor.speed_radps, motor.angle_rad, vf.y, vf.dy, rf.y, rf.dy, prof.position, prof.velocity,
-         prof.acceleration, loop.integral, d["temperature_c_"], d["duty_"], hold, d["_goal_pulse_"],
+         prof.acceleration, loop.integral, self.temperature_c_, self.duty_, hold, self._goal_pulse_,
          motor.friction_torque_nm, overload_s) = floats
-        ongoing, prof.profile_type, d["_wrap_pulse_"], started, holding, stuck, raised = ints
-        prof.ongoing, d["_started_"], motor.stuck = bool(ongoing), bool(started), bool(stuck)
-        protection = d["protection_"]
+        ongoing, prof.profile_type, self._wrap_pulse_, started, holding, stuck, raised = ints
+        prof.ongoing, self._started_, motor.stuck = bool(ongoing), bool(started), bool(stuck)
+        protection = self.protection_
         if protection is not None:
             protection.overload_timer_s, protection.raised = overload_s, raised
         if bits:
             self.pending_hardware_error |= bits
-        d["_hold_position_"] = hold if holding else None
+        self._hold_position_ = hold if holding else None
         key, goal_position, mode, torque, sign = record
-        d["_prev_key_"], d["_prev_goal_position_"] = key, goal_position
-        d["_last_"] = (table, mode, torque, present, v_meas, sign)
+        self._prev_key_, self._prev_goal_position_ = key, goal_position
+        self._last_ = (table, mode, torque, present, v_meas, sign)
         self.state_version += 1
 
     def _input_row(self, inputs: tuple) -> np.ndarray:
@@ -504,22 +511,23 @@ class ServoModel:
     def outputs(self) -> dict[str, int]:
         """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
         current and voltage is drawn per call. Before the first step: the servo at rest."""
-        d = self.fresh_state()
-        last = d["_last_"]
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        last = self._last_
         if last is None:
             return {"present_position": math.floor(self.position_pulse),
                     "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
                     "present_temperature": round(self.temperature_c)}
         t, mode, torque, present, v_meas, sign = last
         s = self.sensors
-        current = sign * d["motor_"].current_a
-        volts = d["supply_voltage_v_"]
+        current = sign * self.motor_.current_a
+        volts = self.supply_voltage_v_
         if s.current_noise_std_a:
             current += self.rng.normal(0.0, s.current_noise_std_a)
         if s.voltage_noise_std_v:
             volts += self.rng.normal(0.0, s.voltage_noise_std_v)
         vel = round(v_meas)
-        profile = d["profile_"]
+        profile = self.profile_
         position_mode = mode in _POSITION_MODES
         if position_mode:
             v_traj = profile.velocity / PULSE_PER_S_PER_VEL_UNIT
@@ -532,21 +540,21 @@ class ServoModel:
             status = _profile_bits(profile.profile_type)
             if ongoing:
                 status |= _PROFILE_ONGOING
-            elif abs(d["_goal_pulse_"] - present) <= self.fw.in_position_window_pulse:
+            elif abs(self._goal_pulse_ - present) <= self.fw.in_position_window_pulse:
                 status |= _IN_POSITION
             if abs(profile.position - present) > self.fw.following_error_pulse:
                 status |= _FOLLOWING_ERROR
         elif ongoing:
             status = _PROFILE_ONGOING
         return {
-            "present_pwm": round(d["duty_"] * _PWM_FULL_SCALE) if torque else 0,
+            "present_pwm": round(self.duty_ * _PWM_FULL_SCALE) if torque else 0,
             "present_current": round(current / _AMP_PER_CURRENT_UNIT),
             "present_velocity": vel,
             "present_position": present,
             "velocity_trajectory": round(v_traj),
             "position_trajectory": round(p_traj),
             "present_input_voltage": round(volts / _VOLT_PER_UNIT),
-            "present_temperature": round(d["temperature_c_"]),
+            "present_temperature": round(self.temperature_c_),
             "moving": int(abs(vel) > t["moving_threshold"] or ongoing and position_mode),
             "moving_status": status,
         }
