@@ -4,36 +4,32 @@
 error system ``Ad``, ``Bd`` (which carry the robot's geometry and limits, the trajectory and its
 reference frames), the weights ``Q``, ``R`` and the step ``tau``. It runs in fixed-order Python
 (:mod:`core.small_linalg`), ~0.3 s for the 40 s line. :class:`RiccatiCache` stores its result
-``(K, P)`` in one ``.npz`` file per input, named by a SHA-256 of the exact bytes of every input
+``(K, P)`` in one file per input (:class:`core.value_cache.ValueCache`: float64 values with a
+checksum), named by a SHA-256 of the exact bytes of every input
 and of the source of the code that computes it (``riccati.py``, ``core/small_linalg.py``), so
 a changed input or an edited recursion is a different file. A file comes back bit for bit (the
 arrays are stored as float64), so a run with the cache gives the same gains, and the same log,
 as one without.
 
 A file that cannot be read, is damaged, or does not hold what its name says is recomputed and
-written again; a cache folder that cannot be written leaves the solve uncached. Files are
-written atomically (:func:`core.atomic.write_bytes`), so a crash never leaves half a file.
+written again; a cache folder that cannot be written leaves the solve uncached; files are written
+atomically.
 """
 from __future__ import annotations
 
 import hashlib
-import io
-import logging
 import os
 import struct
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from swerve.controller import riccati
 from swerve.core import small_linalg
-from swerve.core.atomic import OutputError, write_bytes
+from swerve.core.value_cache import ValueCache
 
-log = logging.getLogger(__name__)
-
-#: Bumped when the file layout changes (the arrays stored, their names).
-LAYOUT = b"swerve riccati cache 1"
+#: The first bytes of every cache file; bumped when the layout changes (the arrays stored, their order).
+LAYOUT = b"swerve riccati cache 2\n"
 
 
 def _code_digest() -> bytes:
@@ -65,47 +61,27 @@ class RiccatiCache:
     """
 
     def __init__(self, folder: str | os.PathLike):
-        self.folder = Path(folder)
-        self.hits = 0
-        self.misses = 0
+        self._store = ValueCache(folder, "riccati", LAYOUT)
 
-    def path_for(self, key: str) -> Path:
-        """The file of the input whose :func:`riccati_key` is ``key``."""
-        return self.folder / f"riccati-{key}.npz"
+    @property
+    def hits(self) -> int:
+        """Solves answered from the folder."""
+        return self._store.hits
+
+    @property
+    def misses(self) -> int:
+        """Solves computed (and stored when the folder is writable)."""
+        return self._store.misses
 
     def solve(self, Ad, Bd, Q, R, tau: float, progress: bool = False):
-        """``(K, P)`` of :func:`finite_horizon_lqr` for these inputs, from the cache when it
-        holds them, else computed and stored."""
-        key = riccati_key(Ad, Bd, Q, R, tau)
-        path = self.path_for(key)
+        """``(K (N, m, n), P (N + 1, n, n))`` of :func:`finite_horizon_lqr` for these inputs, from
+        the cache when it holds them, else computed and stored."""
         n_steps, n, m = np.shape(Bd)
-        stored = self._read(path, key, (n_steps, m, n), (n_steps + 1, n, n))
-        if stored is not None:
-            self.hits += 1
-            return stored
-        self.misses += 1
-        K, P = riccati.finite_horizon_lqr(Ad, Bd, Q, R, tau, progress=progress)
-        buf = io.BytesIO()
-        np.savez(buf, key=np.array(key), K=K, P=P)
-        try:
-            write_bytes(path, buf.getvalue())
-        except OutputError as exc:       # a read-only or full cache folder: the solve stands
-            log.debug("Riccati cache not written: %s", exc)
-        return K, P
+        k_size = n_steps * m * n
 
-    @staticmethod
-    def _read(path: Path, key: str, k_shape: tuple, p_shape: tuple):
-        """``(K, P)`` stored in ``path`` for ``key``, or None (absent, unreadable or damaged)."""
-        try:
-            with np.load(path, allow_pickle=False) as data:
-                if str(data["key"]) != key:
-                    return None
-                K, P = data["K"], data["P"]
-        except FileNotFoundError:
-            return None
-        except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile) as exc:
-            log.debug("Riccati cache file %s ignored: %s", path, exc)
-            return None
-        if (K.shape != k_shape or P.shape != p_shape or K.dtype != np.float64 or P.dtype != np.float64):
-            return None
-        return K, P
+        def compute():
+            K, P = riccati.finite_horizon_lqr(Ad, Bd, Q, R, tau, progress=progress)
+            return np.concatenate((np.ravel(K), np.ravel(P)))
+
+        flat = self._store.values(riccati_key(Ad, Bd, Q, R, tau), k_size + (n_steps + 1) * n * n, compute)
+        return flat[:k_size].reshape(n_steps, m, n), flat[k_size:].reshape(n_steps + 1, n, n)

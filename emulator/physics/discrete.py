@@ -11,37 +11,27 @@ holds its version). A hit gives the same float64 values, so the physics, the log
 hashes are the same with and without the cache; only a miss imports :mod:`.exact`, and with it
 mpmath.
 
-A file holds :data:`LAYOUT`, the 32 bytes of its key, the values as little-endian float64, and
-the first bytes of the SHA-256 of all that. One that cannot be read, has another length, names
-another key or fails its checksum is recomputed and written again; a folder that cannot be
-written leaves the results uncached. Files are written atomically
-(:func:`swerve.core.atomic.write_bytes`), so a crash never leaves half a file. Delete the
-folder to empty it.
+The files, their checksums and what happens to a damaged one or an unwritable folder are
+:class:`swerve.core.value_cache.ValueCache`'s.
 """
 from __future__ import annotations
 
 import functools
 import hashlib
 import importlib.util
-import logging
 import os
 import struct
 from pathlib import Path
-from typing import Callable, Sequence
 
 import numpy as np
 
-from swerve.core.atomic import OutputError, write_bytes
 from swerve.core.user_cache import user_cache_dir
+from swerve.core.value_cache import ValueCache
 
 from .params import BESSEL_NORMS
 
-log = logging.getLogger(__name__)
-
 #: The first bytes of every cache file; bumped when the layout changes.
 LAYOUT = b"swerve exact cache 1\n"
-#: Bytes of the SHA-256 of a file's contents that end it (a damaged value is found).
-CHECK_BYTES = 8
 #: The source of :mod:`.exact`, part of every key.
 EXACT_SOURCE = Path(__file__).with_name("exact.py")
 
@@ -69,42 +59,12 @@ def exact_key(kind: str, payload: bytes) -> str:
     return hashlib.sha256(_code_digest(EXACT_SOURCE) + kind.encode() + b"\0" + payload).hexdigest()
 
 
-class ExactCache:
-    """Float64 results of :mod:`.exact` kept in ``folder`` (see the module notes); :attr:`hits`
-    and :attr:`misses` count its answers."""
+class ExactCache(ValueCache):
+    """The results of :mod:`.exact` kept in ``folder`` as ``exact-<key>.f8`` files
+    (:class:`swerve.core.value_cache.ValueCache`)."""
 
     def __init__(self, folder: str | os.PathLike):
-        self.folder = Path(folder)
-        self.hits = 0
-        self.misses = 0
-
-    def values(self, key: str, count: int, compute: Callable[[], Sequence[float]]) -> np.ndarray:
-        """The ``count`` float64 values stored for ``key``, else ``compute()`` (a flat sequence
-        of ``count`` floats), stored and returned; a new array either way."""
-        path = self.folder / f"exact-{key}.f8"
-        head = LAYOUT + bytes.fromhex(key)
-        size = len(head) + 8 * count
-        try:
-            data = path.read_bytes()
-        except FileNotFoundError:
-            data = b""
-        except OSError as exc:
-            log.debug("exact cache file %s ignored: %s", path, exc)
-            data = b""
-        if (len(data) == size + CHECK_BYTES and data.startswith(head)
-                and hashlib.sha256(data[:size]).digest()[:CHECK_BYTES] == data[size:]):
-            self.hits += 1
-            return np.frombuffer(data, "<f8", count, len(head)).astype(np.float64)
-        self.misses += 1
-        values = np.array(compute(), np.float64)
-        if values.shape != (count,):
-            raise ValueError(f"{key}: computed {values.shape} values, expected {count}")
-        body = head + values.astype("<f8").tobytes()
-        try:
-            write_bytes(path, body + hashlib.sha256(body).digest()[:CHECK_BYTES])
-        except OutputError as exc:      # a read-only or full cache folder: the result stands
-            log.debug("exact cache file not written: %s", exc)
-        return values
+        super().__init__(folder, "exact", LAYOUT)
 
 
 def _cache(cache: ExactCache | None) -> ExactCache:

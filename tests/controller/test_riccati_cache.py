@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from swerve.controller import riccati
+from swerve.controller import riccati, riccati_cache
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.riccati_cache import RiccatiCache, riccati_key
 from swerve.controller.trajectory import load_trajectory
@@ -27,7 +27,7 @@ def test_a_hit_returns_the_solvers_bits_without_solving(tmp_path, monkeypatch):
     cache = RiccatiCache(tmp_path)
     K1, P1 = cache.solve(Ad, Bd, Q, R, tau)
     assert (cache.hits, cache.misses) == (0, 1)
-    assert len(list(tmp_path.glob("riccati-*.npz"))) == 1
+    assert len(list(tmp_path.glob("riccati-*.f8"))) == 1
 
     def refuse(*args, **kwargs):
         raise AssertionError("solved although the cache holds the answer")
@@ -68,12 +68,12 @@ def test_a_damaged_file_is_recomputed_and_rewritten(tmp_path, damage):
     Ad, Bd, Q, R, tau = _problem()
     K0, P0 = riccati.finite_horizon_lqr(Ad, Bd, Q, R, tau)
     RiccatiCache(tmp_path).solve(Ad, Bd, Q, R, tau)
-    (path,) = tmp_path.glob("riccati-*.npz")
+    (path,) = tmp_path.glob("riccati-*.f8")
     data = path.read_bytes()
     if damage == "truncate":
         path.write_bytes(data[:len(data) // 2])
     elif damage == "flip":
-        i = data.index(b"\x93NUMPY", data.index(b"K.npy")) + 200     # inside the K array
+        i = len(riccati_cache.LAYOUT) + 32 + 200          # inside the K values
         path.write_bytes(data[:i] + bytes([data[i] ^ 0x10]) + data[i + 1:])
     elif damage == "garbage":
         path.write_bytes(b"not a cache file\n" * 100)
@@ -82,7 +82,7 @@ def test_a_damaged_file_is_recomputed_and_rewritten(tmp_path, damage):
     else:                               # a whole valid file of another input under this name
         other = _problem(seed=1)
         RiccatiCache(tmp_path / "other").solve(*other)
-        path.write_bytes(next((tmp_path / "other").glob("*.npz")).read_bytes())
+        path.write_bytes(next((tmp_path / "other").glob("*.f8")).read_bytes())
     cache = RiccatiCache(tmp_path)
     K, P = cache.solve(Ad, Bd, Q, R, tau)
     assert (cache.hits, cache.misses) == (0, 1)
