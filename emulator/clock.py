@@ -2,7 +2,7 @@
 
 The bus thread (:class:`swerve.emulator.server.Emulator`) serves requests and, whenever none is
 waiting, calls ``clock.run(world)``. The clock runs the physics steps it decides are due (each
-with ``world.step()``, which takes the bus lock for one step) and returns how long the bus thread
+with ``world.step_many(dt, 1)``, which takes the bus lock for one step) and returns how long the bus thread
 may block in ``select`` before calling again. Its behaviour is passed in, as pyserial's
 ``serial.threaded.ReaderThread(serial, protocol_factory)`` gets its protocol passed in:
 
@@ -215,7 +215,7 @@ class WallPhysicsClock(WallPacedClock):
         n = 0
         try:
             while n < backlog:
-                world.step(dt)
+                world.step_many(dt, 1)     # one step, compiled where the world can be
                 n += 1
                 if world.request_pending():
                     break

@@ -152,10 +152,11 @@ def build_emulator(robot: RobotConfig | None = None, physics: PhysicsConfig | No
         centers = {w.steer_id: w.center_pulse for w in robot.wheels} if robot is not None else {}
         models = {i: wheel_servo(physics, model, steering=i in centers, center_pulse=centers.get(i), rng=rng)
                   for i in ids}            # steering shafts start at their centre
-    for m in models.values():           # SciPy's first expm would stall the bus at torque-on
-        m.prepare(1.0 / rate_hz)
-    if world is not None:
+    if world is not None:               # discretisations and kernels: made later they would stall the bus
         world.physics.prepare(1.0 / rate_hz)
+    else:
+        for m in models.values():
+            m.prepare(1.0 / rate_hz)
     servos = make_servos(ids, model, baud, **extra,
                          dynamics=lambda s: ServoDynamics(models[s.id], s) if s.id in models else None)
     for s in servos:                    # present items from the physics, not the table defaults

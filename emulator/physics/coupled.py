@@ -34,13 +34,12 @@ order the supply sums their currents in), built and kept by
 """
 from __future__ import annotations
 
-import numpy as np
 
 from . import body, contact, motor, protection, servo_model
 from . import units as u
 from .contact import contact_step
 from .body import _se2_step, kinematic_twist
-from .jit import compiled
+from .native import native
 from .servo_model import servo_ticks
 
 #: Columns of the float state array (see module docstring).
@@ -71,7 +70,7 @@ SIGN_COLUMN = 11
 
 
 def robot_ticks(n, dt_s, plants, inputs, servo_i, servo_f, fs, ints, out_i, v_meas, wheel_i, wheel_f, backlash,
-                wheel_out, body_f, flags, pose, stats):
+                wheel_out, body_f, flags, pose, stats, unused):
     """Up to ``n`` ticks of ``dt_s`` of every servo and the body; returns the ticks run.
 
     ``plants``, ``inputs``: :func:`servo_ticks`'s constants per servo (rows); the other arrays
@@ -80,11 +79,11 @@ def robot_ticks(n, dt_s, plants, inputs, servo_i, servo_f, fs, ints, out_i, v_me
     (then cleared). ``out_i``'s bits column gets (ORed) the Hardware Error bits each servo
     raised (the run stops after a tick in which one did), its Present Position column and
     ``v_meas`` the last Present Position / measured velocity. ``backlash``: the wheel angles
-    behind the steering backlash (valid once ``flags[0]``).
+    behind the steering backlash (valid once ``flags[0]``). ``unused``: one float, passed to
+    :func:`servo_ticks` for the traces it does not record (the kernel allocates nothing).
     """
     count = plants.shape[0]
     wheels = wheel_i.shape[0]
-    unused = np.empty(1)
     speeds, angles = wheel_out[0], wheel_out[1]
     drive_dir, steer_dir, center, radius, steer_off = wheel_f[0], wheel_f[1], wheel_f[2], wheel_f[3], wheel_f[4]
     half, supply_v, supply_r, idle_total = body_f[0], body_f[1], body_f[2], body_f[3]
@@ -157,6 +156,9 @@ def robot_ticks(n, dt_s, plants, inputs, servo_i, servo_f, fs, ints, out_i, v_me
     return ran
 
 
-#: :func:`robot_ticks` compiled (:mod:`.jit`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
-ROBOT_TICKS = compiled(robot_ticks, depends=(servo_model.__file__, contact.__file__, body.__file__, motor.__file__,
-                                             protection.__file__, *servo_model.KERNEL_SOURCES))
+#: :func:`robot_ticks` as native code (:mod:`.native`), or ``None`` without numba or with ``SWERVE_NO_JIT`` set.
+ROBOT_TICKS = native(robot_ticks, ("i8", "f8", "f8[:,:]", "f8[:,:]", "i8[:,:]", "f8[:,:]", "f8[:,:]", "i8[:,:]",
+                                   "i8[:,:]", "f8[:]", "i8[:,:]", "f8[:,:]", "f8[:]", "f8[:,:]", "f8[:]", "i8[:]",
+                                   "f8[:]", "i8[:]", "f8[:]"),
+                     depends=(servo_model.__file__, contact.__file__, body.__file__, motor.__file__,
+                              protection.__file__, *servo_model.KERNEL_SOURCES))

@@ -79,6 +79,7 @@ class CoupledArrays:
         self.flags = np.array((0, supply_on, self.contact), np.int64)
         self.pose = np.zeros(7)
         self.stats = np.zeros(2, np.int64)
+        self.unused = np.zeros(1)
         self.plants: np.ndarray | None = None     # (servos, plant coefficients), at the first run
         self.inputs: np.ndarray | None = None
         self._plant_of: list = [None] * count     # the model's plant / input tuples the rows hold
@@ -92,6 +93,7 @@ class CoupledArrays:
                                    a, a.itemsize * a.shape[1]) for a in (self.fs, self.ints))
         self._versions: list[int | None] = [None] * count   # each model's state_version the rows hold
         self._pack_input_row = None     # one servo's input coefficients into its row of ``inputs``
+        self._ticks = None              # the kernel bound to these arrays, once ``plants`` exists
         #: True while the arrays hold servo state newer than the models' (:meth:`store_back`).
         self.dirty = False
         self._last_plans: list = []     # the last run's plans, their goal positions then, and items, per servo
@@ -156,9 +158,12 @@ class CoupledArrays:
             self.pose[:] = (body.x_m, body.y_m, body.theta_rad, *body._twist, 0.0)
         self.dirty = True               # from the kernel's first write on, the arrays hold the newest state
         self._last_plans, self._last_goals, self._last_tables = plans, goals, tables
-        ran = coupled.ROBOT_TICKS(n, dt_s, self.plants, self.inputs, self.servo_i, self.servo_f, self.fs, self.ints,
-                                  self.out_i, self.v_meas, self.wheel_i, self.wheel_f, self.backlash, self.wheel_out,
-                                  self.body_f, self.flags, self.pose, self.stats)
+        if self._ticks is None:
+            self._ticks = coupled.ROBOT_TICKS.bind(
+                self.plants, self.inputs, self.servo_i, self.servo_f, self.fs, self.ints, self.out_i, self.v_meas,
+                self.wheel_i, self.wheel_f, self.backlash, self.wheel_out, self.body_f, self.flags, self.pose,
+                self.stats, self.unused)
+        ran = self._ticks(n, dt_s)
         bits = self.out_i[:, 0].tolist()
         self._raised = any(bits)
         if self._raised:

@@ -1,11 +1,16 @@
 """The optional compiled path of the servo tick loop: numba when installed, plain Python otherwise.
 
 The tick arithmetic is written once, as plain functions of floats, ints and bools. With numba
-importable (``pip install swerve[fast]``) and ``SWERVE_NO_JIT`` unset or empty, :func:`compiled`
-turns the loop into a ``numba.njit`` kernel (no ``fastmath``: the same IEEE operations in the same
-order, so the same bits as the Python function) and :func:`jitable` lets that kernel call the
+installed (``pip install swerve[fast]``) and ``SWERVE_NO_JIT`` unset or empty, :func:`compiled`
+turns a loop into a ``numba.njit`` kernel (no ``fastmath``: the same IEEE operations in the same
+order, so the same bits as the Python function) and :func:`jitable` lets kernels call the
 helpers, which stay ordinary Python functions for every other caller. Without numba both are the
-identity and :data:`ENABLED` is False.
+identity and :data:`ENABLED` is False. :mod:`.native` keeps a kernel as native code that loads
+without numba.
+
+numba is imported when a kernel is first needed (:func:`numba_module`), not with this module:
+its import and its target's set-up cost ~0.4 s of CPU, which a process that loads only
+:mod:`.native` kernels never pays. :data:`ENABLED` asks only whether numba is installed.
 
 The compiled kernels are cached on disk (``cache=True``) in :data:`CACHE_DIR`, a folder named for
 the SHA-256 of every source file of this package (kernels, the helpers they call, and this file
@@ -24,7 +29,9 @@ kernel runs as Python (with a warning) rather than compile at every start.
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import os
+import threading
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -61,38 +68,88 @@ def _cache_dir(digest: str) -> Path:
 #: The kernel cache folder of these sources (set as ``NUMBA_CACHE_DIR`` when numba is used).
 CACHE_DIR = _cache_dir(_sources_digest())
 
-try:
-    if os.environ.get("SWERVE_NO_JIT"):
-        raise ImportError("SWERVE_NO_JIT is set")
-    os.environ["NUMBA_CACHE_DIR"] = str(CACHE_DIR)      # read by numba at import and at each compile
-    import numba
-    from numba.extending import register_jitable
-except ImportError:
-    numba = None
+#: True when :func:`compiled` compiles: numba is installed and ``SWERVE_NO_JIT`` is unset or empty.
+ENABLED = not os.environ.get("SWERVE_NO_JIT") and importlib.util.find_spec("numba") is not None
 
-#: True when :func:`compiled` compiles (numba importable and ``SWERVE_NO_JIT`` unset or empty).
-ENABLED = numba is not None
+#: The :func:`jitable` helpers, registered with numba when it is imported.
+_JITABLE: list[Callable] = []
+_numba = None
+_numba_lock = threading.Lock()
+
+
+def numba_module():
+    """numba, imported on the first call (with ``NUMBA_CACHE_DIR`` set to :data:`CACHE_DIR`) and
+    every :func:`jitable` helper registered with it. Only when :data:`ENABLED`."""
+    global _numba
+    with _numba_lock:
+        if _numba is None:
+            os.environ["NUMBA_CACHE_DIR"] = str(CACHE_DIR)      # read by numba at import and at each compile
+            import numba
+            from numba.extending import register_jitable
+            for fn in _JITABLE:
+                register_jitable(fn)
+            _numba = numba
+    return _numba
 
 
 def jitable(fn: Callable) -> Callable:
-    """``fn`` unchanged for Python callers, and callable from a :func:`compiled` kernel."""
-    return register_jitable(fn) if ENABLED else fn
+    """``fn`` unchanged, and callable from a :func:`compiled` or :mod:`.native` kernel."""
+    _JITABLE.append(fn)
+    return fn
 
 
-def compiled(fn: Callable, depends: tuple[str, ...] = ()) -> Callable | None:
-    """``fn`` compiled with ``numba.njit(cache=True)`` (compiled at its first call, or loaded
-    from :data:`CACHE_DIR`), or ``None`` without numba. ``depends``: source files of the
-    :func:`jitable` helpers ``fn`` calls; they must lie in this package, whose files name the
-    cache folder."""
+class Kernel:
+    """``numba.njit(cache=True)`` of a function, made at the first call or :meth:`load` (compiled
+    then, or loaded from :data:`CACHE_DIR`)."""
+
+    def __init__(self, fn: Callable):
+        self.py_func = fn
+        self._dispatcher = None
+
+    def load(self):
+        """The numba dispatcher (compiling or loading nothing yet: numba does at its first call)."""
+        if self._dispatcher is None:
+            self._dispatcher = numba_module().njit(cache=True)(self.py_func)
+        return self._dispatcher
+
+    @property
+    def signatures(self) -> list:
+        """The argument types compiled or loaded so far (none before the first call)."""
+        return [] if self._dispatcher is None else self._dispatcher.signatures
+
+    def __call__(self, *args):
+        return (self._dispatcher or self.load())(*args)
+
+
+def check_depends(fn: Callable, depends: tuple[str, ...]) -> None:
+    """Refuse helper sources outside this package: they would not enter :data:`CACHE_DIR`'s name."""
     outside = [p for p in depends if Path(p).resolve().parent != PACKAGE_DIR]
     if outside:
         raise ValueError(f"{fn.__name__}: helpers outside {PACKAGE_DIR} would not enter the kernel "
                          f"cache's key: {', '.join(map(str, outside))}")
+
+
+def compiled(fn: Callable, depends: tuple[str, ...] = ()) -> Kernel | None:
+    """``fn`` as a :class:`Kernel` (compiled with ``numba.njit(cache=True)`` when first called),
+    or ``None`` without numba. ``depends``: source files of the :func:`jitable` helpers ``fn``
+    calls; they must lie in this package, whose files name the cache folder. A cache folder that
+    cannot be written leaves the kernel to run as Python, with a warning (compiling at every
+    start would cost seconds)."""
+    check_depends(fn, depends)
+    return Kernel(fn) if can_compile(fn) else None
+
+
+def can_compile(fn: Callable) -> bool:
+    """Whether ``fn`` can be compiled: :data:`ENABLED`, and :data:`CACHE_DIR` exists or can be
+    made and is writable (else a warning says ``fn`` runs as Python)."""
     if not ENABLED:
-        return None
+        return False
     try:
-        return numba.njit(cache=True)(fn)
-    except RuntimeError as exc:     # no writable cache directory: compiling at every start would cost seconds
-        warnings.warn(f"{exc}; set NUMBA_CACHE_DIR to a writable directory. Running {fn.__name__} as Python.",
-                      RuntimeWarning, stacklevel=2)
-        return None
+        CACHE_DIR.mkdir(parents=True, exist_ok=True)
+        writable = os.access(CACHE_DIR, os.W_OK)
+    except OSError:
+        writable = False
+    if not writable:
+        warnings.warn(f"no writable kernel cache folder ({CACHE_DIR}); set NUMBA_CACHE_DIR to a writable "
+                      f"directory. Running {fn.__name__} as Python.", RuntimeWarning, stacklevel=3)
+    return writable

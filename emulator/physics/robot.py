@@ -24,7 +24,7 @@ from .coupled_arrays import CoupledArrays
 from .body import RobotBody
 from .contact import ContactBody
 from .params import PhysicsConfig
-from .servo_model import IDLE_ITEMS, ServoModel, wheel_servo
+from .servo_model import ServoModel, wheel_servo
 
 
 @dataclass(frozen=True)
@@ -183,12 +183,14 @@ class RobotPhysics:
 
 
     def prepare(self, dt_s: float) -> None:
-        """Load the compiled :func:`.coupled.robot_ticks` now if :meth:`run_coupled` will run (from
-        numba's cache, or compiled the first time): loaded at the first coupled step it would
-        stall the bus. Runs it once on a spare copy of this robot at rest."""
-        if self.coupled() and not coupled.ROBOT_TICKS.signatures:
-            spare = RobotPhysics(self.cfg, self.geometry)
-            spare.run_coupled(dt_s, 1, {m: (IDLE_ITEMS, False) for m in spare.servos.values()})
+        """Compute the servos' discretisations for steps of ``dt_s`` now (:meth:`ServoModel.discretise`),
+        and load the compiled :func:`.coupled.robot_ticks` if :meth:`run_coupled` will run (from the
+        kernel cache, or compiled the first time): done at the first step, either would stall the
+        bus. The servos' own kernel is not loaded: in a robot it never runs."""
+        for m in self.servos.values():
+            m.discretise(dt_s)
+        if self.coupled():
+            coupled.ROBOT_TICKS.load()
 
     def coupled(self) -> bool:
         """Whether :meth:`run_coupled` runs here: no position noise, and the compiled

@@ -233,14 +233,18 @@ class ServoModel:
         bits, self.pending_hardware_error = self.pending_hardware_error, 0
         return bits
 
-    def prepare(self, dt_s: float) -> None:
+    def discretise(self, dt_s: float) -> None:
         """Compute the discretisations for steps of ``dt_s`` now (motor driven and coasting,
-        Bessel filters): SciPy's first ``expm`` takes ~9 ms, which in a running emulator would
-        stall the bus when torque first goes on. Likewise load the compiled tick kernel
-        (:mod:`.jit`; ~0.1 s from numba's cache, a few seconds the first time it compiles)."""
+        Bessel filters): the first exact ``expm`` takes milliseconds, which in a running emulator
+        would stall the bus when torque first goes on."""
         self.motor.prepare(dt_s)
         self.velocity_filter.prepare(dt_s)
         self.reference_filter.prepare(dt_s)
+
+    def prepare(self, dt_s: float) -> None:
+        """:meth:`discretise`, and load the compiled tick kernel (:mod:`.jit`; ~0.4 s with numba's
+        import, a few seconds the first time it compiles) by running it once on a spare model."""
+        self.discretise(dt_s)
         if _COMPILED_TICKS is not None and not _COMPILED_TICKS.signatures:
             spare = ServoModel(self.motor.params, self.motor.gear_ratio, self.supply_voltage_v, self.fw)
             spare.run(dt_s, IDLE_ITEMS, 1, speeds=[], positions=[])

@@ -129,6 +129,26 @@ def _snapshot(emu) -> list:
     return out
 
 
+class CountingKernel:
+    """A :class:`~swerve.emulator.physics.native.NativeKernel` whose bound calls append the ticks
+    they are asked for to ``calls``."""
+
+    def __init__(self, kernel, calls: list):
+        self.kernel = kernel
+        self.calls = calls
+
+    def load(self) -> None:
+        self.kernel.load()
+
+    def bind(self, *arrays):
+        bound = self.kernel.bind(*arrays)
+
+        def call(n, dt_s):
+            self.calls.append(n)
+            return bound(n, dt_s)
+        return call
+
+
 def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, tuple[int, int]]:
     """The same commands on two emulators: batched steps vs one :meth:`Emulator.step` per tick.
     Returns both snapshot lists and the numbers of multi-tick runs: servo after servo
@@ -142,14 +162,8 @@ def _runs(monkeypatch, advance_batched, **build) -> tuple[list, list, tuple[int,
         return original(self, dt_s, table, n, **kwargs)
 
     monkeypatch.setattr(ServoModel, "run", counting)
-    kernel = coupled.ROBOT_TICKS
-    if kernel is not None:
-        def counting_kernel(n, *args):
-            robot_runs.append(n)
-            return kernel(n, *args)
-
-        counting_kernel.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
-        monkeypatch.setattr(coupled, "ROBOT_TICKS", counting_kernel)
+    if coupled.ROBOT_TICKS is not None:
+        monkeypatch.setattr(coupled, "ROBOT_TICKS", CountingKernel(coupled.ROBOT_TICKS, robot_runs))
     batched, stepped = _emulator(**build), _emulator(**build)
     steps = round(CYCLE_S * RATE_HZ)
     a, b = [], []
@@ -230,19 +244,16 @@ def _compiled_runs(monkeypatch, **build) -> tuple[list, list, tuple[int, int]]:
     """The same commands on two emulators, both batched (``emu.advance``): one with the compiled
     kernels (servo ticks, the robot's ticks), one with the plain-Python function. Returns both
     snapshot lists and the numbers of compiled calls of each kernel."""
-    kernels = servo_model._COMPILED_TICKS, coupled.ROBOT_TICKS
+    servo_kernel = servo_model._COMPILED_TICKS
     calls = [], []
 
-    def counting(kernel, out):
-        def call(*args):
-            out.append(args[0])
-            return kernel(*args)
+    def counting_servo(*args):
+        calls[0].append(args[0])
+        return servo_kernel(*args)
 
-        call.signatures = kernel.signatures     # loaded already: prepare need not load it
-        return call
-
+    counting_servo.signatures = servo_kernel.signatures     # what ServoModel.prepare looks at
     snaps = []
-    for compiled_kernels in ([counting(k, c) for k, c in zip(kernels, calls)], (None, None)):
+    for compiled_kernels in ((counting_servo, CountingKernel(coupled.ROBOT_TICKS, calls[1])), (None, None)):
         monkeypatch.setattr(servo_model, "_COMPILED_TICKS", compiled_kernels[0])
         monkeypatch.setattr(coupled, "ROBOT_TICKS", compiled_kernels[1])
         emu, modes = _emulator(**build)
@@ -274,19 +285,34 @@ def test_compiled_ticks_equal_python_ticks(monkeypatch, body, placement):
 
 @pytest.mark.slow
 @pytest.mark.skipif(not jit.ENABLED, reason="numba is not installed (or SWERVE_NO_JIT is set)")
-def test_the_emulator_loads_the_compiled_kernel_when_built():
-    """Built, the emulator has the kernel loaded (a first tick would stall the bus for its load
-    or compile); running it needs no other specialisation."""
-    code = ("from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
+@pytest.mark.parametrize("body", [True, False], ids=["robot", "bank"])
+def test_the_emulator_loads_the_compiled_kernel_when_built(body):
+    """Built, the emulator has its kernel loaded (a first tick would stall the bus for its load
+    or compile), and running needs nothing more: the robot's native kernel, loaded from the
+    kernel cache without importing numba (a first build may compile it); a bank of servos,
+    the servos' numba kernel with one specialisation."""
+    code = ("import sys; from swerve.configs import shipped; from swerve.driver.robot_config import load_robot_config; "
             "from swerve.emulator.physics.params import load_config; "
             "from swerve.emulator.physics.servo_model import _COMPILED_TICKS as k; "
+            "from swerve.emulator.physics.coupled import ROBOT_TICKS as r; "
             "from swerve.emulator.factory import build_emulator; from swerve.emulator.body_settings import BodySettings; "
             "from swerve.emulator.timing import Frozen; "
-            "emu = build_emulator(load_robot_config(shipped('robot.yaml')), load_config(shipped('emulator.yaml')), "
-            "body=BodySettings(), timing=Frozen(), rate_hz=1000.0); print(len(k.signatures)); "
-            "emu.advance(0.016); print(len(k.signatures))")
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
-    assert out.split() == ["1", "1"]
+            "robot = load_robot_config(shipped('robot.yaml')); "
+            f"emu = build_emulator(robot if {body} else None, load_config(shipped('emulator.yaml')), "
+            f"body=BodySettings() if {body} else None, ids=None if {body} else range(1, 9), timing=Frozen(), "
+            "rate_hz=1000.0); "
+            "state = lambda: print(r.loaded, r.hit, 'numba' in sys.modules, len(k.signatures)); "
+            "state(); emu.advance(0.016); state()")
+
+    def run() -> list[str]:
+        return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout.split()
+
+    first, again = run(), run()
+    if body:
+        assert first[:1] == first[4:5] == ["True"]
+        assert again == ["True", "True", "False", "0"] * 2
+    else:
+        assert first == again == ["False", "None", "True", "1"] * 2
 
 
 def test_no_jit_switch_selects_the_python_function():
@@ -312,14 +338,7 @@ def test_coupled_ticks_equal_single_ticks(monkeypatch, stall, kinematic):
     gains; with a held drive shaft also the overload protection (the run stops at the tick it
     trips). Every state variable, published byte and the pose equal (``==``)."""
     calls = []
-    kernel = coupled.ROBOT_TICKS
-
-    def counting(n, *args):
-        calls.append(n)
-        return kernel(n, *args)
-
-    counting.signatures = kernel.signatures     # what RobotPhysics.prepare looks at
-    monkeypatch.setattr(coupled, "ROBOT_TICKS", counting)
+    monkeypatch.setattr(coupled, "ROBOT_TICKS", CountingKernel(coupled.ROBOT_TICKS, calls))
     build = _emulator
 
     def emulator(*args, **kwargs):
