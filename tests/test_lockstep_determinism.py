@@ -69,11 +69,13 @@ def test_two_lockstep_runs_export_byte_identical_csv(tmp_path, short_line):
 
 
 #: Machines as NumPy sees them: OpenBLAS kernels without and with FMA (``OPENBLAS_CORETYPE``), and
-#: NumPy's own SIMD loops limited to the x86-64-v2 baseline (``NPY_DISABLE_CPU_FEATURES``).
+#: NumPy's own SIMD loops limited to the x86-64-v2 baseline (``NPY_DISABLE_CPU_FEATURES``); and as
+#: numba sees them: the physics kernels compiled for a generic x86-64 CPU (``NUMBA_CPU_NAME``).
 MACHINES = {
     "nehalem": {"OPENBLAS_CORETYPE": "Nehalem"},
     "haswell": {"OPENBLAS_CORETYPE": "Haswell"},
     "no-simd-dispatch": {"NPY_DISABLE_CPU_FEATURES": "X86_V4 AVX512_ICL X86_V3"},
+    "generic-kernels": {"NUMBA_CPU_NAME": "generic"},
 }
 
 
@@ -91,3 +93,4 @@ def test_lockstep_csv_is_the_same_on_other_cpus(tmp_path, profile, other_cpu, sh
     assert len(csv["nehalem"].splitlines()) == SHORT_CYCLES + 1
     assert csv["haswell"] == csv["nehalem"]
     assert csv["no-simd-dispatch"] == csv["nehalem"]
+    assert csv["generic-kernels"] == csv["nehalem"]

@@ -14,7 +14,7 @@ parameter, its data address and its dimensions; :meth:`NativeKernel.bind` fills 
 arrays that stay put, and the bound call passes only the scalars. The kernel must allocate
 nothing (no ``np.empty``): the arrays are views of the caller's memory.
 
-The cached object is keyed by the compiler (numba's and llvmlite's versions, the interpreter),
+The cached object is keyed by the kernel's byte code, the compiler (numba's and llvmlite's versions, the interpreter),
 the CPU it was compiled for (numba's ``NUMBA_CPU_NAME`` / ``NUMBA_CPU_FEATURES``, else the
 host's name and features as LLVM reports them) and every ``NUMBA_*`` setting, beside the
 sources in the folder's name. Its file is written atomically with a checksum
@@ -29,6 +29,7 @@ import ctypes
 import hashlib
 import importlib.machinery
 import importlib.util
+import marshal
 import os
 import platform
 import struct
@@ -165,10 +166,12 @@ class NativeKernel:
         return bound
 
     def _key(self) -> str:
-        """The cached object's key (hex): the compiler, the target CPU and numba's settings."""
+        """The cached object's key (hex): the kernel's code, the compiler, the target CPU and
+        numba's settings (the helpers' sources name the folder)."""
         spec = importlib.util.find_spec("numba")
         version = Path(spec.origin).with_name("_version.py")
-        parts = [self.py_func.__name__, ",".join(self.params), sys.version, platform.machine(),
+        parts = [self.py_func.__name__, marshal.dumps(self.py_func.__code__).hex(), ",".join(self.params),
+                 sys.version, platform.machine(),
                  version.read_text() if version.exists() else "", *_llvm_target(),
                  *sorted(f"{k}={v}" for k, v in os.environ.items() if k.startswith("NUMBA_") and k != "NUMBA_CACHE_DIR")]
         return hashlib.sha256("\0".join(parts).encode()).hexdigest()[:32]
@@ -239,14 +242,16 @@ def _llvm():
     return ll
 
 
-def _llvm_target() -> tuple[str, str]:
-    """The CPU name and features the code is compiled for, as numba picks them."""
+def _llvm_target() -> tuple[str, str, str, str]:
+    """llvmlite's and LLVM's versions, and the CPU name and features the code is compiled for,
+    as numba picks them."""
+    import llvmlite
     import llvmlite.binding as ll
     name = os.environ.get("NUMBA_CPU_NAME") or ll.get_host_cpu_name()
     features = os.environ.get("NUMBA_CPU_FEATURES")
     if features is None:
         features = "" if os.environ.get("NUMBA_CPU_NAME") else ll.get_host_cpu_features().flatten()
-    return name, features
+    return llvmlite.__version__, ".".join(map(str, ll.llvm_version_info)), name, features
 
 
 def _helper_symbols() -> dict[str, int]:
