@@ -151,3 +151,15 @@ def test_parameter_lists_are_checked():
 def test_only_elf_objects_are_read():
     with pytest.raises(NativeLoadError, match="not ELF64"):
         native._undefined_symbols(b"\xcf\xfa\xed\xfe" + bytes(64))       # a Mach-O header
+
+
+def test_where_objects_are_not_elf_the_kernel_is_numbas_own(cache_dir, monkeypatch):
+    """Not Linux: no object is cached; numba compiles (and caches) the function itself, bound the same way."""
+    monkeypatch.setattr(native.sys, "platform", "darwin")
+    kernel = NativeKernel(blend, PARAMS)
+    x, m, counts = _arrays(7)
+    xs, cs = x.copy(), counts.copy()
+    assert kernel.bind(xs, m, cs)(7, -0.5) == 7
+    want = _python(7, -0.5, x, m, counts)
+    assert kernel.hit is False and not list(cache_dir.glob("native-*"))
+    assert xs.tobytes() == want[1].tobytes() and cs.tobytes() == want[2].tobytes()
