@@ -18,11 +18,11 @@ import numpy as np
 from swerve.configs import ConfigChoice
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import load_gains
+from swerve.controller.overlay_cache import OverlayCache
 from swerve.controller.reference import build_reference
 from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.riccati_cache import RiccatiCache
 from swerve.core.user_cache import user_cache_dir
-from swerve.controller.simulate import simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 from swerve.core.errors import ConfigError
@@ -101,13 +101,6 @@ def law_for(traj, gains, geom, limits, progress: bool = False, lqr=finite_horizo
     return TrackingLaw(ref, gains, limits)
 
 
-def simulated_poses(law, start) -> np.ndarray:
-    """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
-    poses = simulate(law, start).states[:, :3]
-    law.reset()
-    return poses
-
-
 def wall_clock_guards(cfg, time_scale: float):
     """``cfg`` with the host-failure guards stretched to their 1x wall-clock length.
 
@@ -180,7 +173,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             emu.launch()
         # the Riccati solution of an input already seen comes from the user's cache, bit for bit
         law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
-        sim = simulated_poses(law, start) if req.log is not None else None
+        # the overlay's poses on the ideal model, of a law and start already seen from the user's cache
+        sim = OverlayCache(user_cache_dir()).poses(law, start) if req.log is not None else None
         # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
         log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
