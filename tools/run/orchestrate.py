@@ -34,6 +34,7 @@ from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.process import EmulatorProcess
 from swerve.emulator.timing import Lockstep, scaled
 from swerve.tools.logs.bag import RunLogWriter
+from swerve.tools.logs.layout_cache import LayoutCache
 from swerve.tools.logs.record import CycleRecord
 from swerve.tools.recovery import policy
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
@@ -294,7 +295,9 @@ def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
-    return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
+    wheels = [w.name for w in cfg.wheels]
+    # the layouts rosbags' type system gives for these wheels, from the user's cache once seen
+    return RunLogWriter(req.log, meta, wheels=wheels, layouts=LayoutCache(user_cache_dir()).layouts(wheels))
 
 
 def _log_callback(writer: RunLogWriter, sim: np.ndarray):
