@@ -85,22 +85,12 @@ def overlay_key(law: TrackingLaw, start) -> str | None:
     return digest.hexdigest()
 
 
-class OverlayCache:
+class OverlayCache(ValueCache):
     """:func:`simulated_poses` with its results kept in ``folder`` (see the module notes);
     :attr:`hits` and :attr:`misses` count its answers."""
 
     def __init__(self, folder: str | os.PathLike):
-        self._store = ValueCache(folder, "overlay", LAYOUT)
-
-    @property
-    def hits(self) -> int:
-        """Poses answered from the folder."""
-        return self._store.hits
-
-    @property
-    def misses(self) -> int:
-        """Poses simulated (and stored when the folder is writable)."""
-        return self._store.misses
+        super().__init__(folder, "overlay", LAYOUT)
 
     def poses(self, law: TrackingLaw, start) -> np.ndarray:
         """``(n, 3)`` poses of :func:`simulated_poses` for ``law`` and ``start``: from the cache
@@ -108,7 +98,7 @@ class OverlayCache:
         key = overlay_key(law, start)
         if key is None:
             return simulated_poses(law, start)
-        data, _ = self._store.payload(key, lambda: simulated_poses(law, start).astype("<f8").tobytes())
+        data, _ = self.payload(key, lambda: simulated_poses(law, start).astype("<f8").tobytes())
         if not data or len(data) % (8 * POSE_SIZE):     # checksummed, so only another writer's layout
             return simulated_poses(law, start)
         return np.frombuffer(data, "<f8").astype(np.float64).reshape(-1, POSE_SIZE)

@@ -17,7 +17,7 @@ from swerve.controller.paths import CirclePath
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 
-from .conftest import short
+from .conftest import damage_cache_file, short
 
 
 def _law(robot, name="line", n_steps=120, limits=None):
@@ -98,20 +98,12 @@ def test_a_damaged_file_is_simulated_again_and_rewritten(tmp_path, robot, damage
     direct = simulated_poses(law, start)
     OverlayCache(tmp_path).poses(law, start)
     (path,) = tmp_path.glob("overlay-*.f8")
-    data = path.read_bytes()
-    if damage == "truncate":
-        path.write_bytes(data[:len(data) // 2])
-    elif damage == "flip":
-        i = len(overlay_cache.LAYOUT) + 32 + 100          # inside the poses
-        path.write_bytes(data[:i] + bytes([data[i] ^ 0x10]) + data[i + 1:])
-    elif damage == "garbage":
-        path.write_bytes(b"not a cache file\n" * 100)
-    elif damage == "empty":
-        path.write_bytes(b"")
-    else:                               # a whole valid file of another law under this name
-        other, other_start = _law(robot, n_steps=100)
-        OverlayCache(tmp_path / "other").poses(other, other_start)
-        path.write_bytes(next((tmp_path / "other").glob("*.f8")).read_bytes())
+    def other():                        # a whole valid file of another law under this name
+        other_law, other_start = _law(robot, n_steps=100)
+        OverlayCache(tmp_path / "other").poses(other_law, other_start)
+        return next((tmp_path / "other").glob("*.f8")).read_bytes()
+
+    damage_cache_file(path, damage, len(overlay_cache.LAYOUT) + 32 + 100, other)     # flip: inside the poses
     cache = OverlayCache(tmp_path)
     assert _same_bits(cache.poses(law, start), direct) and (cache.hits, cache.misses) == (0, 1)
     again = OverlayCache(tmp_path)

@@ -66,27 +66,17 @@ def layouts_key(wheels: Sequence[str] = DEFAULT_WHEELS) -> str:
     return digest.hexdigest()
 
 
-class LayoutCache:
+class LayoutCache(ValueCache):
     """:func:`~swerve.tools.logs.bag.probe_layouts` with its results kept in ``folder`` (module
     notes); :attr:`hits` and :attr:`misses` count its answers."""
 
     def __init__(self, folder: str | os.PathLike):
-        self._store = ValueCache(folder, "runlog-layouts", LAYOUT, suffix=".bin")
-
-    @property
-    def hits(self) -> int:
-        """Layouts answered from the folder."""
-        return self._store.hits
-
-    @property
-    def misses(self) -> int:
-        """Layouts probed (and stored when the folder is writable)."""
-        return self._store.misses
+        super().__init__(folder, "runlog-layouts", LAYOUT, suffix=".bin")
 
     def layouts(self, wheels: Sequence[str] = DEFAULT_WHEELS) -> LogLayouts:
         """The :class:`~swerve.tools.logs.bag.LogLayouts` of ``wheels``: from the cache when it
         holds them, else probed and stored."""
-        data, _ = self._store.payload(
+        data, _ = self.payload(
             layouts_key(wheels), lambda: json.dumps(probe_layouts(wheels).as_data()).encode())
         try:
             return LogLayouts.from_data(json.loads(data))

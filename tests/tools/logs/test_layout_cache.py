@@ -81,10 +81,9 @@ def test_a_damaged_file_is_probed_again(tmp_path, damage):
         LayoutCache(tmp_path / "other").layouts(WHEELS)
         path.write_bytes(next((tmp_path / "other").glob("*.bin")).read_bytes())
     else:                                # checksummed, but a template runs past its bytes
-        store = LayoutCache(folder)._store
         bad = probe_layouts().as_data()
         bad["templates"]["/odom"]["runs"][0][0] = 10**6
-        store._store(layouts_key(), json.dumps(bad).encode())
+        LayoutCache(folder)._store(layouts_key(), json.dumps(bad).encode())
     cache = LayoutCache(folder)
     _write(tmp_path / "again" / "log", cache.layouts())
     assert _same_logs(tmp_path / "probed" / "log", tmp_path / "again" / "log")
