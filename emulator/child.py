@@ -1,6 +1,6 @@
 """The emulator's child process (started by :class:`swerve.emulator.process.EmulatorProcess`).
 
-:data:`swerve.emulator.process._CHILD_PROGRAM` runs :func:`child_main`: it reads the start request (robot file,
+:data:`swerve.emulator.spawn._CHILD_PROGRAM` runs :func:`child_main`: it reads the start request (robot file,
 emulator config, :func:`~swerve.emulator.factory.build_emulator` keywords) from the connection,
 serves the robot emulator, publishes its true pose into the shared block after every run of
 physics steps, and answers fault requests until the parent says stop. Only this process loads
@@ -13,14 +13,13 @@ import mmap
 import os
 import sys
 import time
-from multiprocessing.connection import Connection
 from typing import NoReturn
 
 from swerve.driver.robot_config import load_robot_config
 from swerve.emulator.body_settings import BodySettings
+from swerve.emulator.channel import SHARED_STATE, Channel
 from swerve.emulator.factory import build_emulator
 from swerve.emulator.physics.params import load_config
-from swerve.emulator.process import SHARED_STATE
 from swerve.emulator.server import freeze_startup_heap
 
 
@@ -28,11 +27,11 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
     """Child process: read the start request from ``conn_fd``, start the robot emulator, publish
     the pose into the block mapped from ``shared_fd``, stop on request (or when the parent's end
     of the connection closes)."""
-    conn = Connection(conn_fd)
+    conn = Channel.from_fd(conn_fd)
     shared = mmap.mmap(shared_fd, SHARED_STATE.size)
     try:
         robot_config, emulator_config, kwargs = conn.recv()
-    except EOFError:                   # started ahead (process.prestarted) and not needed after all
+    except EOFError:                   # started ahead (spawn.prestarted) and not needed after all
         return
 
     def publish(emu) -> None:          # an observer: under the emulator's lock, from its bus thread
@@ -48,7 +47,7 @@ def child_main(conn_fd: int, shared_fd: int) -> None:
         conn.send(("error", f"{type(exc).__name__}: {exc}"))
         return
     freeze_startup_heap()
-    gc.enable()                        # off since the first line (see process._CHILD_PROGRAM)
+    gc.enable()                        # off since the first line (see spawn._CHILD_PROGRAM)
     try:
         conn.send(("port", (emu.port, emu.control.path if emu.control is not None else None)))
     except OSError:                    # the parent gave up while we started

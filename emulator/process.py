@@ -21,102 +21,18 @@ bytes on the pty).
 """
 from __future__ import annotations
 
-import contextlib
 import mmap
 import os
-import socket
-import struct
 import subprocess
-import sys
-import tempfile
-import threading
-from multiprocessing.connection import Connection
 
 from swerve.configs import locate_robot_file, shipped
 from swerve.driver.errors import ConfigError, SwerveError
+from swerve.emulator.channel import SHARED_STATE, Channel
+from swerve.emulator.spawn import spawn_child, take_prestarted
 
 _START_TIMEOUT_S = 60.0
 #: How long :meth:`EmulatorProcess.close` waits for the child to exit after "stop", then after SIGTERM, s.
 _EXIT_TIMEOUT_S = 5.0
-#: The shared true-state block: ``[sim_time_s, x_m, y_m, theta_rad]`` as native doubles.
-SHARED_STATE = struct.Struct("4d")
-
-#: The child's program. The emulator uses no SciPy, and an import of ``scipy`` in it fails:
-#: numba, loading the cached kernels, then skips its BLAS check (``numba.np.linalg.ensure_blas``
-#: imports ``scipy.linalg``, ~0.4 s), which only numba's ``np.dot``/``np.linalg`` need, and the
-#: kernels call neither (a ``None`` entry in ``sys.modules`` makes that import raise). The
-#: cyclic garbage collector is off until the emulator is built (:func:`child.child_main`
-#: then freezes what start-up made and turns it on): start-up allocates much and frees little,
-#: and the collections it would trigger cost ~0.2 s of CPU. SIGINT and SIGHUP are ignored from
-#: the first line: the parent decides when the child stops, also while it imports. It ends
-#: without the interpreter's finalisation (:func:`child.serve_and_exit`).
-_CHILD_PROGRAM = ("import gc, signal, sys; gc.disable(); sys.modules['scipy'] = None; "
-                  "[signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGHUP)]; "
-                  "from swerve.emulator.child import serve_and_exit; "
-                  "serve_and_exit(int(sys.argv[1]), int(sys.argv[2]))")
-
-
-def _spawn() -> tuple[subprocess.Popen, Connection, mmap.mmap]:
-    """A new child interpreter running :data:`_CHILD_PROGRAM`: ``(process, connection, shared
-    block)``. It imports the emulator, then waits for its start request on the connection."""
-    with tempfile.TemporaryFile() as block:
-        block.write(bytes(SHARED_STATE.size))
-        block.flush()
-        shared = mmap.mmap(block.fileno(), SHARED_STATE.size)
-        parent, child = socket.socketpair()
-        try:
-            proc = subprocess.Popen([sys.executable, "-c", _CHILD_PROGRAM, str(child.fileno()), str(block.fileno())],
-                                    pass_fds=(child.fileno(), block.fileno()), stdin=subprocess.DEVNULL)
-        except BaseException:
-            parent.close()
-            shared.close()
-            raise
-        finally:
-            child.close()
-    return proc, Connection(parent.detach()), shared
-
-
-#: The child :func:`prestarted` started and no :class:`EmulatorProcess` took yet.
-_prestarted: tuple[subprocess.Popen, Connection, mmap.mmap] | None = None
-_prestarted_lock = threading.Lock()
-
-
-def _take_prestarted() -> tuple[subprocess.Popen, Connection, mmap.mmap] | None:
-    """The :func:`prestarted` child, once (None if there is none or it was taken)."""
-    global _prestarted
-    with _prestarted_lock:
-        taken, _prestarted = _prestarted, None
-    return taken
-
-
-@contextlib.contextmanager
-def prestarted():
-    """Start an emulator child now, for the first :meth:`EmulatorProcess.launch` inside the block.
-
-    A fresh interpreter (never a fork) takes ~0.5 s to import the emulator and its physics; a
-    command that will emulate starts it before its own imports and set-up, which then run on
-    the other CPU. The child waits for its start request, so the emulator is built from the
-    request exactly as without this. A child no launch took is stopped when the block ends.
-    """
-    global _prestarted
-    with _prestarted_lock:
-        if _prestarted is None:
-            try:
-                _prestarted = _spawn()
-            except OSError:         # only a head start: launch() spawns again and reports the error
-                pass
-    try:
-        yield
-    finally:
-        spare = _take_prestarted()
-        if spare is not None:
-            proc, conn, shared = spare
-            conn.close()
-            proc.terminate()         # it has started nothing yet: no pty, no thread
-            proc.wait()
-            shared.close()
-
-
 class EmulatorProcess:
     """:func:`swerve.emulator.factory.build_emulator` with the robot body, in a child process.
 
@@ -140,7 +56,7 @@ class EmulatorProcess:
         self._kwargs = kwargs
         self._shared: mmap.mmap | None = None
         self._proc: subprocess.Popen | None = None
-        self._conn: Connection | None = None
+        self._conn: Channel | None = None
         self.port: str | None = None
         #: The lockstep control socket (``timing=Lockstep()``), else None.
         self.control_path: str | None = None
@@ -148,10 +64,10 @@ class EmulatorProcess:
 
     def launch(self) -> "EmulatorProcess":
         """Start the child process without waiting for it to serve (idempotent); a child
-        :func:`prestarted` for this process is taken instead of starting one."""
+        :func:`swerve.emulator.spawn.prestarted` for this process is taken instead of starting one."""
         if self._proc is not None:
             return self
-        self._proc, self._conn, self._shared = _take_prestarted() or _spawn()
+        self._proc, self._conn, self._shared = take_prestarted() or spawn_child()
         try:
             self._conn.send((self._robot, self._emulator_config, self._kwargs))
         except OSError:             # a child started ahead died while it imported

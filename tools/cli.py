@@ -40,7 +40,7 @@ from pathlib import Path
 
 from swerve.core.errors import SwerveError
 from swerve.driver.adapter_latency import ADAPTER_LATENCY_MAX_MS, ADAPTER_LATENCY_MIN_MS
-from swerve.emulator.process import prestarted
+from swerve.emulator.spawn import prestarted
 from swerve.tools.argtypes import int_range
 from swerve.tools.signals import Interrupted, hold_stop_signals, signals_as_interrupt
 

@@ -86,3 +86,16 @@ def probe_prelude():
     """Start of a probe run by the ``other_cpu`` fixture: the controller imports and ``h(*arrays)``,
     a sha256 of the arrays' float64 bytes."""
     return _PROBE_PRELUDE
+
+
+def damage_cache_file(path, kind: str, flip_at: int, other) -> None:
+    """Damage the cache file ``path`` as ``kind`` says: ``truncate`` (half of it), ``flip`` (one
+    bit of byte ``flip_at``), ``garbage``, ``empty``, or ``other key`` (the bytes ``other()``
+    gives: a whole valid file of another input)."""
+    data = path.read_bytes()
+    damaged = {"truncate": lambda: data[:len(data) // 2],
+               "flip": lambda: data[:flip_at] + bytes([data[flip_at] ^ 0x10]) + data[flip_at + 1:],
+               "garbage": lambda: b"not a cache file\n" * 100,
+               "empty": lambda: b"",
+               "other key": other}[kind]()
+    path.write_bytes(damaged)

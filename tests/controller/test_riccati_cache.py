@@ -9,6 +9,8 @@ from swerve.controller.gain_schedule import synthesize
 from swerve.controller.riccati_cache import RiccatiCache, riccati_key
 from swerve.controller.trajectory import load_trajectory
 
+from .conftest import damage_cache_file
+
 
 def _problem(n_steps=40, seed=0):
     rng = np.random.default_rng(seed)
@@ -69,20 +71,11 @@ def test_a_damaged_file_is_recomputed_and_rewritten(tmp_path, damage):
     K0, P0 = riccati.finite_horizon_lqr(Ad, Bd, Q, R, tau)
     RiccatiCache(tmp_path).solve(Ad, Bd, Q, R, tau)
     (path,) = tmp_path.glob("riccati-*.f8")
-    data = path.read_bytes()
-    if damage == "truncate":
-        path.write_bytes(data[:len(data) // 2])
-    elif damage == "flip":
-        i = len(riccati_cache.LAYOUT) + 32 + 200          # inside the K values
-        path.write_bytes(data[:i] + bytes([data[i] ^ 0x10]) + data[i + 1:])
-    elif damage == "garbage":
-        path.write_bytes(b"not a cache file\n" * 100)
-    elif damage == "empty":
-        path.write_bytes(b"")
-    else:                               # a whole valid file of another input under this name
-        other = _problem(seed=1)
-        RiccatiCache(tmp_path / "other").solve(*other)
-        path.write_bytes(next((tmp_path / "other").glob("*.f8")).read_bytes())
+    def other():                        # a whole valid file of another input under this name
+        RiccatiCache(tmp_path / "other").solve(*_problem(seed=1))
+        return next((tmp_path / "other").glob("*.f8")).read_bytes()
+
+    damage_cache_file(path, damage, len(riccati_cache.LAYOUT) + 32 + 200, other)     # flip: inside the K values
     cache = RiccatiCache(tmp_path)
     K, P = cache.solve(Ad, Bd, Q, R, tau)
     assert (cache.hits, cache.misses) == (0, 1)

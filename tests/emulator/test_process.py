@@ -9,8 +9,9 @@ import pytest
 
 from swerve.driver.bus import Bus
 from swerve.driver.errors import ConfigError, DxlTimeoutError, SwerveError
-from swerve.emulator import process
-from swerve.emulator.process import EmulatorProcess, prestarted
+from swerve.emulator import process, spawn
+from swerve.emulator.process import EmulatorProcess
+from swerve.emulator.spawn import prestarted
 from swerve.emulator.body_settings import BodySettings
 from swerve.emulator.server import freeze_startup_heap
 from swerve.emulator.timing import Lockstep, WallTime
@@ -91,9 +92,9 @@ def test_a_prestarted_child_is_taken_by_the_first_launch_and_serves_its_request(
 
 def test_a_prestarted_child_no_launch_took_is_stopped_and_reaped():
     with prestarted():
-        spare = process._prestarted
+        spare = spawn._prestarted
         pid = spare[0].pid
-    assert process._prestarted is None
+    assert spawn._prestarted is None
     assert spare[0].returncode is not None
     with pytest.raises(ChildProcessError):      # reaped: not even a zombie is left
         os.waitpid(pid, os.WNOHANG)
@@ -101,7 +102,7 @@ def test_a_prestarted_child_no_launch_took_is_stopped_and_reaped():
 
 def test_a_prestarted_child_told_nothing_exits_quietly():
     """Its parent gone before sending a request (EOF), the child ends without output or error."""
-    proc, conn, shared = process._spawn()
+    proc, conn, shared = spawn.spawn_child()
     conn.close()
     assert proc.wait(timeout=60) == 0
     shared.close()
@@ -136,9 +137,9 @@ def test_swerve_run_emulate_leaves_no_process_behind(extra, status):
 
 
 def test_a_prestarted_child_that_died_is_one_clear_error(monkeypatch):
-    monkeypatch.setattr(process, "_CHILD_PROGRAM", "import sys; sys.exit(3)")   # dies before reading its request
+    monkeypatch.setattr(spawn, "_CHILD_PROGRAM", "import sys; sys.exit(3)")   # dies before reading its request
     with prestarted():
-        process._prestarted[0].wait(timeout=60)
+        spawn._prestarted[0].wait(timeout=60)
         emu = EmulatorProcess("configs/robot.yaml", timing=Lockstep())
         with pytest.raises(SwerveError, match="died while starting"):
             emu.launch()

@@ -121,7 +121,7 @@ def test_the_run_command_loads_only_what_it_uses():
     # the parent launches the emulator child and describes it (its timing and body): it loads
     # neither the bus server nor the physics
     assert not {m for m in loaded if m.startswith("swerve.emulator.") and
-                m not in ("swerve.emulator.process", "swerve.emulator.timing", "swerve.emulator.clock",
+                m not in ("swerve.emulator.process", "swerve.emulator.spawn", "swerve.emulator.channel", "swerve.emulator.timing", "swerve.emulator.clock",
                           "swerve.emulator.lockstep_socket", "swerve.emulator.body_settings",
                           "swerve.emulator.physics", "swerve.emulator.physics.params",
                           "swerve.emulator.physics.profiles")}

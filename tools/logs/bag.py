@@ -22,7 +22,7 @@ from swerve.core.atomic import OutputError
 from swerve.driver.errors import ConfigError
 
 from .mcap_chunk import ChunkWriter
-from .messages import CycleMessages, CycleSerializer
+from .messages import CdrTemplate, CycleMessages, CycleSerializer, StringCdr
 from .record import CYCLE_FIELDS, LAYOUT_VERSION, CycleRecord, unpack
 
 #: Value of ``metadata["format"]`` that marks a swerve run log.
@@ -56,6 +56,49 @@ def joint_names(wheels: Sequence[str] = DEFAULT_WHEELS) -> list[str]:
     return [f"{w}_drive" for w in wheels] + [f"{w}_steer" for w in wheels]
 
 
+@dataclass(frozen=True)
+class LogLayouts:
+    """What a writer takes from rosbags' type system, for one set of joint names: the cycle's
+    CDR templates (``serializer``), each topic type's MCAP schema ``(message definition,
+    RIHS01 hash)`` (``schemas``) and the metadata string's layout (``string``).
+    :func:`probe_layouts` finds them with the log's type store;
+    :class:`~swerve.tools.logs.layout_cache.LayoutCache` keeps them on disk."""
+
+    serializer: CycleSerializer
+    schemas: dict[str, tuple[str, str]]
+    string: StringCdr
+
+    def as_data(self) -> dict:
+        """JSON-able data (:meth:`from_data` reads it back)."""
+        return {"templates": {topic: t.as_data() for topic, t in self.serializer.templates.items()},
+                "schemas": {name: list(s) for name, s in self.schemas.items()},
+                "string": {"head": self.string.head.hex(), "order": self.string.order}}
+
+    @classmethod
+    def from_data(cls, data: dict) -> "LogLayouts":
+        """The layouts :meth:`as_data` gave; ``ValueError`` (or ``KeyError``, ``TypeError``) if
+        ``data`` does not hold every topic's template and type's schema."""
+        schemas = {name: (str(s[0]), str(s[1])) for name, s in data["schemas"].items()
+                   if isinstance(s, list) and len(s) == 2 and all(isinstance(v, str) for v in s)}
+        if set(schemas) != set(TOPICS.values()):
+            raise ValueError("the schemas are not those of the log's topics")
+        templates = {topic: CdrTemplate.from_data(t) for topic, t in data["templates"].items()}
+        if any(TOPICS.get(topic) != t.typename for topic, t in templates.items()):
+            raise ValueError("a template is not of its topic's type")
+        string = data["string"]
+        return cls(CycleSerializer.from_templates(templates), schemas,
+                   StringCdr(bytes.fromhex(string["head"]), str(string["order"])))
+
+
+def probe_layouts(wheels: Sequence[str] = DEFAULT_WHEELS) -> LogLayouts:
+    """The :class:`LogLayouts` of the log's type store (:func:`_typestore`) for ``wheels``:
+    rosbags serialises probes of every topic (~35 ms) and gives the schemas."""
+    ts = _typestore()
+    schemas = {name: (ts.generate_msgdef(name, ros_version=2)[0], ts.hash_rihs01(name))
+               for name in dict.fromkeys(TOPICS.values())}
+    return LogLayouts(CycleSerializer(CycleMessages(ts, joint_names(wheels))), schemas, StringCdr.probe(ts))
+
+
 class RunLogWriter:
     """Write one :class:`CycleRecord` per control cycle into a ROS 2 bag directory.
 
@@ -69,13 +112,16 @@ class RunLogWriter:
     wheels : wheel names in robot.yaml order (joint names derive from them).
     flush_every : cycles between flushes of the pending MCAP chunk to the OS. 1 (default) makes
         the file readable to the last completed cycle after a crash; N loses at most N-1 cycles.
+    layouts : the :class:`LogLayouts` of ``wheels`` (e.g. from a
+        :class:`~swerve.tools.logs.layout_cache.LayoutCache`); default: :func:`probe_layouts`.
 
     Use as a context manager; leaving the ``with`` block (also by Ctrl-C or an exception) closes
     the bag cleanly, with index and ``metadata.yaml``.
     """
 
     def __init__(self, path: str | Path, metadata: dict, *,
-                 wheels: Sequence[str] = DEFAULT_WHEELS, flush_every: int = 1):
+                 wheels: Sequence[str] = DEFAULT_WHEELS, flush_every: int = 1,
+                 layouts: LogLayouts | None = None):
         from rosbags.rosbag2 import StoragePlugin, Writer
 
         if flush_every < 1:
@@ -93,10 +139,10 @@ class RunLogWriter:
             raise ConfigError(f"run-log metadata is not JSON-serialisable: {exc}") from exc
         self.flush_every = int(flush_every)
         self.cycles_written = 0
-        self._ts = _typestore()
-        # rosbags builds its serialisers lazily (~35 ms); the serializer's probes do it here,
-        # not in the first control cycle
-        self._cdr = CycleSerializer(CycleMessages(self._ts, joint_names(wheels)))
+        # rosbags builds its serialisers lazily (~35 ms); probing the layouts does it here, not
+        # in the first control cycle (and layouts found before need neither them nor the type store)
+        self._layouts = layouts if layouts is not None else probe_layouts(wheels)
+        self._cdr = self._layouts.serializer
         self._bag = Writer(self.path, version=9, storage_plugin=StoragePlugin.MCAP)
         self._conn: dict[str, int] = {}       # topic -> channel ID
         self._open = False
@@ -124,7 +170,8 @@ class RunLogWriter:
     def _open_bag(self) -> None:
         self._bag.open()
         for topic, msgtype in TOPICS.items():
-            self._conn[topic] = self._bag.add_connection(topic, msgtype, typestore=self._ts).id
+            msgdef, rihs01 = self._layouts.schemas[msgtype]
+            self._conn[topic] = self._bag.add_connection(topic, msgtype, msgdef=msgdef, rihs01=rihs01).id
         # rosbags keeps the current MCAP chunk in memory until it reaches 1 MiB; closing it early
         # is what makes the file crash-readable. Schemas and channels reach the disk before the
         # first cycle; the messages then go through the chunk writer.
@@ -158,8 +205,7 @@ class RunLogWriter:
 
     def _put_metadata(self, stamp_ns: int) -> None:
         # stamped like the first cycle, so the bag's time range is the run's (not 1970-now)
-        msg = self._ts.types["std_msgs/msg/String"](data=self._metadata_json)
-        self._chunks.add(self._conn["/swerve/metadata"], stamp_ns, self._ts.serialize_cdr(msg, msg.__msgtype__))
+        self._chunks.add(self._conn["/swerve/metadata"], stamp_ns, self._layouts.string.encode(self._metadata_json))
 
     # -- writing ---------------------------------------------------------------------------
     def write(self, rec: CycleRecord) -> None:

@@ -18,11 +18,11 @@ import numpy as np
 from swerve.configs import ConfigChoice
 from swerve.controller.gain_schedule import synthesize
 from swerve.controller.gains_io import load_gains
+from swerve.controller.overlay_cache import OverlayCache
 from swerve.controller.reference import build_reference
 from swerve.controller.riccati import finite_horizon_lqr
 from swerve.controller.riccati_cache import RiccatiCache
 from swerve.core.user_cache import user_cache_dir
-from swerve.controller.simulate import simulate
 from swerve.controller.tracking import TrackingLaw
 from swerve.controller.trajectory import load_trajectory
 from swerve.core.errors import ConfigError
@@ -34,6 +34,7 @@ from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.process import EmulatorProcess
 from swerve.emulator.timing import Lockstep, scaled
 from swerve.tools.logs.bag import RunLogWriter
+from swerve.tools.logs.layout_cache import LayoutCache
 from swerve.tools.logs.record import CycleRecord
 from swerve.tools.recovery import policy
 from swerve.tools.run.geometry import geometry_and_limits, locate_and_load
@@ -99,13 +100,6 @@ def law_for(traj, gains, geom, limits, progress: bool = False, lqr=finite_horizo
     else:
         ref, gains = synthesize(traj, "riccati", geom, limits, progress=progress, lqr=lqr)
     return TrackingLaw(ref, gains, limits)
-
-
-def simulated_poses(law, start) -> np.ndarray:
-    """Poses ``(n, 3)`` of the same law on the ideal model (1)-(5), for the plots' overlay."""
-    poses = simulate(law, start).states[:, :3]
-    law.reset()
-    return poses
 
 
 def wall_clock_guards(cfg, time_scale: float):
@@ -180,7 +174,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
             emu.launch()
         # the Riccati solution of an input already seen comes from the user's cache, bit for bit
         law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
-        sim = simulated_poses(law, start) if req.log is not None else None
+        # the overlay's poses on the ideal model, of a law and start already seen from the user's cache
+        sim = OverlayCache(user_cache_dir()).poses(law, start) if req.log is not None else None
         # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
         log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
@@ -300,7 +295,9 @@ def _log_writer(req: RunRequest, cfg, traj, choice) -> RunLogWriter:
                 config=str(choice.path), config_source=choice.source,
                 started=time.strftime("%Y-%m-%dT%H:%M:%S%z"), tau_s=traj.tau_s,
                 tf_s=traj.tf_s)
-    return RunLogWriter(req.log, meta, wheels=[w.name for w in cfg.wheels])
+    wheels = [w.name for w in cfg.wheels]
+    # the layouts rosbags' type system gives for these wheels, from the user's cache once seen
+    return RunLogWriter(req.log, meta, wheels=wheels, layouts=LayoutCache(user_cache_dir()).layouts(wheels))
 
 
 def _log_callback(writer: RunLogWriter, sim: np.ndarray):
