@@ -79,6 +79,8 @@ def _item_rules(reg: Register, read: Callable) -> _ItemWrite:
                       reg.allowed, reg.limit is not None or reg.limit_min is not None or reg.limit_max is not None)
 
 
+#: The other items of a write of one item (:meth:`ServoMemory._check_limits`' ``pending``).
+_NOTHING_PENDING: dict[str, int] = {}
 #: A write layout not worked out yet (:meth:`ServoMemory._write_layout`).
 _UNSEEN = object()
 #: Most write layouts a memory keeps (:meth:`ServoMemory._write_layout`; a client writes a few).
@@ -337,7 +339,11 @@ class ServoMemory:
         if layout is not None and len(layout) == 1:     # one whole plain item (a goal): as below
             item = layout[0]
             value = item.read(data, 0)[0]
-            self._check_item(item, value, {item.name: value})
+            if item.limited:            # its limit items are not in the write: read from memory
+                self._check_item(item, value, _NOTHING_PENDING)
+            elif not item.writable or item.eeprom or item.locked or item.allowed is not None \
+                    or not item.lo <= value <= item.hi:
+                self._check_item(item, value, _NOTHING_PENDING)     # it raises the rule's error
             self._bytes[address:address + n] = data
             return [item.name]
         if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and
