@@ -39,6 +39,14 @@ def _cpu_s(pid: int) -> tuple[float, float]:
     return int(fields[11]) / tick, int(fields[12]) / tick
 
 
+def _profiled_command(out: Path) -> str:
+    """The command line a callgrind profile names (its ``cmd:`` line)."""
+    for line in out.read_text().splitlines():
+        if line.startswith("cmd:"):
+            return line[4:].strip()
+    raise RuntimeError(f"no cmd in {out}")
+
+
 def _callgrind_instructions(out: Path) -> int:
     """Total Ir of a callgrind profile (its ``totals:`` line)."""
     for line in out.read_text().splitlines():
@@ -186,6 +194,12 @@ def main() -> None:
     if args.callgrind:
         outs = sorted(out_dir.glob(f"callgrind.out.{pid}*"), key=lambda p: p.stat().st_mtime)
         counted = [o for o in outs if _callgrind_instructions(o) > 0]
+        # a profile naming another interpreter is not this run's emulator (seen while another
+        # checkout's valgrind ran at the same time: it counted that checkout's code)
+        foreign = [o for o in counted if not _profiled_command(o).startswith(sys.executable + " ")]
+        if foreign or not counted:
+            sys.exit(f"bench_emu_serve: the callgrind profile is not this run's emulator "
+                     f"({', '.join(f'{o}: {_profiled_command(o)[:60]}' for o in foreign) or 'none counted'}); run again")
         total = sum(_callgrind_instructions(o) for o in counted)
         print(f"emulator instructions: {total / n:,.0f} per cycle ({', '.join(map(str, counted))})")
 

@@ -79,6 +79,8 @@ def _item_rules(reg: Register, read: Callable) -> _ItemWrite:
                       reg.allowed, reg.limit is not None or reg.limit_min is not None or reg.limit_max is not None)
 
 
+#: The other items of a write of one item (:meth:`ServoMemory._check_limits`' ``pending``).
+_NOTHING_PENDING: dict[str, int] = {}
 #: A write layout not worked out yet (:meth:`ServoMemory._write_layout`).
 _UNSEEN = object()
 #: Most write layouts a memory keeps (:meth:`ServoMemory._write_layout`; a client writes a few).
@@ -104,6 +106,8 @@ class ServoMemory:
     Present items may be published lazily: whoever advances the physics sets :attr:`stale`, and
     the next bus read, or ``get`` of a name in :attr:`published`, first calls :attr:`publisher`
     (which writes them with ``set``). Nothing outside sees a difference from writing every tick.
+    A publisher may also write a reading in two parts (:meth:`publish_in_parts`): a plain read
+    inside the part's bytes writes only those, any other access the rest of the same reading.
     """
 
     def __init__(self, table: ControlTable, *, limit_error: ErrorNumber = ErrorNumber.DATA_LIMIT):
@@ -134,9 +138,14 @@ class ServoMemory:
         self._rules = {reg.name: _item_rules(reg, self._readers[reg.name][0]) for reg in table}
         self._write_layouts: dict[tuple[int, int], tuple[_ItemWrite, ...] | None] = {}
         self.watchdog_tripped = False
-        self.publisher: Callable[[], None] | None = None
+        #: ``publisher(reading)``: writes every published item, of ``reading`` (what a part
+        #: publisher returned) or of a new reading (``None``)
+        self.publisher: Callable[[object | None], None] | None = None
         self.published: frozenset[str] = frozenset()
         self.stale = False
+        self._part: Callable[[], object | None] | None = None
+        self._part_lo, self._part_hi = 0, -1
+        self._rest: object | None = None       # a reading whose part only is written
         self.load_defaults()
 
     # --- defaults and resets ------------------------------------------------------------------
@@ -172,15 +181,27 @@ class ServoMemory:
 
     # --- bypass access ----------------------------------------------------------------------------
     def publish(self) -> None:
-        """Bring published items up to date if the physics moved since they were written."""
+        """Bring published items up to date if the physics moved since they were written (or
+        write the rest of a reading whose part only is written)."""
         if self.stale:
             self.stale = False
+            self._rest = None
             if self.publisher is not None:
-                self.publisher()
+                self.publisher(None)
+        elif self._rest is not None:
+            reading, self._rest = self._rest, None
+            self.publisher(reading)
+
+    def publish_in_parts(self, lo: int, hi: int, part: Callable[[], object | None]) -> None:
+        """Let a plain bus read (:meth:`read_plain`) of bytes within ``lo .. hi-1`` publish only
+        those: ``part()`` writes them for a new reading and returns the reading, which
+        :attr:`publisher` is given to write the rest of it when anything else is accessed;
+        or returns ``None`` when it wrote every published item itself."""
+        self._part, self._part_lo, self._part_hi = part, lo, hi
 
     def get(self, name: str) -> int:
         """Raw value of item ``name`` (no rules)."""
-        if self.stale and name in self.published:
+        if (self.stale or self._rest is not None) and name in self.published:
             self.publish()
         try:
             read, address = self._readers[name]
@@ -196,6 +217,8 @@ class ServoMemory:
 
     def set(self, name: str, raw: int) -> None:
         """Store raw value ``raw`` in item ``name`` (no rules; raises if it does not fit the size)."""
+        if self._rest is not None and name in self.published:
+            self.publish()              # the rest of the reading first: it must not overwrite this
         try:
             a, b, signed = self._slices[name]
             self._bytes[a:b] = int(raw).to_bytes(b - a, "little", signed=signed)
@@ -262,7 +285,7 @@ class ServoMemory:
         if address < 0 or address + length > self.size:
             raise WriteRejected(ErrorNumber.ACCESS,
                                 f"read {address}+{length} outside the table (0..{self.size - 1})")
-        if self.stale:
+        if self.stale or self._rest is not None:
             self.publish()
         if address + length <= self._special_lo or address > self._special_hi:
             return bytes(self._bytes[address:address + length])     # no indirect data in the range
@@ -283,8 +306,16 @@ class ServoMemory:
 
     def read_plain(self, address: int, end: int) -> bytearray:
         """:meth:`read` of bytes ``address .. end-1`` for a range :meth:`plain_range` accepted:
-        the published items brought up to date, then a copy of the stored bytes."""
+        the published items brought up to date (only those in a part, :meth:`publish_in_parts`,
+        if the range lies in it), then a copy of the stored bytes."""
         if self.stale:
+            if self._part_lo <= address and end <= self._part_hi:
+                self.stale = False
+                self._rest = None
+                self._rest = self._part()
+            else:
+                self.publish()
+        elif self._rest is not None and not (self._part_lo <= address and end <= self._part_hi):
             self.publish()
         return self._bytes[address:end]
 
@@ -308,7 +339,11 @@ class ServoMemory:
         if layout is not None and len(layout) == 1:     # one whole plain item (a goal): as below
             item = layout[0]
             value = item.read(data, 0)[0]
-            self._check_item(item, value, {item.name: value})
+            if item.limited:            # its limit items are not in the write: read from memory
+                self._check_item(item, value, _NOTHING_PENDING)
+            elif not item.writable or item.eeprom or item.locked or item.allowed is not None \
+                    or not item.lo <= value <= item.hi:
+                self._check_item(item, value, _NOTHING_PENDING)     # it raises the rule's error
             self._bytes[address:address + n] = data
             return [item.name]
         if layout is not None:          # whole plain items: steps 1-2 have nothing to do, and

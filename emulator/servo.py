@@ -27,6 +27,9 @@ DYNAMICS_OUTPUTS = ("present_pwm", "present_current", "present_velocity", "prese
                     "velocity_trajectory", "position_trajectory", "present_input_voltage",
                     "present_temperature", "moving", "moving_status")
 _OUTPUT_COUNT = len(DYNAMICS_OUTPUTS)
+#: The outputs a reading may publish alone when a read asks for nothing else (they lie back to
+#: back on the X series: the Sync Read of a control cycle).
+MOTION_OUTPUTS = ("present_current", "present_velocity", "present_position")
 #: Items the Control Table Backup instruction stores besides the EEPROM area (e-Manual).
 BACKUP_RAM_ITEMS = ("velocity_i_gain", "velocity_p_gain", "position_d_gain", "position_i_gain",
                     "position_p_gain", "feedforward_2nd_gain", "feedforward_1st_gain",
@@ -60,8 +63,18 @@ class Dynamics(Protocol):
     def take_hardware_error(self) -> int:
         """Hardware Error bits the physics raised since the last call (then cleared)."""
 
-    def outputs(self) -> Mapping[str, int]:
-        """Raw :data:`DYNAMICS_OUTPUTS` (any subset) as of the last :meth:`advance`."""
+    def reading(self) -> object | None:
+        """Draw whatever a new reading of the present items draws (sensor noise), for
+        :meth:`motion` and :meth:`outputs`; ``None`` if the model reads only through
+        :meth:`outputs` (nothing drawn then)."""
+
+    def motion(self, reading: object) -> tuple[int, int, int]:
+        """Raw :data:`MOTION_OUTPUTS` of ``reading`` (from :meth:`reading`): what :meth:`outputs`
+        gives for it."""
+
+    def outputs(self, reading: object | None = None) -> Mapping[str, int]:
+        """Raw :data:`DYNAMICS_OUTPUTS` (any subset) as of the last :meth:`advance`, of
+        ``reading`` (a new one if ``None``)."""
 
     def reboot(self) -> None:
         """The servo rebooted (RAM items back to their defaults)."""
@@ -84,6 +97,10 @@ class StepDynamics:
 
     def take_hardware_error(self) -> int:
         return 0
+
+    def reading(self) -> None:
+        """No reading in parts: :meth:`outputs` draws its own."""
+        return None
 
     def reboot(self) -> None:
         pass
@@ -122,6 +139,12 @@ class VirtualServo:
             in_order = sorted(DYNAMICS_OUTPUTS, key=lambda n: table[n].address)
             self._output_values = operator.itemgetter(*in_order)      # one tuple from the dict
             self._pack_published = self.memory.packer((Reg.REALTIME_TICK, *in_order))
+            # a read of the motion items alone writes only them (when they lie back to back)
+            self._pack_motion = self.memory.packer(MOTION_OUTPUTS)
+            if self._pack_motion is not None:
+                regs = [table[n] for n in MOTION_OUTPUTS]
+                self.memory.publish_in_parts(min(r.address for r in regs), max(r.address + r.size for r in regs),
+                                             self._publish_motion)
         self._view = self.memory.view()
         self._identity_end = max(table[n].address + table[n].size for n in (Reg.ID, Reg.SECONDARY_ID, Reg.BAUD_RATE))
         self._identity_raw = b""
@@ -435,10 +458,28 @@ class VirtualServo:
                                              OperatingMode.CURRENT_BASED_POSITION):
                 m.set(Reg.GOAL_POSITION, m.get(Reg.PRESENT_POSITION))
 
-    def _publish(self) -> None:
-        """Write Realtime Tick and the dynamics' present items (the memory's ``publisher``)."""
+    def _publish_motion(self) -> object | None:
+        """Write a new reading's :data:`MOTION_OUTPUTS` only and return the reading (the memory's
+        part publisher, :meth:`ServoMemory.publish_in_parts`); ``None`` after writing every item
+        (a model without readings in parts, or a value that does not fit)."""
+        dyn = self.dynamics
+        reading = dyn.reading() if dyn is not None else None
+        if reading is None:
+            self._publish(None)
+            return None
+        try:
+            self._pack_motion(dyn.motion(reading))
+        except struct.error:
+            self._publish(reading)      # item by item: the same values, or the same error
+            return None
+        return reading
+
+    def _publish(self, reading: object | None = None) -> None:
+        """Write Realtime Tick and the dynamics' present items of ``reading`` (a new one if
+        ``None``; the memory's ``publisher``)."""
         m = self.memory
-        outputs = self.dynamics.outputs() if self.dynamics is not None else {}
+        dyn = self.dynamics
+        outputs = {} if dyn is None else dyn.outputs() if reading is None else dyn.outputs(reading)
         if self._pack_published is not None and len(outputs) == _OUTPUT_COUNT:
             try:                        # a value that is not an int raises struct.error
                 self._pack_published([int(self._tick_ms), *self._output_values(outputs)])

@@ -84,9 +84,17 @@ class ServoDynamics:
         s = self.model.sensors
         return not (s.position_noise_std_pulse or s.current_noise_std_a or s.voltage_noise_std_v)
 
-    def outputs(self) -> dict[str, int]:
-        """Present items as of the last step (at rest before the first)."""
-        return self.model.outputs()
+    def reading(self) -> tuple | None:
+        """A new reading's sensor noise draws (:meth:`ServoModel.reading`; ``None`` before the first step)."""
+        return self.model.reading()
+
+    def motion(self, reading: tuple) -> tuple[int, int, int]:
+        """Present Current, Velocity and Position of ``reading`` (:meth:`ServoModel.motion`)."""
+        return self.model.motion(reading)
+
+    def outputs(self, reading: tuple | None = None) -> dict[str, int]:
+        """Present items as of the last step (at rest before the first), of ``reading`` (a new one if ``None``)."""
+        return self.model.outputs(reading)
 
     def reboot(self) -> None:
         self.model.reboot()

@@ -512,9 +512,33 @@ class ServoModel:
             electrical_decay(p, dt_s), *friction, self.protection is not None, *overload)))
         return dt_s, motor.load_inertia_kg_m2, coef, None if _COMPILED_TICKS is None else np.array(coef)
 
-    def outputs(self) -> dict[str, int]:
-        """Raw present items (see :meth:`step`) after the last :meth:`advance`; sensor noise on
-        current and voltage is drawn per call. Before the first step: the servo at rest."""
+    def reading(self) -> tuple[float | None, float | None] | None:
+        """Draw the sensor noise of a new reading of the present items: ``(current A, voltage V)``,
+        each ``None`` where that noise is off; ``None`` before the first step (nothing drawn, the
+        servo at rest). The draws :meth:`outputs` makes when it is given no reading, in its order."""
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        if self._last_ is None:
+            return None
+        s = self.sensors
+        return (self.rng.normal(0.0, s.current_noise_std_a) if s.current_noise_std_a else None,
+                self.rng.normal(0.0, s.voltage_noise_std_v) if s.voltage_noise_std_v else None)
+
+    def motion(self, reading: tuple[float | None, float | None]) -> tuple[int, int, int]:
+        """Raw Present Current, Velocity and Position of ``reading`` (from :meth:`reading`, not
+        ``None``): the same integers :meth:`outputs` gives for it."""
+        if self.holder is not None:     # a held model: its newest state may be in the holder
+            self.fresh()
+        _t, _mode, _torque, present, v_meas, sign = self._last_
+        current = sign * self.motor_.current_a
+        if reading[0] is not None:
+            current += reading[0]
+        return round(current / _AMP_PER_CURRENT_UNIT), round(v_meas), present
+
+    def outputs(self, reading: tuple[float | None, float | None] | None = None) -> dict[str, int]:
+        """Raw present items (see :meth:`step`) after the last :meth:`advance`, of ``reading``
+        (:meth:`reading`'s noise draws; ``None``: a new reading, drawn here). Before the first
+        step: the servo at rest."""
         if self.holder is not None:     # a held model: its newest state may be in the holder
             self.fresh()
         last = self._last_
@@ -522,15 +546,13 @@ class ServoModel:
             return {"present_position": math.floor(self.position_pulse),
                     "present_input_voltage": round(self.supply_voltage_v / u.VOLT_PER_UNIT),
                     "present_temperature": round(self.temperature_c)}
+        if reading is None:
+            reading = self.reading()
         t, mode, torque, present, v_meas, sign = last
-        s = self.sensors
-        current = sign * self.motor_.current_a
+        current_raw, vel, _ = self.motion(reading)
         volts = self.supply_voltage_v_
-        if s.current_noise_std_a:
-            current += self.rng.normal(0.0, s.current_noise_std_a)
-        if s.voltage_noise_std_v:
-            volts += self.rng.normal(0.0, s.voltage_noise_std_v)
-        vel = round(v_meas)
+        if reading[1] is not None:
+            volts += reading[1]
         profile = self.profile_
         position_mode = mode in _POSITION_MODES
         if position_mode:
@@ -552,7 +574,7 @@ class ServoModel:
             status = _PROFILE_ONGOING
         return {
             "present_pwm": round(self.duty_ * _PWM_FULL_SCALE) if torque else 0,
-            "present_current": round(current / _AMP_PER_CURRENT_UNIT),
+            "present_current": current_raw,
             "present_velocity": vel,
             "present_position": present,
             "velocity_trajectory": round(v_traj),

@@ -15,8 +15,11 @@ from hypothesis import strategies as st
 from swerve.driver import packets as pk
 from swerve.driver.control_table import Reg, table_for
 from swerve.emulator.adapter import AdapterSettings, Delivery, byte_arrivals, deliver
+from swerve.emulator.factory import build_emulator
 from swerve.emulator.instructions import DispatchRules, _plain_everywhere, listed_reads, plain_sync_read
 from swerve.emulator.memory import WriteRejected
+from swerve.emulator.physics.params import load_config
+from swerve.emulator.physics.profiles import resolve_emulator_config
 from swerve.emulator.servo import make_servos
 
 MODEL = "xh430-w210"
@@ -46,6 +49,7 @@ def _state(servos):
 
 
 PLAIN_END = min(block.address_start for block in TABLE.indirect)
+PHYSICS = load_config(resolve_emulator_config("realistic"))
 
 
 @given(ids=st.lists(st.integers(0, 252), min_size=1, max_size=6, unique=True),
@@ -165,3 +169,79 @@ def test_delivery_equals_a_search_of_every_packet(start_s, frames, byte_s, laten
     for arrivals in (lazy, list(lazy)):
         got = deliver(s, arrivals, last_s)
         assert (got.packets, got.last_send_s) == (expected.packets, expected.last_send_s)
+
+
+PUBLISHED = sorted(str(n) for n in make_servos([1], MODEL, 1_000_000)[0].memory.published)
+#: Reads of a Sync Read of the control cycle (126..135), of parts of it, and of any other range.
+RANGES = st.sampled_from([(126, 10), (126, 2), (128, 4), (132, 4), (128, 8)]) | st.tuples(
+    st.integers(0, PLAIN_END - 1), st.integers(1, 40)).map(lambda r: (r[0], min(r[1], PLAIN_END - r[0])))
+OPS = st.lists(st.one_of(
+    st.tuples(st.just("steps"), st.integers(1, 40)),
+    st.tuples(st.just("read"), RANGES),
+    st.tuples(st.just("get"), st.sampled_from(PUBLISHED)),
+    st.tuples(st.just("set"), st.sampled_from(PUBLISHED)),
+    st.tuples(st.just("goal"), st.integers(-200, 200)),
+    st.tuples(st.just("hwerror"), st.sampled_from([0x04, 0x20])),
+    st.tuples(st.just("reboot"), st.none())), max_size=25)
+
+
+def _physics_bus(seed: int, noise: bool, mode: int):
+    """Two servos with physics (sensor noise drawn from one generator), torque on in ``mode``."""
+    spec = f"current=0.003,voltage=0.05,seed={seed}" if noise else f"seed={seed}"
+    emu = build_emulator(physics=PHYSICS, ids=[1, 2], noise=spec)
+    for s in emu.servos:
+        s.write(Reg.OPERATING_MODE, mode)
+        s.write(Reg.TORQUE_ENABLE, 1)
+    return emu
+
+
+@given(seed=st.integers(0, 2**32 - 1), noise=st.booleans(), mode=st.sampled_from([1, 3, 16]), ops=OPS)
+@example(seed=1, noise=True, mode=1, ops=[("steps", 5), ("read", (126, 10)), ("read", (126, 10)),
+                                          ("get", "present_input_voltage"), ("steps", 3), ("read", (128, 4)),
+                                          ("steps", 2), ("read", (120, 30))])
+@example(seed=2, noise=False, mode=3, ops=[("steps", 5), ("read", (126, 10)), ("set", "present_temperature"),
+                                          ("get", "present_temperature")])
+@settings(max_examples=40, deadline=None)
+def test_publishing_the_motion_items_alone_equals_publishing_every_item(seed, noise, mode, ops):
+    """Any steps, reads (the cycle's Sync Read, parts of it, any plain range), item gets and
+    sets, goal writes, Hardware Errors and reboots, with sensor noise or without: reading through the plain
+    read (which publishes Present Current, Velocity and Position alone when the range lies in
+    them) gives the bytes the general read gives (which publishes every item), the same noise
+    draws, and the same table afterwards."""
+    fast, general = _physics_bus(seed, noise, mode), _physics_bus(seed, noise, mode)
+    for op, arg in ops:
+        outcome = []
+        for emu in (fast, general):
+            servo = emu.servos[0]
+            if op == "steps":
+                emu.advance(arg / emu.rate_hz)
+                outcome.append(None)
+            elif op == "read":
+                address, length = arg
+                if emu is fast:
+                    outcome.append([bytes(s.plain_read_reply(address, address + length)[0]) for s in emu.servos])
+                else:
+                    outcome.append([bytes(s.read_frame(address, length)) for s in emu.servos])
+            elif op == "get":
+                outcome.append([s.read(arg) for s in emu.servos])
+            elif op == "set":
+                servo.write(arg, 1)
+                outcome.append(None)
+            elif op == "goal":
+                outcome.append([s.bus_write(TABLE[Reg.GOAL_VELOCITY if mode == 1 else Reg.GOAL_POSITION].address,
+                                            (arg + 2048 * (mode != 1)).to_bytes(4, "little", signed=True))
+                                for s in emu.servos])
+            elif op == "hwerror":
+                servo.raise_hardware_error(arg)
+                outcome.append(None)
+            else:
+                servo.reboot()
+                outcome.append(None)
+        assert outcome[0] == outcome[1], op
+    for emu in (fast, general):
+        for s in emu.servos:
+            s.memory.publish()
+    assert [s.memory.stored_bytes(s.memory.size) for s in fast.servos] == \
+        [s.memory.stored_bytes(s.memory.size) for s in general.servos]
+    assert fast.servos[0].dynamics.model.rng.bit_generator.state == \
+        general.servos[0].dynamics.model.rng.bit_generator.state

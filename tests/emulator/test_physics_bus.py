@@ -186,9 +186,9 @@ def test_present_items_are_published_when_read(emu, bus):
     publish = servo.memory.publisher
     calls = []
 
-    def counting_publisher():
+    def counting_publisher(reading=None):
         calls.append(1)
-        publish()
+        publish(reading)
 
     servo.memory.publisher = counting_publisher
     setup(bus, DRIVE, u.MODE_VELOCITY)
