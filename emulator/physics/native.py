@@ -20,14 +20,18 @@ host's name and features as LLVM reports them) and every ``NUMBA_*`` setting, be
 sources in the folder's name. Its file is written atomically with a checksum
 (:class:`swerve.core.value_cache.ValueCache`); a damaged one is compiled again. The object
 names the external symbols it needs (the C library's maths, numba's helpers for its error
-paths); one that cannot be resolved in this process makes the kernel compile with numba instead
-of loading, so a missing symbol is never left for the loader to meet.
+paths); one that cannot be resolved in this process is not loaded, so a missing symbol is never
+left for the loader to meet. Where there is no object to load (not Linux; a numba whose code
+library does not give its object code, which is recorded as an empty entry for that numba; an
+object this process cannot link) the kernel is numba's own ``njit(cache=True)`` of the same
+function, as :mod:`.jit` makes the other kernels.
 """
 from __future__ import annotations
 
 import ctypes
 import hashlib
 import importlib.machinery
+import logging
 import importlib.util
 import marshal
 import os
@@ -51,6 +55,8 @@ LAYOUT = b"swerve native kernel 1\n"
 SCALARS = {"i8": ctypes.c_int64, "f8": ctypes.c_double}
 ARRAYS = {"i8[:]": ("i8", 1), "f8[:]": ("f8", 1), "i8[:,:]": ("i8", 2), "f8[:,:]": ("f8", 2)}
 _DTYPES = {"i8": np.dtype(np.int64), "f8": np.dtype(np.float64)}
+
+log = logging.getLogger(__name__)
 
 _engines: list = []              # the MCJIT engines of loaded kernels: their code lives as long as they do
 _llvm_lock = threading.Lock()
@@ -119,27 +125,37 @@ class NativeKernel:
 
     def load(self) -> None:
         """Load the cached object (with llvmlite alone), or compile it with numba and cache it.
-        Where objects are not ELF (not Linux) the kernel is ``numba.njit(cache=True)`` instead."""
+        Where there is no object to load (not Linux, a numba whose object code cannot be taken,
+        an object this process cannot link) the kernel is numba's own ``njit(cache=True)``."""
         with self._lock:
             if self.loaded:
                 return
-            if not sys.platform.startswith("linux"):
+            address, hit = None, False
+            if sys.platform.startswith("linux"):
+                fresh: list[int] = []       # the address in numba's engine, when compiled in this process
+                data, hit = self._cache.payload(self._key(), lambda: self._object(fresh))
+                if fresh:
+                    address = fresh[0]
+                elif data:
+                    try:
+                        address = _load(_Object.unpack(data))
+                    except (NativeLoadError, ValueError) as exc:
+                        log.debug("native %s not loaded: %s", self.py_func.__name__, exc)
+            if address is None:
                 self._dispatcher, self.hit = jit.Kernel(self.py_func).load(), False
                 return
-            fresh: list[int] = []           # the address in numba's engine, when compiled in this process
-            try:
-                data, hit = self._cache.payload(self._key(), lambda: self._compile(fresh).pack())
-            except NativeLoadError:     # an object this reader cannot take apart: numba's code, uncached
-                data, hit = b"", False
-            if not fresh:
-                try:
-                    fresh.append(_load(_Object.unpack(data)))
-                except (NativeLoadError, ValueError):   # not loadable here: compiled anew, not stored
-                    hit = False
-                    self._compile(fresh)
             scalars = [SCALARS[p] for p in self.params if p in SCALARS]
             prototype = ctypes.CFUNCTYPE(ctypes.c_int64, ctypes.c_void_p, *scalars)
-            self._function, self.hit = prototype(fresh[0]), hit
+            self._function, self.hit = prototype(address), hit
+
+    def _object(self, address_out: list[int]) -> bytes:
+        """:meth:`_compile`'s object, packed; empty (stored as such, so later starts go straight
+        to numba's own kernel) where this numba's object code cannot be taken apart."""
+        try:
+            return self._compile(address_out).pack()
+        except NativeLoadError as exc:
+            log.debug("native %s not kept: %s", self.py_func.__name__, exc)
+            return b""
 
     def bind(self, *arrays: np.ndarray) -> Callable[..., int]:
         """The kernel over these arrays (the array parameters, in order): a callable of the scalar
@@ -212,8 +228,11 @@ class NativeKernel:
         cf = numba.cfunc(types.int64(pointers["i8"], *scalar_types), error_model="numpy")(ns["entry"])
         _compiled_here.append(cf)
         address_out.append(cf.address)
-        library = cf._library
-        code = library.codegen._tm.emit_object(library._final_module)
+        try:                            # numba's code library: not public API, checked here
+            library = cf._library
+            code = library.codegen._tm.emit_object(library._final_module)
+        except AttributeError as exc:
+            raise NativeLoadError(f"numba {numba.__version__} does not give its object code: {exc}") from None
         return _Object(cf.native_name, _undefined_symbols(code), code)
 
 

@@ -109,7 +109,7 @@ def test_an_object_needing_a_symbol_this_process_lacks_is_compiled_instead(cache
         native._load(damaged)
     fresh = NativeKernel(blend, PARAMS)
     fresh.load()
-    assert fresh.hit is False
+    assert fresh.hit is False and fresh._dispatcher is not None      # numba's own kernel instead
     x, m, counts = _arrays(3)
     xs = x.copy()
     assert fresh.bind(xs, m, counts)(3, 1.5) == 3
@@ -163,3 +163,25 @@ def test_where_objects_are_not_elf_the_kernel_is_numbas_own(cache_dir, monkeypat
     want = _python(7, -0.5, x, m, counts)
     assert kernel.hit is False and not list(cache_dir.glob("native-*"))
     assert xs.tobytes() == want[1].tobytes() and cs.tobytes() == want[2].tobytes()
+
+
+def test_a_numba_without_readable_object_code_falls_back_to_its_own_kernel(cache_dir, monkeypatch):
+    """The object cannot be taken apart: this process runs the compiled cfunc, and the empty entry
+    sends later starts straight to numba's ``njit`` of the same function."""
+    def unreadable(code):
+        raise NativeLoadError("no symbol table")
+
+    monkeypatch.setattr(native, "_undefined_symbols", unreadable)
+    first = NativeKernel(blend, PARAMS)
+    first.load()
+    assert first.hit is False and first._function is not None
+    data, hit = first._cache.payload(first._key(), lambda: b"not used")
+    assert (data, hit) == (b"", True)
+    later = NativeKernel(blend, PARAMS)
+    later.load()
+    assert later._dispatcher is not None and later._function is None
+    for kernel in (first, later):
+        x, m, counts = _arrays(6)
+        xs, cs = x.copy(), counts.copy()
+        assert kernel.bind(xs, m, cs)(6, 0.25) == 6
+        assert xs.tobytes() == _python(6, 0.25, x, m, counts)[1].tobytes()
