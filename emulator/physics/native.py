@@ -55,6 +55,8 @@ LAYOUT = b"swerve native kernel 1\n"
 SCALARS = {"i8": ctypes.c_int64, "f8": ctypes.c_double}
 ARRAYS = {"i8[:]": ("i8", 1), "f8[:]": ("f8", 1), "i8[:,:]": ("i8", 2), "f8[:,:]": ("f8", 2)}
 _DTYPES = {"i8": np.dtype(np.int64), "f8": np.dtype(np.float64)}
+#: Whether objects are kept and loaded here: ELF objects, which :func:`_undefined_symbols` reads (Linux).
+OBJECTS_LOADABLE = sys.platform.startswith("linux")
 
 log = logging.getLogger(__name__)
 
@@ -131,7 +133,7 @@ class NativeKernel:
             if self.loaded:
                 return
             address, hit = None, False
-            if sys.platform.startswith("linux"):
+            if OBJECTS_LOADABLE:
                 fresh: list[int] = []       # the address in numba's engine, when compiled in this process
                 data, hit = self._cache.payload(self._key(), lambda: self._object(fresh))
                 if fresh:
