@@ -52,7 +52,7 @@ def riccati_key(Ad, Bd, Q, R, tau: float) -> str:
     return digest.hexdigest()
 
 
-class RiccatiCache:
+class RiccatiCache(ValueCache):
     """:func:`finite_horizon_lqr` with its results kept in ``folder`` (see the module notes).
 
     ``solve`` has the signature of :func:`finite_horizon_lqr`, so it can be passed wherever the
@@ -61,17 +61,7 @@ class RiccatiCache:
     """
 
     def __init__(self, folder: str | os.PathLike):
-        self._store = ValueCache(folder, "riccati", LAYOUT)
-
-    @property
-    def hits(self) -> int:
-        """Solves answered from the folder."""
-        return self._store.hits
-
-    @property
-    def misses(self) -> int:
-        """Solves computed (and stored when the folder is writable)."""
-        return self._store.misses
+        super().__init__(folder, "riccati", LAYOUT)
 
     def solve(self, Ad, Bd, Q, R, tau: float, progress: bool = False):
         """``(K (N, m, n), P (N + 1, n, n))`` of :func:`finite_horizon_lqr` for these inputs, from
@@ -83,5 +73,5 @@ class RiccatiCache:
             K, P = riccati.finite_horizon_lqr(Ad, Bd, Q, R, tau, progress=progress)
             return np.concatenate((np.ravel(K), np.ravel(P)))
 
-        flat = self._store.values(riccati_key(Ad, Bd, Q, R, tau), k_size + (n_steps + 1) * n * n, compute)
+        flat = self.values(riccati_key(Ad, Bd, Q, R, tau), k_size + (n_steps + 1) * n * n, compute)
         return flat[:k_size].reshape(n_steps, m, n), flat[k_size:].reshape(n_steps + 1, n, n)

@@ -34,7 +34,6 @@ order the supply sums their currents in), built and kept by
 """
 from __future__ import annotations
 
-
 from . import body, contact, motor, protection, servo_model
 from . import units as u
 from .contact import contact_step

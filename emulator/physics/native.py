@@ -31,8 +31,8 @@ from __future__ import annotations
 import ctypes
 import hashlib
 import importlib.machinery
-import logging
 import importlib.util
+import logging
 import marshal
 import os
 import platform
@@ -66,7 +66,8 @@ _llvm_ready = False
 
 
 class NativeLoadError(RuntimeError):
-    """A cached object that cannot be loaded here (an external symbol this process lacks)."""
+    """No object to keep or load: object code this numba does not give or that is not ELF, or an
+    object needing an external symbol this process lacks."""
 
 
 @dataclass(frozen=True)
@@ -99,7 +100,7 @@ class NativeKernel:
     depends : tuple of str
         Source files of the :func:`.jit.jitable` helpers ``fn`` calls (in this package).
 
-    :meth:`load` makes the code ready (the first :meth:`bind` loads it otherwise); :attr:`hits`
+    :meth:`load` makes the code ready (the first :meth:`bind` loads it otherwise); :attr:`hit`
     tells whether it came from the cache.
     """
 

@@ -186,7 +186,8 @@ class RobotPhysics:
         """Compute the servos' discretisations for steps of ``dt_s`` now (:meth:`ServoModel.discretise`),
         and load the compiled :func:`.coupled.robot_ticks` if :meth:`run_coupled` will run (from the
         kernel cache, or compiled the first time): done at the first step, either would stall the
-        bus. The servos' own kernel is not loaded: in a robot it never runs."""
+        bus. The servos' own kernel is not loaded: the robot's clocks step its servos through the
+        robot's kernel (``Emulator.step``, servo after servo, would load it at its first use)."""
         for m in self.servos.values():
             m.discretise(dt_s)
         if self.coupled():

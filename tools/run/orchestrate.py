@@ -176,7 +176,8 @@ def run_tracking(req: RunRequest, on_config=None, on_cycle=None) -> RunResult:
         law = law_for(traj, gains, geom, limits, req.progress, lqr=RiccatiCache(user_cache_dir()).solve)
         # the overlay's poses on the ideal model, of a law and start already seen from the user's cache
         sim = OverlayCache(user_cache_dir()).poses(law, start) if req.log is not None else None
-        # built (typestore, serialisers: ~0.3 s) while the emulator starts, opened once it serves
+        # built (rosbags' writer; the layouts probed, or from the user's cache) while the emulator
+        # starts, opened once it serves
         log_writer = _log_writer(req, cfg, traj, choice) if req.log is not None else None
         true_pose = clock = None
         if req.lockstep:
